@@ -1,0 +1,1 @@
+"""MAVLink companion: mission upload, flight supervision and replanning (see the companion issue)."""

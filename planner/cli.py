@@ -1,0 +1,127 @@
+"""The ``fuseplan`` command line: subcommands plan and demo (fly, sim, export, bench arrive with their issues).
+
+User mistakes print one line and exit 2; an infeasible plan exits 3; success exits 0.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from planner.errors import FuseplanError
+
+EXIT_OK, EXIT_BAD_INPUT, EXIT_INFEASIBLE = 0, 2, 3
+ALGORITHMS = ("spso",)
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="fuseplan", description="Plan safe 3-D UAV routes and fly them over MAVLink.")
+    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = p.add_subparsers(dest="command", required=True)
+    pl = sub.add_parser("plan", help="plan a route for a scenario and write PLAN.json")
+    pl.add_argument("scenario", type=Path, help="scenario TOML file (see docs/scenario_format.md)")
+    pl.add_argument("--algorithm", choices=ALGORITHMS, default=None, help="optimiser (default: the scenario's)")
+    pl.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
+    pl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="override a scenario value, e.g. --set planner.pso.n_pop=100 (repeatable)")
+    pl.add_argument("-o", "--output", type=Path, help="write the plan as JSON here")
+    pl.add_argument("--plot", type=Path, help="write a PNG of the route and the convergence curve")
+    pl.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    sub.add_parser("demo", help="plan the rescue scenario and draw it (flies once the companion lands)")
+    return p
+
+
+def _progress(quiet: bool):  # noqa: ANN202
+    """A progress printer for long searches (stderr, every 10 % of the iteration budget)."""
+    if quiet:
+        return None
+
+    def show(it: int, total: int, cost: float) -> None:
+        if it == total or it % max(total // 10, 1) == 0:
+            print(f"\r  iteration {it:4d}/{total}  best cost {cost:12.1f}", end="", file=sys.stderr, flush=True)
+    return show
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from planner.plan import plan, plan_to_json, problem_from_scenario
+    from planner.scenario import load_scenario
+
+    overrides = list(args.overrides)
+    if args.algorithm:
+        overrides.append(f'planner.algorithm="{args.algorithm}"')
+    if args.seed is not None:
+        overrides.append(f"planner.seed={args.seed}")
+    scenario = load_scenario(args.scenario, overrides)
+    settings = scenario.planner
+    problem = problem_from_scenario(scenario)
+    if not args.quiet:
+        print(f"planning {scenario.name} with {settings.algorithm}, seed {settings.seed}, "
+              f"{settings.pso.n_pop} particles × {settings.pso.max_iter} iterations", file=sys.stderr)
+    result = plan(problem, settings, np.random.default_rng(settings.seed), seed=settings.seed,
+                  progress=_progress(args.quiet))
+    if not args.quiet:
+        print(file=sys.stderr)
+    doc = plan_to_json(result, scenario)
+    m = doc["metrics"]
+    direct = problem.direct_distance
+    viol = ", ".join(f"{k} {v}" for k, v in doc["violations"].items())
+    print(f"{scenario.name}: {result.algorithm} seed {result.seed} -> {result.status.value}")
+    print(f"  cost      {result.cost:.1f}  (penalty {doc['cost_terms']['penalty']:.1f})")
+    print(f"  length    {m['length_m']:.1f} m  ({m['length_m'] / direct:.3f} x direct {direct:.1f} m), "
+          f"smoothness {m['smoothness']:.2f} rad, min clearance {m['min_clearance_m']:.1f} m")
+    print(f"  violations {viol}")
+    print(f"  time      {m['plan_time_s']:.2f} s, {m['iterations']} iterations "
+          f"({result.optimiser.stop_reason}), converged at iteration {m['convergence_iteration']}")
+    if args.output:
+        _write(args.output, json.dumps(doc, indent=1) + "\n")
+        print(f"  wrote {args.output}")
+    if args.plot:
+        from planner.plot import plot_plan
+
+        try:
+            plot_plan(args.plot, scenario.environment, result.waypoints, result.trajectory.points,
+                      result.optimiser.history, f"{scenario.name}: {result.algorithm} ({result.status.value})")
+        except OSError as e:
+            raise FuseplanError(f"{args.plot}: cannot write plot: {e.strerror or e}") from e
+        print(f"  wrote {args.plot}")
+    return EXIT_OK if result.feasible else EXIT_INFEASIBLE
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    here = Path(__file__).resolve().parent.parent / "sitl_scenarios" / "rescue_static.toml"
+    out = Path("fuseplan-demo")
+    out.mkdir(exist_ok=True)
+    print("fuseplan demo: flying on the built-in simulated autopilot is not available yet "
+          "(companion issue); planning the rescue scenario instead.")
+    ns = argparse.Namespace(scenario=here, algorithm=None, seed=None, overrides=[], quiet=False,
+                            output=out / "PLAN.json", plot=out / "plan.png")
+    return cmd_plan(ns)
+
+
+def _write(path: Path, text: str) -> None:
+    try:
+        path.write_text(text)
+    except OSError as e:
+        raise FuseplanError(f"{path}: cannot write: {e.strerror or e}") from e
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        if args.command == "plan":
+            return cmd_plan(args)
+        return cmd_demo(args)
+    except FuseplanError as e:
+        print(f"fuseplan: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,21 @@
+"""Exception root for fuseplan: every user-facing error names what went wrong and where."""
+
+from __future__ import annotations
+
+
+class FuseplanError(Exception):
+    """Root of all fuseplan errors."""
+
+
+class ScenarioError(FuseplanError):
+    """A scenario file is missing, malformed or invalid.
+
+    ``str(err)`` is one line: ``FILE: FIELD: REASON``.
+    """
+
+    def __init__(self, file: str, field: str, reason: str) -> None:
+        self.file = str(file)
+        self.field = field
+        self.reason = reason
+        where = f"{self.file}: {field}" if field else self.file
+        super().__init__(f"{where}: {reason}")

@@ -1,0 +1,72 @@
+"""Pictures of a plan: the 3-D route among its obstacles and the convergence curve (matplotlib, Agg)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+import numpy as np  # noqa: E402
+
+from planner.environment import Environment  # noqa: E402
+
+
+def draw_environment(ax, env: Environment, z_top: float) -> None:  # noqa: ANN001
+    """Cylinders (to their top, or to the ceiling when unlimited), spheres and terrain on a 3-D axis."""
+    th = np.linspace(0, 2 * np.pi, 40)
+    cyl = env.cylinders
+    for x, y, r, top in zip(cyl.x, cyl.y, cyl.radius, cyl.top):
+        h = z_top if np.isinf(top) else top
+        zz = np.array([0.0, h])
+        tt, hh = np.meshgrid(th, zz)
+        ax.plot_surface(x + r * np.cos(tt), y + r * np.sin(tt), hh, color="tab:red", alpha=0.25,
+                        linewidth=0)
+    u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
+    for c, r in zip(env.spheres.center, env.spheres.radius):
+        ax.plot_surface(c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v),
+                        np.maximum(c[2] + r * np.cos(v), 0.0), color="tab:orange", alpha=0.25, linewidth=0)
+    for c, r in zip(env.radars.center, env.radars.r_det):
+        ax.plot_wireframe(c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v),
+                          np.maximum(c[2] + r * np.cos(v), 0.0), color="tab:purple", alpha=0.2,
+                          linewidth=0.5)
+    if env.terrain is not None:
+        xs = np.linspace(0, env.size_x, 60)
+        ys = np.linspace(0, env.size_y, 60)
+        gx, gy = np.meshgrid(xs, ys)
+        ax.plot_surface(gx, gy, env.terrain.height_at(gx, gy), cmap="terrain", alpha=0.5, linewidth=0)
+
+
+def plot_plan(
+    path: str | Path, env: Environment, waypoints: np.ndarray, trajectory: np.ndarray,
+    history: list[float], title: str,
+) -> None:
+    """Write a PNG with the 3-D route (waypoints and smoothed trajectory) and the best-cost curve."""
+    fig = plt.figure(figsize=(13, 6))
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    z_top = max(env.z_max, float(np.max(trajectory[:, 2])) * 1.2)
+    draw_environment(ax, env, z_top)
+    ax.plot(*waypoints.T, "o--", color="tab:gray", ms=3, lw=0.8, label="waypoints")
+    ax.plot(*trajectory.T, color="tab:blue", lw=2, label="smoothed trajectory")
+    ax.scatter(*waypoints[0], color="green", s=40, label="start")
+    ax.scatter(*waypoints[-1], color="black", marker="*", s=80, label="goal")
+    ax.set_xlim(0, env.size_x)
+    ax.set_ylim(0, env.size_y)
+    ax.set_zlim(0, z_top)
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+    ax.set_zlabel("up (m)")
+    ax.view_init(elev=55, azim=-120)
+    ax.legend(loc="upper left", fontsize=8)
+    ax.set_title(title)
+    ax2 = fig.add_subplot(1, 2, 2)
+    ax2.plot(np.arange(len(history)), history, color="tab:blue")
+    ax2.set_yscale("log")
+    ax2.set_xlabel("iteration")
+    ax2.set_ylabel("best cost J")
+    ax2.set_title("convergence")
+    ax2.grid(True, which="both", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

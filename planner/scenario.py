@@ -1,0 +1,597 @@
+"""Scenario files (``sitl_scenarios/*.toml``) → validated, frozen :class:`Scenario` objects (SPEC §1, §8)."""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import re
+import tomllib
+import typing
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+from typing_extensions import TypedDict
+
+from planner import dem
+from planner.config import HazardConfig, PlannerSettings, VehicleLimits
+from planner.environment import Cylinders, Environment, Radars, Spheres, Threat, Threats, radar_detection_range
+from planner.errors import ScenarioError
+from planner.terrain import Terrain
+
+
+@dataclass(frozen=True)
+class Home:
+    """Origin of the local ENU frame."""
+
+    lat: float  # degrees
+    lon: float  # degrees
+    alt: float  # metres AMSL
+
+
+@dataclass(frozen=True)
+class Intruder:
+    """A scripted aircraft for the simulated autopilot (reported as ADSB_VEHICLE; companion issue)."""
+
+    id: str
+    icao: int
+    waypoints: tuple[tuple[float, float, float], ...]  # ENU metres
+    speed: float  # m/s
+    start_time: float = 0.0  # s after mission start
+    radius: float = 50.0  # m, protected radius
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    name: str
+    source: Path
+    home: Home
+    environment: Environment
+    start: np.ndarray  # (3,) ENU metres
+    goal: np.ndarray  # (3,)
+    vehicle: VehicleLimits
+    hazard: HazardConfig
+    planner: PlannerSettings
+    intruders: tuple[Intruder, ...] = field(default=())
+    description: str = ""
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Loader: TOML → pydantic (shape, types, ranges) → frozen dataclasses → cross-field checks. Format documented in
+# docs/scenario_format.md. Every user mistake leaves as ScenarioError(file, dotted.field, reason).
+# ---------------------------------------------------------------------------------------------------------------
+
+logger = logging.getLogger(__name__)
+
+TOLERANCE = 1e-6  # m, slack for bounds, altitude band and obstacle surfaces
+MAX_DRAWS = 1000  # redraws allowed per random obstacle before giving up
+_STRICT_FILE = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, frozen=True)
+
+
+def _ordered(pair: list[float]) -> list[float]:
+    if pair[0] > pair[1]:
+        raise ValueError(f"min ({pair[0]:g}) must not exceed max ({pair[1]:g})")
+    return pair
+
+
+Positive = Annotated[float, Field(gt=0)]
+NonNegative = Annotated[float, Field(ge=0)]
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+PositiveRange = Annotated[list[Positive], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
+HeightRange = Annotated[list[NonNegative], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
+Ident = Annotated[str, Field(min_length=1)]
+
+
+def _strict_table(cls: type) -> type:
+    """A TypedDict mirroring a config dataclass (all keys optional), so its table is checked strictly.
+
+    The dataclasses carry their own lax pydantic config; validating the raw table against this mirror first
+    rejects strings for numbers etc. with exact field paths, while every default stays in the dataclass.
+    """
+    hints = typing.get_type_hints(cls)
+    fields = {
+        f.name: _strict_table(hints[f.name]) if dataclasses.is_dataclass(hints[f.name]) else hints[f.name]
+        for f in dataclasses.fields(cls)
+    }
+    table = TypedDict(f"{cls.__name__}Table", fields, total=False)  # type: ignore[operator]
+    table.__pydantic_config__ = _STRICT_FILE  # type: ignore[attr-defined]
+    return table
+
+
+VehicleTable = _strict_table(VehicleLimits)
+HazardTable = _strict_table(HazardConfig)
+PlannerTable = _strict_table(PlannerSettings)
+
+
+class _Table(BaseModel):
+    model_config = _STRICT_FILE
+
+
+class _Home(_Table):
+    lat: Annotated[float, Field(ge=-90, le=90)]
+    lon: Annotated[float, Field(ge=-180, le=180)]
+    alt: float
+
+
+class _Bounds(_Table):
+    x: Positive
+    y: Positive
+
+
+class _Altitude(_Table):
+    min: NonNegative
+    max: Positive  # min < max is checked in load_scenario, to name the field
+
+
+class _Route(_Table):
+    start: Vec3
+    goal: Vec3
+
+
+class _Cylinder(_Table):
+    x: float
+    y: float
+    radius: Positive
+    top: Positive | None = None  # None → unlimited
+    z_ref: float = 0.0  # drawing only
+
+
+class _Sphere(_Table):
+    x: float
+    y: float
+    z: float
+    radius: Positive
+
+
+class _Hemisphere(_Table):
+    x: float
+    y: float
+    radius: Positive
+
+
+RADAR_EQUATION = ("pt_w", "gain", "wavelength_m", "rcs_m2", "ts_k", "bn_hz", "loss", "snr_threshold")
+
+
+class _Radar(_Table):
+    x: float
+    y: float
+    z: float
+    soft_weight: NonNegative = 1.0
+    r_det: Positive | None = None
+    pt_w: Positive | None = None
+    gain: Positive | None = None
+    wavelength_m: Positive | None = None
+    rcs_m2: Positive | None = None
+    ts_k: Positive | None = None
+    bn_hz: Positive | None = None
+    loss: Positive | None = None
+    snr_threshold: Positive | None = None
+
+    @model_validator(mode="after")
+    def _one_range_source(self) -> "_Radar":
+        given = [n for n in RADAR_EQUATION if getattr(self, n) is not None]
+        if self.r_det is not None and given:
+            raise ValueError(f"give either r_det or the radar-equation parameters, not both (also got {given[0]})")
+        if self.r_det is None and len(given) < len(RADAR_EQUATION):
+            missing = [n for n in RADAR_EQUATION if n not in given]
+            raise ValueError(f"give r_det or all radar-equation parameters (missing {', '.join(missing)})")
+        return self
+
+    def detection_range(self) -> float:
+        """R_det in metres, given or from the radar equation."""
+        if self.r_det is not None:
+            return self.r_det
+        return radar_detection_range(**{n: getattr(self, n) for n in RADAR_EQUATION})
+
+
+class _RandomObstacles(_Table):
+    seed: Annotated[int, Field(ge=0)]
+    count: Annotated[int, Field(ge=0)]
+    kinds: Annotated[list[Literal["sphere", "cylinder", "hemisphere"]], Field(min_length=1)] = [
+        "sphere", "cylinder", "hemisphere"]
+    radius: PositiveRange
+    height: HeightRange  # sphere centre z; cylinder z_ref (drawing)
+    clearance: NonNegative = 150.0
+
+
+class _FlatTerrain(_Table):
+    kind: Literal["none"]
+
+
+class _HillsTerrain(_Table):
+    kind: Literal["hills"]
+    seed: Annotated[int, Field(ge=0)]
+    count: Annotated[int, Field(ge=1)]
+    max_height: Positive
+    sigma: PositiveRange
+    spacing: Positive = 25.0
+
+
+class _FileTerrain(_Table):
+    kind: Literal["file"]
+    path: Ident
+    spacing: Positive = 30.0  # resampling grid for .hgt; ESRI grids keep their own cellsize
+
+
+class _Loiter(_Table):
+    kind: Literal["loiter"]
+    id: Ident
+    radius: Positive
+    center: Vec3
+    circle_radius: Positive
+    speed: Positive
+    phase_deg: float | None = None
+    direction: Literal["ccw", "cw"] | None = None
+
+    def to_threat(self) -> Threat:
+        optional: dict[str, float] = {}
+        if self.phase_deg is not None:
+            optional["phase"] = math.radians(self.phase_deg)
+        if self.direction is not None:
+            optional["direction"] = 1.0 if self.direction == "ccw" else -1.0
+        return Threat(self.id, "loiter", self.radius, tuple(self.center), speed=self.speed,
+                      circle_radius=self.circle_radius, **optional)
+
+
+class _Patrol(_Table):
+    kind: Literal["patrol"]
+    id: Ident
+    radius: Positive
+    a: Vec3
+    b: Vec3
+    speed: Positive
+
+    def to_threat(self) -> Threat:
+        return Threat(self.id, "patrol", self.radius, tuple(self.a), tuple(self.b), speed=self.speed)
+
+
+class _Intruder(_Table):
+    id: Ident
+    icao: Annotated[int, Field(ge=0, le=0xFFFFFF)]
+    waypoints: Annotated[list[Vec3], Field(min_length=2)]
+    speed: Positive
+    start_time: NonNegative | None = None
+    radius: Positive | None = None
+
+    def to_intruder(self) -> Intruder:
+        optional = self.model_dump(include={"start_time", "radius"}, exclude_none=True)
+        return Intruder(self.id, self.icao, tuple(tuple(w) for w in self.waypoints), self.speed, **optional)
+
+
+_TerrainTable = Annotated[_FlatTerrain | _HillsTerrain | _FileTerrain, Field(discriminator="kind")]
+_ThreatTable = Annotated[_Loiter | _Patrol, Field(discriminator="kind")]
+_UNION_TAGS = {"terrain": {"none", "hills", "file"}, "threats": {"loiter", "patrol"}}
+
+
+class _ScenarioFile(_Table):
+    name: Ident | None = None
+    description: str | None = None
+    home: _Home
+    bounds: _Bounds
+    altitude: _Altitude
+    route: _Route
+    vehicle: VehicleTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    hazard: HazardTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    planner: PlannerTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    cylinders: list[_Cylinder] = []
+    spheres: list[_Sphere] = []
+    hemispheres: list[_Hemisphere] = []
+    radars: list[_Radar] = []
+    random_obstacles: _RandomObstacles | None = None
+    terrain: _TerrainTable | None = None
+    threats: list[_ThreatTable] = []
+    intruders: list[_Intruder] = []
+
+
+def _field_path(loc: tuple[int | str, ...]) -> str:
+    """Pydantic ``loc`` → ``cylinders[2].radius`` (discriminator tags dropped)."""
+    out = ""
+    for i, item in enumerate(loc):
+        if isinstance(item, int):
+            out += f"[{item}]"
+        elif i > 0 and item in _UNION_TAGS.get(str(loc[0]), ()) and (i == 1 or isinstance(loc[i - 1], int)):
+            continue
+        else:
+            out += f".{item}" if out else str(item)
+    return out
+
+
+def _reason(error: Mapping[str, Any]) -> str:
+    """One short line for a pydantic error."""
+    kind = error["type"]
+    if kind in ("extra_forbidden", "unexpected_keyword_argument"):
+        return "unknown key (not part of the scenario format; check the spelling)"
+    if kind == "missing":
+        return "required key is missing"
+    msg = str(error["msg"]).removeprefix("Value error, ")
+    value = error.get("input")
+    if kind.endswith("_type") and isinstance(value, (str, int, float, bool)):
+        msg += f" (got {type(value).__name__} {value!r})"
+    return " ".join(msg.split())
+
+
+def _from_validation_error(file: str, exc: ValidationError, prefix: tuple[int | str, ...] = ()) -> ScenarioError:
+    first = exc.errors()[0]
+    if len(exc.errors()) > 1:
+        logger.debug("%s: %d validation errors, reporting the first", file, len(exc.errors()))
+    return ScenarioError(file, _field_path(prefix + tuple(first["loc"])), _reason(first))
+
+
+# --- overrides -------------------------------------------------------------------------------------------------
+
+_KEY_STEP = re.compile(r"([A-Za-z0-9_-]+)(?:\[(\d+)\])?")
+
+
+def _parse_override(text: str) -> tuple[list[str | int], Any]:
+    """``"planner.pso.n_pop=100"`` → (["planner", "pso", "n_pop"], 100); the value is read as a TOML value."""
+    key, sep, value_text = text.partition("=")
+    if not sep or not key.strip():
+        raise ValueError(f"expected KEY=VALUE, got {text!r}")
+    steps: list[str | int] = []
+    for part in key.strip().split("."):
+        match = _KEY_STEP.fullmatch(part.strip())
+        if match is None:
+            raise ValueError(f"bad key {key.strip()!r} in {text!r} (use section.key or list[index].key)")
+        steps.append(match[1])
+        if match[2] is not None:
+            steps.append(int(match[2]))
+    value_text = value_text.strip()
+    if not value_text or "\n" in value_text:
+        raise ValueError(f"missing or multi-line value in {text!r}")
+    try:
+        value = tomllib.loads(f"v = {value_text}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = value_text  # a bare word, e.g. vehicle.type=copter
+    return steps, value
+
+
+def _apply_override(raw: dict[str, Any], text: str) -> None:
+    """Set one ``KEY=VALUE`` in the raw TOML dict, creating missing tables."""
+    steps, value = _parse_override(text)
+    node: Any = raw
+    for depth, (step, nxt) in enumerate(zip(steps[:-1], steps[1:])):
+        where = ".".join(str(s) for s in steps[: depth + 1])
+        if isinstance(step, str):
+            if not isinstance(node, dict):
+                raise ValueError(f"{where} is not a table in {text!r}")
+            if step not in node and isinstance(nxt, str):
+                node[step] = {}
+            if step not in node:
+                raise ValueError(f"{where} does not exist in {text!r}")
+            node = node[step]
+        else:
+            if not isinstance(node, list) or not -len(node) <= step < len(node):
+                raise ValueError(f"index {step} out of range in {text!r}")
+            node = node[step]
+    last = steps[-1]
+    if isinstance(last, str) and isinstance(node, dict):
+        node[last] = value
+    elif isinstance(last, int) and isinstance(node, list) and -len(node) <= last < len(node):
+        node[last] = value
+    else:
+        raise ValueError(f"cannot set {steps[-1]!r} in {text!r}: parent is not a table or index out of range")
+
+
+# --- building --------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Obstacles:
+    """Obstacle columns being assembled, with a human label per entry for error messages."""
+
+    cyl: list[tuple[float, float, float, float, float]] = field(default_factory=list)  # x, y, r, top, z_ref
+    cyl_labels: list[str] = field(default_factory=list)
+    sph: list[tuple[float, float, float, float]] = field(default_factory=list)  # x, y, z, r
+    sph_labels: list[str] = field(default_factory=list)
+
+
+def _random_obstacles(
+    spec: _RandomObstacles, size: tuple[float, float], keep_clear: np.ndarray, obstacles: _Obstacles, file: str,
+) -> None:
+    """Append ``spec.count`` seeded obstacles, redrawing any within ``clearance`` of the points ``keep_clear`` (k, 3)."""
+    rng = np.random.default_rng(spec.seed)
+    for i in range(spec.count):
+        kind = spec.kinds[int(rng.integers(len(spec.kinds)))]
+        for _ in range(MAX_DRAWS):
+            x, y = rng.uniform(0.0, size[0]), rng.uniform(0.0, size[1])
+            r, h = rng.uniform(*spec.radius), rng.uniform(*spec.height)
+            z = h if kind == "sphere" else 0.0
+            if kind == "cylinder":
+                gap = np.hypot(keep_clear[:, 0] - x, keep_clear[:, 1] - y) - r
+            else:
+                gap = np.linalg.norm(keep_clear - (x, y, z), axis=1) - r
+            if gap.min() >= spec.clearance:
+                break
+        else:
+            raise ScenarioError(file, "random_obstacles", f"could not place obstacle {i} {spec.clearance:g} m clear "
+                                f"of start and goal in {MAX_DRAWS} draws; lower clearance, radius or count")
+        label = f"random_obstacles #{i} ({kind} x={x:.0f}, y={y:.0f}, r={r:.0f})"
+        if kind == "cylinder":
+            obstacles.cyl.append((x, y, r, math.inf, h))
+            obstacles.cyl_labels.append(label)
+        else:
+            obstacles.sph.append((x, y, z, r))
+            obstacles.sph_labels.append(label)
+
+
+def _build_terrain(spec: _FlatTerrain | _HillsTerrain | _FileTerrain | None, bounds: _Bounds, home: Home,
+                   source: Path, file: str) -> Terrain | None:
+    """The scenario's DEM in metres above home, or None for flat ground."""
+    if spec is None or isinstance(spec, _FlatTerrain):
+        return None
+    if isinstance(spec, _HillsTerrain):
+        return dem.synthetic_hills(bounds.x, bounds.y, np.random.default_rng(spec.seed), spec.count,
+                                   spec.max_height, (spec.sigma[0], spec.sigma[1]), spec.spacing)
+    dem_path = Path(spec.path)
+    if not dem_path.is_absolute():
+        dem_path = source.parent / dem_path
+    try:
+        if dem_path.suffix.lower() == ".hgt":
+            terrain = dem.read_hgt(dem_path, home, bounds.x, bounds.y, spec.spacing)
+        elif dem_path.suffix.lower() in (".asc", ".txt"):
+            terrain = dem.read_esri_ascii(dem_path, home)
+        else:
+            raise ValueError(f"{dem_path.name}: unknown DEM format (use an SRTM .hgt or an ESRI ASCII .asc file)")
+    except ValueError as exc:
+        raise ScenarioError(file, "terrain.path", str(exc)) from exc
+    ny, nx = terrain.heights.shape
+    x1, y1 = terrain.x0 + (nx - 1) * terrain.dx, terrain.y0 + (ny - 1) * terrain.dy
+    if terrain.x0 > 0 or terrain.y0 > 0 or x1 < bounds.x or y1 < bounds.y:
+        logger.warning("%s: terrain grid [%g, %g]×[%g, %g] m does not cover the bounds; edge heights extend",
+                       file, terrain.x0, x1, terrain.y0, y1)
+    return terrain
+
+
+def _check_configs(file: str, vehicle: VehicleLimits, hazard: HazardConfig, planner: PlannerSettings) -> None:
+    """Range checks the config dataclasses do not make themselves."""
+    pso = planner.pso
+    checks: list[tuple[str, float, bool, str]] = [
+        ("vehicle.cruise_speed", vehicle.cruise_speed, vehicle.cruise_speed > 0, "must be > 0 m/s"),
+        ("vehicle.max_bank_deg", vehicle.max_bank_deg, 0 < vehicle.max_bank_deg < 90, "must be in (0, 90) deg"),
+        ("vehicle.max_climb_deg", vehicle.max_climb_deg, 0 < vehicle.max_climb_deg < 90, "must be in (0, 90) deg"),
+        ("vehicle.max_turn_deg", vehicle.max_turn_deg, 0 < vehicle.max_turn_deg <= 180, "must be in (0, 180] deg"),
+        ("vehicle.takeoff_alt", vehicle.takeoff_alt, vehicle.takeoff_alt > 0, "must be > 0 m"),
+        ("vehicle.acceptance_radius", vehicle.acceptance_radius, vehicle.acceptance_radius > 0, "must be > 0 m"),
+        ("hazard.d_coll", hazard.d_coll, hazard.d_coll >= 0, "must be >= 0 m"),
+        ("hazard.d_safe", hazard.d_safe, hazard.d_safe >= hazard.d_coll, f"must be >= d_coll ({hazard.d_coll:g} m)"),
+        ("planner.sample_spacing", planner.sample_spacing, planner.sample_spacing > 0, "must be > 0 m"),
+        ("planner.pso.velocity_limit", pso.velocity_limit, pso.velocity_limit > 0, "must be > 0"),
+        ("planner.pso.w_min", pso.w_min, 0 <= pso.w_min <= pso.w_max, f"must be in [0, w_max={pso.w_max:g}]"),
+        ("planner.pso.psi_max_deg", pso.psi_max_deg, 0 < pso.psi_max_deg <= 90, "must be in (0, 90] deg"),
+        ("planner.pso.cone_half_deg", pso.cone_half_deg, 0 < pso.cone_half_deg <= 180, "must be in (0, 180] deg"),
+    ]
+    for group, obj in (("planner.weights", planner.weights), ("planner.penalty", planner.penalty),
+                       ("planner.pso", {"c1": pso.c1, "c2": pso.c2, "w0": pso.w0, "w_damp": pso.w_damp})):
+        values = obj if isinstance(obj, dict) else dataclasses.asdict(obj)
+        checks += [(f"{group}.{k}", v, v >= 0, "must be >= 0") for k, v in values.items()]
+    for path, value, ok, reason in checks:
+        if not ok:
+            raise ScenarioError(file, path, f"{value:g} {reason}")
+
+
+def _check_point(file: str, name: str, p: np.ndarray, env: Environment, obstacles: _Obstacles,
+                 radar_labels: list[str]) -> None:
+    """A route end must lie inside the bounds, inside the altitude band over terrain and outside every obstacle."""
+    field_name = f"route.{name}"
+    x, y, z = (float(v) for v in p)
+    for axis, value, size in (("x", x, env.size_x), ("y", y, env.size_y)):
+        if not -TOLERANCE <= value <= size + TOLERANCE:
+            raise ScenarioError(file, field_name, f"{axis}={value:g} outside bounds [0, {size:g}] m")
+    above = z - float(env.ground(x, y))
+    if not env.z_min - TOLERANCE <= above <= env.z_max + TOLERANCE:
+        raise ScenarioError(file, field_name, f"z={z:g} m is {above:.1f} m above terrain, outside the altitude "
+                            f"band [{env.z_min:g}, {env.z_max:g}] m")
+    cyl, sph, rad = env.cylinders, env.spheres, env.radars
+    hits = (
+        ((np.hypot(cyl.x - x, cyl.y - y) < cyl.radius - TOLERANCE) & (z < cyl.top), obstacles.cyl_labels),
+        (np.linalg.norm(sph.center - p, axis=1) < sph.radius - TOLERANCE, obstacles.sph_labels),
+        (np.linalg.norm(rad.center - p, axis=1) < rad.r_det - TOLERANCE, radar_labels),
+    )
+    for inside, labels in hits:
+        if np.any(inside):
+            raise ScenarioError(file, field_name, f"inside {labels[int(np.flatnonzero(inside)[0])]}")
+
+
+def _check_unique_ids(file: str, spec: _ScenarioFile) -> None:
+    """Threat and intruder ids share one namespace (the companion tracks both by id)."""
+    seen: dict[str, str] = {}
+    entries = [(f"threats[{i}].id", t.id) for i, t in enumerate(spec.threats)]
+    entries += [(f"intruders[{i}].id", t.id) for i, t in enumerate(spec.intruders)]
+    for where, ident in entries:
+        if ident in seen:
+            raise ScenarioError(file, where, f"duplicate id {ident!r} (also {seen[ident]})")
+        seen[ident] = where.removesuffix(".id")
+
+
+def _read_toml(path: Path, file: str) -> dict[str, Any]:
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ScenarioError(file, "", "file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(file, "", f"malformed TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(file, "", f"not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
+    except OSError as exc:
+        raise ScenarioError(file, "", f"cannot read file: {exc.strerror or exc}") from exc
+
+
+def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
+    """Read, validate and build a scenario; ``overrides`` are ``section.key=value`` strings applied before checks.
+
+    Raises :class:`ScenarioError` (``FILE: FIELD: REASON``) for every problem in the file or an override.
+    """
+    path = Path(path)
+    file = str(path)
+    raw = _read_toml(path, file)
+    for text in overrides:
+        try:
+            _apply_override(raw, text)
+        except ValueError as exc:
+            raise ScenarioError(file, "--set", str(exc)) from exc
+    try:
+        spec = _ScenarioFile.model_validate(raw)
+    except ValidationError as exc:
+        raise _from_validation_error(file, exc) from exc
+    sections: dict[str, Any] = {}
+    for key, cls in (("vehicle", VehicleLimits), ("hazard", HazardConfig), ("planner", PlannerSettings)):
+        try:
+            sections[key] = TypeAdapter(cls).validate_python(getattr(spec, key))
+        except ValidationError as exc:
+            raise _from_validation_error(file, exc, (key,)) from exc
+    vehicle, hazard, planner = sections["vehicle"], sections["hazard"], sections["planner"]
+    _check_configs(file, vehicle, hazard, planner)
+    if spec.altitude.min >= spec.altitude.max:
+        raise ScenarioError(file, "altitude.min", f"{spec.altitude.min:g} m must be below altitude.max "
+                            f"({spec.altitude.max:g} m)")
+    _check_unique_ids(file, spec)
+
+    start = np.array(spec.route.start, dtype=float)
+    goal = np.array(spec.route.goal, dtype=float)
+    home = Home(spec.home.lat, spec.home.lon, spec.home.alt)
+    obstacles = _Obstacles()
+    for i, c in enumerate(spec.cylinders):
+        obstacles.cyl.append((c.x, c.y, c.radius, math.inf if c.top is None else c.top, c.z_ref))
+        obstacles.cyl_labels.append(f"cylinders[{i}] (x={c.x:g}, y={c.y:g}, r={c.radius:g})")
+    for i, s in enumerate(spec.spheres):
+        obstacles.sph.append((s.x, s.y, s.z, s.radius))
+        obstacles.sph_labels.append(f"spheres[{i}] (x={s.x:g}, y={s.y:g}, z={s.z:g}, r={s.radius:g})")
+    for i, h in enumerate(spec.hemispheres):
+        obstacles.sph.append((h.x, h.y, 0.0, h.radius))
+        obstacles.sph_labels.append(f"hemispheres[{i}] (x={h.x:g}, y={h.y:g}, r={h.radius:g})")
+    if spec.random_obstacles is not None:
+        _random_obstacles(spec.random_obstacles, (spec.bounds.x, spec.bounds.y), np.stack([start, goal]),
+                          obstacles, file)
+    r_det = [r.detection_range() for r in spec.radars]
+    radar_labels = [f"radars[{i}] detection range (x={r.x:g}, y={r.y:g}, z={r.z:g}, r_det={d:.0f})"
+                    for i, (r, d) in enumerate(zip(spec.radars, r_det))]
+
+    cyl = np.array(obstacles.cyl, dtype=float).reshape(-1, 5)
+    sph = np.array(obstacles.sph, dtype=float).reshape(-1, 4)
+    environment = Environment(
+        size_x=spec.bounds.x, size_y=spec.bounds.y, z_min=spec.altitude.min, z_max=spec.altitude.max,
+        cylinders=Cylinders(cyl[:, 0], cyl[:, 1], cyl[:, 2], cyl[:, 3], cyl[:, 4]),
+        spheres=Spheres(sph[:, :3], sph[:, 3]),
+        radars=Radars([(r.x, r.y, r.z) for r in spec.radars], r_det, [r.soft_weight for r in spec.radars]),
+        terrain=_build_terrain(spec.terrain, spec.bounds, home, path, file),
+        threats=Threats(tuple(t.to_threat() for t in spec.threats)),
+    )
+    for name, point in (("start", start), ("goal", goal)):
+        _check_point(file, name, point, environment, obstacles, radar_labels)
+    start.setflags(write=False)
+    goal.setflags(write=False)
+    optional = {"description": spec.description} if spec.description is not None else {}
+    scenario = Scenario(
+        name=spec.name or path.stem, source=path, home=home, environment=environment, start=start, goal=goal,
+        vehicle=vehicle, hazard=hazard, planner=planner,
+        intruders=tuple(i.to_intruder() for i in spec.intruders), **optional,
+    )
+    logger.info("loaded scenario %s from %s: %d cylinders, %d spheres, %d radars, %d threats, %d intruders",
+                scenario.name, file, len(environment.cylinders), len(environment.spheres), len(environment.radars),
+                len(environment.threats), len(scenario.intruders))
+    return scenario
