@@ -1,0 +1,21 @@
+"""Benchmarks (pytest-benchmark). Off by default (runs once as a test); measure with
+``pytest tests/planner/test_benchmark.py --benchmark-enable``. Speed targets live in the README, not in asserts."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from planner.plan import plan, problem_from_scenario
+from planner.scenario import load_scenario
+
+TABLE6 = ["planner.pso.n_pop=500", "planner.pso.max_iter=200", "planner.pso.stagnation_iters=200"]
+
+
+def test_bench_spso_table6_rescue_static(benchmark, rescue_static) -> None:
+    """One full Table-6 run (nPop 500, MaxIt 200) on rescue_static; target ≤ 0.5 s median on one core."""
+    sc = load_scenario(rescue_static, TABLE6)
+    prob = problem_from_scenario(sc)
+    res = benchmark.pedantic(lambda: plan(prob, sc.planner, np.random.default_rng(1)), rounds=5, iterations=1)
+    assert res.optimiser.iterations == 200
+    assert res.optimiser.evaluations == 500 * 201
+    assert res.feasible

@@ -1,0 +1,109 @@
+"""`fuseplan plan` end to end: the README example, its JSON, determinism, exit codes and bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from planner.cli import main
+
+REQUIRED = {"status", "algorithm", "seed", "cost", "cost_terms", "waypoints", "trajectory", "violations",
+            "metrics", "history", "home"}
+
+
+def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    exe = shutil.which("fuseplan")
+    cmd = [exe] if exe else [sys.executable, "-m", "planner.cli"]
+    return subprocess.run([*cmd, *args], cwd=cwd, capture_output=True, text=True, timeout=300)
+
+
+def test_readme_plan_example_twice_byte_identical(tmp_path, rescue_static) -> None:
+    """The README's worked example: exit 0, exact, zero violations, ≤ 1.3 × direct, same waypoints twice."""
+    outs = []
+    for name in ("a.json", "b.json"):
+        proc = _run("plan", str(rescue_static), "--algorithm", "spso", "--seed", "1", "-o", name, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr
+        assert "-> exact" in proc.stdout
+        outs.append(json.loads((tmp_path / name).read_text()))
+    a, b = outs
+    assert REQUIRED <= a.keys()
+    assert a["status"] == "exact" and a["algorithm"] == "spso" and a["seed"] == 1
+    assert set(a["violations"]) >= {"collision", "altitude", "turn", "climb"}
+    assert all(v == 0 for v in a["violations"].values())
+    start, goal = a["waypoints"][0], a["waypoints"][-1]
+    direct = sum((g - s) ** 2 for s, g in zip(start, goal)) ** 0.5
+    assert a["metrics"]["length_m"] <= 1.3 * direct
+    assert {"length_m", "smoothness", "robustness", "plan_time_s", "convergence_iteration"} <= a["metrics"].keys()
+    assert json.dumps(a["waypoints"]) == json.dumps(b["waypoints"])
+    assert a["history"] == b["history"] and len(a["history"]) == a["metrics"]["iterations"] + 1
+    assert a["home"]["lat"] == pytest.approx(-35.363261)
+    assert start == [200.0, 200.0, 50.0] and goal == [800.0, 800.0, 50.0]
+
+
+def test_plot_and_overrides(tmp_path, rescue_static, capsys) -> None:
+    png = tmp_path / "route.png"
+    code = main(["plan", str(rescue_static), "--set", "planner.pso.n_pop=40", "--set", "planner.pso.max_iter=20",
+                 "--plot", str(png), "-q", "-o", str(tmp_path / "p.json")])
+    assert code in (0, 3)
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    doc = json.loads((tmp_path / "p.json").read_text())
+    assert len(doc["history"]) <= 21
+
+
+def test_infeasible_plan_exits_3(tmp_path, rescue_static, capsys) -> None:
+    # d_coll larger than every gap between the Table 1 cylinders and a tiny budget: no feasible route
+    code = main(["plan", str(rescue_static), "-q", "--set", "hazard.d_coll=60", "--set", "hazard.d_safe=80",
+                 "--set", "planner.pso.n_pop=30", "--set", "planner.pso.max_iter=10", "-o", str(tmp_path / "p.json")])
+    assert code == 3
+    doc = json.loads((tmp_path / "p.json").read_text())
+    assert doc["status"] == "infeasible" and doc["violations"]["collision"] > 0
+
+
+def _bad(tmp_path: Path, rescue_static: Path, old: str, new: str) -> Path:
+    text = rescue_static.read_text()
+    assert old in text
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace(old, new, 1))
+    return bad
+
+
+BAD_CASES = {
+    "unknown key": ("[vehicle]\n", "[vehicle]\nwingspan = 2.0\n", "vehicle", "wingspan"),
+    "nan": ("cruise_speed = 18.0", "cruise_speed = nan", "vehicle.cruise_speed", None),
+    "negative radius": ("radius = 80.0", "radius = -80.0", "cylinders[0].radius", None),
+    "start inside obstacle": ("start = [200.0, 200.0, 50.0]", "start = [400.0, 500.0, 100.0]", "route.start",
+                              "cylinders[0]"),
+    "malformed toml": ("[vehicle]\n", "[vehicle\n", "bad.toml", None),
+}
+
+
+@pytest.mark.parametrize("case", sorted(BAD_CASES))
+def test_bad_scenario_one_line_exit_2(tmp_path, rescue_static, capsys, case) -> None:
+    old, new, field, word = BAD_CASES[case]
+    bad = _bad(tmp_path, rescue_static, old, new)
+    code = main(["plan", str(bad), "-q"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2
+    assert len(err.splitlines()) == 1, err
+    assert err.startswith("fuseplan: error: ") and "bad.toml" in err and field in err
+    if word:
+        assert word in err
+
+
+def test_missing_file_exit_2(tmp_path, capsys) -> None:
+    code = main(["plan", str(tmp_path / "nope.toml"), "-q"])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and "nope.toml" in err
+
+
+def test_bad_input_in_a_real_process_has_no_traceback(tmp_path, rescue_static) -> None:
+    bad = _bad(tmp_path, rescue_static, "radius = 80.0", "radius = -80.0")
+    proc = _run("plan", str(bad), cwd=tmp_path)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("fuseplan: error: ")
