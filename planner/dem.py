@@ -89,8 +89,8 @@ def read_esri_ascii(path: str | Path, home: Home) -> Terrain:
     if missing:
         raise ValueError(f"{path.name}: ESRI ASCII header lacks {', '.join(missing)}")
     ncols, nrows, cell = int(header["ncols"]), int(header["nrows"]), header["cellsize"]
-    if ncols < 2 or nrows < 2 or cell <= 0:
-        raise ValueError(f"{path.name}: need ncols, nrows >= 2 and cellsize > 0")
+    if ncols != header["ncols"] or nrows != header["nrows"] or ncols < 2 or nrows < 2 or not cell > 0:
+        raise ValueError(f"{path.name}: need whole ncols, nrows >= 2 and cellsize > 0")
     try:
         values = np.array(" ".join(lines[n_header:]).split(), dtype=float)
     except ValueError as exc:

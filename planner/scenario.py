@@ -78,12 +78,12 @@ def _ordered(pair: list[float]) -> list[float]:
     return pair
 
 
-Positive = Annotated[float, Field(gt=0)]
-NonNegative = Annotated[float, Field(ge=0)]
-Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
-PositiveRange = Annotated[list[Positive], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
-HeightRange = Annotated[list[NonNegative], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
-Ident = Annotated[str, Field(min_length=1)]
+_Positive = Annotated[float, Field(gt=0)]
+_NonNegative = Annotated[float, Field(ge=0)]
+_Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+_PositiveRange = Annotated[list[_Positive], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
+_HeightRange = Annotated[list[_NonNegative], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
+_Ident = Annotated[str, Field(min_length=1)]
 
 
 def _strict_table(cls: type) -> type:
@@ -102,9 +102,9 @@ def _strict_table(cls: type) -> type:
     return table
 
 
-VehicleTable = _strict_table(VehicleLimits)
-HazardTable = _strict_table(HazardConfig)
-PlannerTable = _strict_table(PlannerSettings)
+_VehicleTable = _strict_table(VehicleLimits)
+_HazardTable = _strict_table(HazardConfig)
+_PlannerTable = _strict_table(PlannerSettings)
 
 
 class _Table(BaseModel):
@@ -118,25 +118,25 @@ class _Home(_Table):
 
 
 class _Bounds(_Table):
-    x: Positive
-    y: Positive
+    x: _Positive
+    y: _Positive
 
 
 class _Altitude(_Table):
-    min: NonNegative
-    max: Positive  # min < max is checked in load_scenario, to name the field
+    min: _NonNegative
+    max: _Positive  # min < max is checked in load_scenario, to name the field
 
 
 class _Route(_Table):
-    start: Vec3
-    goal: Vec3
+    start: _Vec3
+    goal: _Vec3
 
 
 class _Cylinder(_Table):
     x: float
     y: float
-    radius: Positive
-    top: Positive | None = None  # None → unlimited
+    radius: _Positive
+    top: _Positive | None = None  # None → unlimited
     z_ref: float = 0.0  # drawing only
 
 
@@ -144,13 +144,13 @@ class _Sphere(_Table):
     x: float
     y: float
     z: float
-    radius: Positive
+    radius: _Positive
 
 
 class _Hemisphere(_Table):
     x: float
     y: float
-    radius: Positive
+    radius: _Positive
 
 
 RADAR_EQUATION = ("pt_w", "gain", "wavelength_m", "rcs_m2", "ts_k", "bn_hz", "loss", "snr_threshold")
@@ -160,16 +160,16 @@ class _Radar(_Table):
     x: float
     y: float
     z: float
-    soft_weight: NonNegative = 1.0
-    r_det: Positive | None = None
-    pt_w: Positive | None = None
-    gain: Positive | None = None
-    wavelength_m: Positive | None = None
-    rcs_m2: Positive | None = None
-    ts_k: Positive | None = None
-    bn_hz: Positive | None = None
-    loss: Positive | None = None
-    snr_threshold: Positive | None = None
+    soft_weight: _NonNegative = 1.0
+    r_det: _Positive | None = None
+    pt_w: _Positive | None = None
+    gain: _Positive | None = None
+    wavelength_m: _Positive | None = None
+    rcs_m2: _Positive | None = None
+    ts_k: _Positive | None = None
+    bn_hz: _Positive | None = None
+    loss: _Positive | None = None
+    snr_threshold: _Positive | None = None
 
     @model_validator(mode="after")
     def _one_range_source(self) -> "_Radar":
@@ -193,9 +193,9 @@ class _RandomObstacles(_Table):
     count: Annotated[int, Field(ge=0)]
     kinds: Annotated[list[Literal["sphere", "cylinder", "hemisphere"]], Field(min_length=1)] = [
         "sphere", "cylinder", "hemisphere"]
-    radius: PositiveRange
-    height: HeightRange  # sphere centre z; cylinder z_ref (drawing)
-    clearance: NonNegative = 150.0
+    radius: _PositiveRange
+    height: _HeightRange  # sphere centre z; cylinder z_ref (drawing)
+    clearance: _NonNegative = 150.0
 
 
 class _FlatTerrain(_Table):
@@ -206,24 +206,24 @@ class _HillsTerrain(_Table):
     kind: Literal["hills"]
     seed: Annotated[int, Field(ge=0)]
     count: Annotated[int, Field(ge=1)]
-    max_height: Positive
-    sigma: PositiveRange
-    spacing: Positive = 25.0
+    max_height: _Positive
+    sigma: _PositiveRange
+    spacing: _Positive = 25.0
 
 
 class _FileTerrain(_Table):
     kind: Literal["file"]
-    path: Ident
-    spacing: Positive = 30.0  # resampling grid for .hgt; ESRI grids keep their own cellsize
+    path: _Ident
+    spacing: _Positive = 30.0  # resampling grid for .hgt; ESRI grids keep their own cellsize
 
 
 class _Loiter(_Table):
     kind: Literal["loiter"]
-    id: Ident
-    radius: Positive
-    center: Vec3
-    circle_radius: Positive
-    speed: Positive
+    id: _Ident
+    radius: _Positive
+    center: _Vec3
+    circle_radius: _Positive
+    speed: _Positive
     phase_deg: float | None = None
     direction: Literal["ccw", "cw"] | None = None
 
@@ -239,23 +239,23 @@ class _Loiter(_Table):
 
 class _Patrol(_Table):
     kind: Literal["patrol"]
-    id: Ident
-    radius: Positive
-    a: Vec3
-    b: Vec3
-    speed: Positive
+    id: _Ident
+    radius: _Positive
+    a: _Vec3
+    b: _Vec3
+    speed: _Positive
 
     def to_threat(self) -> Threat:
         return Threat(self.id, "patrol", self.radius, tuple(self.a), tuple(self.b), speed=self.speed)
 
 
 class _Intruder(_Table):
-    id: Ident
+    id: _Ident
     icao: Annotated[int, Field(ge=0, le=0xFFFFFF)]
-    waypoints: Annotated[list[Vec3], Field(min_length=2)]
-    speed: Positive
-    start_time: NonNegative | None = None
-    radius: Positive | None = None
+    waypoints: Annotated[list[_Vec3], Field(min_length=2)]
+    speed: _Positive
+    start_time: _NonNegative | None = None
+    radius: _Positive | None = None
 
     def to_intruder(self) -> Intruder:
         optional = self.model_dump(include={"start_time", "radius"}, exclude_none=True)
@@ -268,15 +268,15 @@ _UNION_TAGS = {"terrain": {"none", "hills", "file"}, "threats": {"loiter", "patr
 
 
 class _ScenarioFile(_Table):
-    name: Ident | None = None
+    name: _Ident | None = None
     description: str | None = None
     home: _Home
     bounds: _Bounds
     altitude: _Altitude
     route: _Route
-    vehicle: VehicleTable = Field(default_factory=dict)  # type: ignore[valid-type]
-    hazard: HazardTable = Field(default_factory=dict)  # type: ignore[valid-type]
-    planner: PlannerTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    vehicle: _VehicleTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    hazard: _HazardTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    planner: _PlannerTable = Field(default_factory=dict)  # type: ignore[valid-type]
     cylinders: list[_Cylinder] = []
     spheres: list[_Sphere] = []
     hemispheres: list[_Hemisphere] = []
@@ -392,7 +392,7 @@ class _Obstacles:
 def _random_obstacles(
     spec: _RandomObstacles, size: tuple[float, float], keep_clear: np.ndarray, obstacles: _Obstacles, file: str,
 ) -> None:
-    """Append ``spec.count`` seeded obstacles, redrawing any within ``clearance`` of the points ``keep_clear`` (k, 3)."""
+    """Append ``spec.count`` seeded obstacles, redrawing any closer than ``clearance`` to ``keep_clear`` (k, 3) m."""
     rng = np.random.default_rng(spec.seed)
     for i in range(spec.count):
         kind = spec.kinds[int(rng.integers(len(spec.kinds)))]
@@ -424,8 +424,11 @@ def _build_terrain(spec: _FlatTerrain | _HillsTerrain | _FileTerrain | None, bou
     if spec is None or isinstance(spec, _FlatTerrain):
         return None
     if isinstance(spec, _HillsTerrain):
-        return dem.synthetic_hills(bounds.x, bounds.y, np.random.default_rng(spec.seed), spec.count,
-                                   spec.max_height, (spec.sigma[0], spec.sigma[1]), spec.spacing)
+        try:
+            return dem.synthetic_hills(bounds.x, bounds.y, np.random.default_rng(spec.seed), spec.count,
+                                       spec.max_height, (spec.sigma[0], spec.sigma[1]), spec.spacing)
+        except ValueError as exc:
+            raise ScenarioError(file, "terrain", str(exc)) from exc
     dem_path = Path(spec.path)
     if not dem_path.is_absolute():
         dem_path = source.parent / dem_path
