@@ -37,8 +37,8 @@ def _parser() -> argparse.ArgumentParser:
 
 
 def _progress(quiet: bool):  # noqa: ANN202
-    """A progress printer for long searches (stderr, every 10 % of the iteration budget)."""
-    if quiet:
+    """A progress line for long searches on an interactive stderr (every 10 % of the iteration budget)."""
+    if quiet or not sys.stderr.isatty():
         return None
 
     def show(it: int, total: int, cost: float) -> None:
@@ -62,9 +62,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"planning {scenario.name} with {settings.algorithm}, seed {settings.seed}, "
               f"{settings.pso.n_pop} particles × {settings.pso.max_iter} iterations", file=sys.stderr)
-    result = plan(problem, settings, np.random.default_rng(settings.seed), seed=settings.seed,
-                  progress=_progress(args.quiet))
-    if not args.quiet:
+    show = _progress(args.quiet)
+    result = plan(problem, settings, np.random.default_rng(settings.seed), seed=settings.seed, progress=show)
+    if show is not None:
         print(file=sys.stderr)
     doc = plan_to_json(result, scenario)
     m = doc["metrics"]

@@ -161,6 +161,14 @@ class Threats:
     def __len__(self) -> int:
         return len(self.items)
 
+    @property
+    def max_speed(self) -> float:
+        """Fastest any threat moves (m/s); bounds how far one goes between two time samples."""
+        if not len(self):
+            return 0.0
+        track = np.linalg.norm(self.p1, axis=-1)
+        return float(np.max(np.where(self.kind == TRACK, track, self.speed)))
+
     def positions(self, t: np.ndarray) -> np.ndarray:
         """Threat centres at times ``t`` (any shape S, seconds) → (k, *S, 3) metres ENU."""
         t = np.asarray(t, dtype=float)

@@ -38,13 +38,42 @@ def draw_environment(ax, env: Environment, z_top: float) -> None:  # noqa: ANN00
         ax.plot_surface(gx, gy, env.terrain.height_at(gx, gy), cmap="terrain", alpha=0.5, linewidth=0)
 
 
+def draw_plan_view(ax, env: Environment) -> None:  # noqa: ANN001
+    """Top-down view: cylinders, spheres (full radius), radar detection ranges, threat tracks, terrain."""
+    from matplotlib.patches import Circle
+
+    if env.terrain is not None:
+        xs = np.linspace(0, env.size_x, 120)
+        ys = np.linspace(0, env.size_y, 120)
+        gx, gy = np.meshgrid(xs, ys)
+        cs = ax.contourf(gx, gy, env.terrain.height_at(gx, gy), levels=12, cmap="terrain", alpha=0.6)
+        ax.figure.colorbar(cs, ax=ax, shrink=0.7, label="ground (m)")
+    cyl = env.cylinders
+    for x, y, r in zip(cyl.x, cyl.y, cyl.radius):
+        ax.add_patch(Circle((x, y), r, color="tab:red", alpha=0.35, lw=0))
+    for c, r in zip(env.spheres.center, env.spheres.radius):
+        ax.add_patch(Circle((c[0], c[1]), r, color="tab:orange", alpha=0.35, lw=0))
+    for c, r in zip(env.radars.center, env.radars.r_det):
+        ax.add_patch(Circle((c[0], c[1]), r, fill=False, color="tab:purple", ls="--"))
+    if len(env.threats):
+        t = np.linspace(0.0, 600.0, 600)
+        for k, track in enumerate(env.threats.positions(t)):
+            ax.plot(track[:, 0], track[:, 1], ":", color="tab:purple", lw=1.2,
+                    label="threat tracks" if k == 0 else None)
+    ax.set_xlim(0, env.size_x)
+    ax.set_ylim(0, env.size_y)
+    ax.set_aspect("equal")
+    ax.set_xlabel("east (m)")
+    ax.set_ylabel("north (m)")
+
+
 def plot_plan(
     path: str | Path, env: Environment, waypoints: np.ndarray, trajectory: np.ndarray,
     history: list[float], title: str,
 ) -> None:
-    """Write a PNG with the 3-D route (waypoints and smoothed trajectory) and the best-cost curve."""
-    fig = plt.figure(figsize=(13, 6))
-    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    """Write a PNG: 3-D route, top-down view and the best-cost curve."""
+    fig = plt.figure(figsize=(18, 6))
+    ax = fig.add_subplot(1, 3, 1, projection="3d")
     z_top = max(env.z_max, float(np.max(trajectory[:, 2])) * 1.2)
     draw_environment(ax, env, z_top)
     ax.plot(*waypoints.T, "o--", color="tab:gray", ms=3, lw=0.8, label="waypoints")
@@ -60,7 +89,17 @@ def plot_plan(
     ax.view_init(elev=55, azim=-120)
     ax.legend(loc="upper left", fontsize=8)
     ax.set_title(title)
-    ax2 = fig.add_subplot(1, 2, 2)
+    top = fig.add_subplot(1, 3, 2)
+    draw_plan_view(top, env)
+    top.plot(waypoints[:, 0], waypoints[:, 1], "o--", color="tab:gray", ms=3, lw=0.8)
+    sc = top.scatter(trajectory[:, 0], trajectory[:, 1], c=trajectory[:, 2], s=3, cmap="viridis")
+    fig.colorbar(sc, ax=top, shrink=0.7, label="altitude (m)")
+    top.plot(*waypoints[0, :2], "o", color="green")
+    top.plot(*waypoints[-1, :2], "*", color="black", ms=10)
+    top.set_title("plan view")
+    if len(env.threats):
+        top.legend(loc="upper left", fontsize=8)
+    ax2 = fig.add_subplot(1, 3, 3)
     ax2.plot(np.arange(len(history)), history, color="tab:blue")
     ax2.set_yscale("log")
     ax2.set_xlabel("iteration")
@@ -68,5 +107,5 @@ def plot_plan(
     ax2.set_title("convergence")
     ax2.grid(True, which="both", alpha=0.3)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=100)
     plt.close(fig)

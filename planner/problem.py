@@ -17,19 +17,44 @@ from planner.geometry import (
     segment_point_distance,
     segment_point_distance_2d,
 )
-from planner.smoothing import extrapolated_direction, peak_curvature
+from planner.smoothing import cubic_range, deviation_bound, peak_climb, peak_curvature
 
 TERMS = ("J1", "J2", "J3", "J4", "J5")
 CATEGORIES = ("collision", "altitude", "bounds", "turn", "climb")
 _EPS = 1e-9
-_TERRAIN_T = np.linspace(0.0, 1.0, 9)  # samples per segment for terrain clearance
-_THREAT_T = np.linspace(0.0, 1.0, 6)[:-1]  # samples per segment for time-aware threats
+_TERRAIN_T = np.linspace(0.0, 1.0, 17)  # samples per segment for terrain clearance
+_THREAT_T = np.linspace(0.0, 1.0, 11)  # samples per segment (ends included) for time-aware threats
+
+
+def _dot3(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Dot product over a last axis of length 3, component-wise (a reduction over 3 is slow in numpy)."""
+    return p[..., 0] * q[..., 0] + p[..., 1] * q[..., 1] + p[..., 2] * q[..., 2]
+
+
+def _height_range(z0, z1, z2, z3, env: Environment) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+    """Exact height range of each Bézier segment (P, S) from its control heights. The control hull
+    bounds it, so the cubic's extremes are solved only where the hull reaches past the band."""
+    lo = np.minimum(np.minimum(z0, z3), np.minimum(z1, z2))
+    hi = np.maximum(np.maximum(z0, z3), np.maximum(z1, z2))
+    need = (lo < env.z_min) | (hi > env.z_max)
+    if need.any():
+        lo_x, hi_x = cubic_range(z0[need], z1[need], z2[need], z3[need])
+        lo = lo.copy()
+        hi = hi.copy()
+        lo[need] = lo_x
+        hi[need] = hi_x
+    return lo, hi
 
 
 def _per_particle(x: np.ndarray, axis: int) -> np.ndarray:
-    """Sum an array over every axis but the particle axis."""
-    others = tuple(i for i in range(x.ndim) if i != axis)
-    return x.sum(axis=others) if others else x
+    """Sum an array over every axis but the particle axis, in an order that does not depend on how
+    many particles share the batch (trailing axes row by row, leading axes strictly in sequence), so a
+    path costs the same, bit for bit, alone or in any swarm."""
+    while x.ndim > axis + 1:
+        x = x.sum(axis=-1)
+    while x.ndim > 1:
+        x = np.cumsum(x, axis=0)[-1]
+    return x
 
 
 @dataclass
@@ -73,6 +98,8 @@ class PlanningProblem:
         unlimited = np.isinf(cyl.top)
         object.__setattr__(self, "_cyl_inf", np.flatnonzero(unlimited))
         object.__setattr__(self, "_cyl_fin", np.flatnonzero(~unlimited))
+        terrain = self.env.terrain
+        object.__setattr__(self, "_terrain_slope", terrain.max_slope if terrain is not None else 0.0)
 
     @property
     def direct_distance(self) -> float:
@@ -88,7 +115,7 @@ class PlanningProblem:
         a = paths[:, :-1]
         b = paths[:, 1:]
         seg = b - a
-        seg_len = np.linalg.norm(seg, axis=-1)  # (P, S)
+        seg_len = np.sqrt(_dot3(seg, seg))  # (P, S)
         viol = {c: np.zeros(len(paths), dtype=np.int64) for c in CATEGORIES}
         pen = np.zeros(len(paths))
 
@@ -96,18 +123,31 @@ class PlanningProblem:
             """Add violations where depth > 0; ``axis`` of ``depth`` is the particle axis."""
             nonlocal pen
             hit = depth > 0.0
+            if not hit.any():
+                return
             viol[category] += _per_particle(hit, axis)
             pen = pen + _per_particle(np.where(hit, self.penalty.constant + rate * depth, 0.0), axis)
 
         per_m = self.penalty.per_metre
+        # the smoothed curve the vehicle flies (SPEC §6): unit directions, turn cosines, chord deviation
+        u = seg / np.maximum(seg_len, _EPS)[..., None]
+        v = np.concatenate([u[:, 1:], u[:, -1:]], axis=1)  # next direction; the last segment stays straight
+        cos_turn = _dot3(u, v)
+        dev = deviation_bound(seg_len, cos_turn)  # (P, S) metres the curve may stray from its chord
+        q1 = a + seg / 3.0
+        q2 = b - (seg_len / 3.0)[..., None] * v
+        z_lo, z_hi = _height_range(a[..., 2], q1[..., 2], q2[..., 2], b[..., 2], self.env)
+
         j1 = seg_len.sum(axis=1)
-        j2 = self._hazard(paths, a, b, seg_len, add)
-        j3 = self._altitude(paths, a, b, add)
-        j4 = self._smoothness(seg, seg_len, add)
+        j2 = self._hazard(paths, a, b, seg_len, dev, add)
+        j3 = self._altitude(paths, a, q1, q2, b, z_lo, z_hi, add)
+        j4 = self._smoothness(seg, seg_len, u, v, cos_turn, add)
         j5 = seg_len[:, -1] / max(self.direct_distance, _EPS)
-        # bounds: waypoints stay in the region (segments between them then do too: it is convex)
-        x, y = paths[..., 0], paths[..., 1]
-        out = np.maximum.reduce([-x, x - self.env.size_x, -y, y - self.env.size_y, np.zeros_like(x)])
+        # bounds: the curve stays in the region; it lies in the hull of a, q1 (on the chord), q2 and b
+        lo = np.minimum(np.minimum(a[..., :2], b[..., :2]), q2[..., :2])
+        hi = np.maximum(np.maximum(a[..., :2], b[..., :2]), q2[..., :2])
+        out = np.maximum.reduce([-lo[..., 0], hi[..., 0] - self.env.size_x, -lo[..., 1],
+                                 hi[..., 1] - self.env.size_y])
         add("bounds", out, per_m)
 
         terms = {"J1": j1, "J2": j2, "J3": j3, "J4": j4, "J5": j5}
@@ -125,9 +165,11 @@ class PlanningProblem:
         add("collision", d_coll - clearance, self.penalty.per_metre, axis)
         return _per_particle(soft, axis)
 
-    def _hazard(self, paths, a, b, seg_len, add) -> np.ndarray:  # noqa: ANN001
+    def _hazard(self, paths, a, b, seg_len, dev, add) -> np.ndarray:  # noqa: ANN001
         """J2: obstacles by exact segment distances; radars; time-aware dynamic threats.
 
+        The clearance of the flown curve is bounded below by the segment's exact clearance minus
+        ``dev``, the largest distance of its Bézier from the chord; that bound is what counts.
         Arrays are laid out (K obstacles, P particles, S segments) so the long axis stays innermost.
         """
         env = self.env
@@ -140,26 +182,31 @@ class PlanningProblem:
             c = segment_point_distance_2d(
                 a[..., 0], a[..., 1], b[..., 0], b[..., 1], cyl.x[i][col], cyl.y[i][col]
             ) - cyl.radius[i][col]
-            total += self._soft_and_violation(c, add, 1)
+            total += self._soft_and_violation(c - dev, add, 1)
         if len(self._cyl_fin):
             i = self._cyl_fin
             c = segment_cylinder_clearance(a[..., None, :], b[..., None, :], cyl.x[i], cyl.y[i],
                                            cyl.radius[i], cyl.top[i])  # (P, S, K)
-            total += self._soft_and_violation(c, add, 0)
+            total += self._soft_and_violation(c - dev[..., None], add, 0)
         if len(env.spheres):
             c = segment_point_distance(a3, b3, env.spheres.center[:, None, None, :])
             c = c - env.spheres.radius[:, None, None]
-            total += self._soft_and_violation(c, add, 1)
+            total += self._soft_and_violation(c - dev, add, 1)
         if len(env.radars):
             rng = segment_point_distance(a3, b3, env.radars.center[:, None, None, :])  # (K, P, S)
             r_det = env.radars.r_det[:, None, None]
-            add("collision", r_det - rng, self.penalty.per_metre, 1)
+            add("collision", r_det - (rng - dev), self.penalty.per_metre, 1)
             soft = env.radars.soft_weight[:, None, None] * (r_det / np.maximum(rng, r_det)) ** 4
             total += _per_particle(soft, 1)
         if len(env.threats) and self.start_time is not None:
             pts, times = self._timed_samples(a, b, seg_len)
             centres = env.threats.positions(times)  # (k, P, M, 3)
             dist = np.linalg.norm(pts[None] - centres, axis=-1) - env.threats.radii(times)
+            # between two samples the vehicle is within half a gap of one of them and the threat
+            # moves at most its speed for that time: subtract both, and the chord deviation
+            gap = seg_len / (len(_THREAT_T) - 1)
+            margin = dev + 0.5 * gap * (1.0 + env.threats.max_speed / self.vehicle.cruise_speed)
+            dist = dist - np.repeat(margin, len(_THREAT_T), axis=1)
             total += self._soft_and_violation(dist, add, 1)
         return total
 
@@ -172,23 +219,29 @@ class PlanningProblem:
         p = len(a)
         return pts.reshape(p, -1, 3), t.reshape(p, -1)
 
-    def _altitude(self, paths, a, b, add) -> np.ndarray:  # noqa: ANN001
-        """J3: distance from mid-band over interior waypoints; band violations (with terrain)."""
+    def _altitude(self, paths, a, q1, q2, b, curve_lo, curve_hi, add) -> np.ndarray:  # noqa: ANN001
+        """J3: distance from mid-band over interior waypoints; band violations of the flown curve."""
         env = self.env
-        z_lo, z_hi = env.z_min, env.z_max
+        z_lo, z_hi = env.z_min, env.z_max  # band above terrain
         mid, half = 0.5 * (z_lo + z_hi), 0.5 * (z_hi - z_lo)
         wp = paths[:, 1:-1]
         h = wp[..., 2] - env.ground(wp[..., 0], wp[..., 1])
         j3 = (np.abs(h - mid) / half).sum(axis=1)
-        if env.terrain is None:
-            z = paths[..., 2]  # straight segments: extremes at their ends
-        else:
-            pts = a[:, :, None, :] + _TERRAIN_T[:, None] * (b - a)[:, :, None, :]
+        if env.terrain is None:  # exact height range of each Bézier segment
+            depth = np.maximum(z_lo - curve_lo, curve_hi - z_hi)
+        else:  # height above the ground under samples of the curve, less what the ground can rise
+            t = _TERRAIN_T[:, None]  # between two samples (max slope × half the sample gap)
+            s = 1.0 - t
+            pts = (s**3 * a[:, :, None] + 3 * s**2 * t * q1[:, :, None] + 3 * s * t**2 * q2[:, :, None]
+                   + t**3 * b[:, :, None])  # (P, S, m, 3)
             z = pts[..., 2] - env.ground(pts[..., 0], pts[..., 1])
-        add("altitude", np.maximum(z_lo - z, z - z_hi), self.penalty.per_metre)
+            gap = np.sqrt(_dot3(q1 - a, q1 - a)) * (3.0 / (len(_TERRAIN_T) - 1))  # ≥ chord/(m−1)
+            margin = (0.5 * self._terrain_slope * gap)[..., None]
+            depth = np.maximum(z_lo + margin - z, z - z_hi)
+        add("altitude", depth, self.penalty.per_metre)
         return j3
 
-    def _smoothness(self, seg, seg_len, add) -> np.ndarray:  # noqa: ANN001
+    def _smoothness(self, seg, seg_len, u, v, cos_turn, add) -> np.ndarray:  # noqa: ANN001
         """J4: turn and climb-change angles at interior waypoints; turn, curvature and climb limits."""
         veh = self.vehicle
         x, y, z = seg[..., 0], seg[..., 1], seg[..., 2]
@@ -202,15 +255,7 @@ class PlanningProblem:
         j4 = (turn + dgamma + over**2).sum(axis=1)
         add("turn", over, self.penalty.per_radian)
         # flyability of the smoothed curve (SPEC §6): curvature ≤ 1/R_min and its climb angle
-        inv = 1.0 / np.maximum(seg_len, _EPS)
-        ux, uy, uz = x * inv, y * inv, z * inv
-        cos_turn = ux[:, :-1] * ux[:, 1:] + uy[:, :-1] * uy[:, 1:] + uz[:, :-1] * uz[:, 1:]
-        kappa = peak_curvature(seg_len[:, :-1], cos_turn)  # the last segment stays straight
+        kappa = peak_curvature(seg_len, cos_turn)  # zero on the straight last segment
         add("turn", kappa * veh.min_turn_radius - 1.0, self.penalty.per_radian)
-        w = extrapolated_direction(np.stack([ux, uy, uz])[:, :, :-1], np.stack([ux, uy, uz])[:, :, 1:])
-        gamma_w = np.arctan2(w[2], np.hypot(w[0], w[1]))
-        climb = np.abs(gamma)
-        climb_peak = np.maximum(np.maximum(climb[:, :-1], climb[:, 1:]), np.abs(gamma_w))
-        add("climb", np.concatenate([climb_peak, climb[:, -1:]], axis=1) - veh.max_climb,
-            self.penalty.per_radian)
+        add("climb", peak_climb(u, v) - veh.max_climb, self.penalty.per_radian)
         return j4

@@ -60,8 +60,9 @@ def sample_trajectory(waypoints: np.ndarray, spacing: float) -> dict[str, np.nda
     ``segment`` (M,) index of the Bézier segment, ``s`` (M,) arc length from the start (m).
     """
     ctrl = bezier_controls(np.asarray(waypoints, dtype=float))  # (S, 4, 3)
-    chord = np.linalg.norm(ctrl[:, 3] - ctrl[:, 0], axis=-1)
-    counts = np.maximum(np.ceil(chord / spacing).astype(int), 1)
+    # |B'(t)| ≤ 3 · longest control leg, so this many steps keeps samples ≤ spacing apart on the curve
+    legs = np.linalg.norm(np.diff(ctrl, axis=1), axis=-1).max(axis=1)
+    counts = np.maximum(np.ceil(3.0 * legs / spacing).astype(int), 1)
     seg = np.repeat(np.arange(len(ctrl)), counts)
     first = np.repeat(np.cumsum(counts) - counts, counts)
     t = (np.arange(seg.size) - first) / counts[seg]
@@ -107,7 +108,56 @@ def peak_curvature(seg_len: np.ndarray, cos_turn: np.ndarray) -> np.ndarray:
     return peak_factor(c) * np.sqrt(1.0 - c * c) / np.maximum(seg_len, _EPS)
 
 
-def extrapolated_direction(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """The Bézier tangent runs along u + β(v − u) for β ∈ [−1/3, 1]; this is its β = −1/3 end,
-    (4u − v)/3, which with u and v bounds the curve's climb angle for the shallow angles flown."""
-    return (4.0 * u - v) / 3.0
+def peak_climb(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Largest |flight-path angle| (rad) on the Bézier of a segment with unit direction u followed by v.
+
+    Its tangent runs along w(β) = u + β (v − u), β ∈ [−1/3, 1]. The ratio z/|h| (h the horizontal part)
+    has one stationary point β* = (z_u (h_u·d_h) − d_z |h_u|²) / (d_z (h_u·d_h) − z_u |d_h|²) with
+    d = v − u, so the peak is at β = −1/3, β = 1 or β* clipped into the range. (..., 3) → (...).
+    """
+    d = v - u
+    hu_dh = u[..., 0] * d[..., 0] + u[..., 1] * d[..., 1]
+    hu2 = u[..., 0] ** 2 + u[..., 1] ** 2
+    dh2 = d[..., 0] ** 2 + d[..., 1] ** 2
+    num = u[..., 2] * hu_dh - d[..., 2] * hu2
+    den = d[..., 2] * hu_dh - u[..., 2] * dh2
+    beta = np.clip(num / np.where(np.abs(den) > 1e-15, den, np.inf), -1.0 / 3.0, 1.0)
+    peak = np.zeros(u.shape[:-1])
+    for bb in (np.full(u.shape[:-1], -1.0 / 3.0), np.ones(u.shape[:-1]), beta):
+        w = u + bb[..., None] * d
+        peak = np.maximum(peak, np.abs(np.arctan2(w[..., 2], np.hypot(w[..., 0], w[..., 1]))))
+    return peak
+
+
+def deviation_bound(seg_len: np.ndarray, cos_turn: np.ndarray) -> np.ndarray:
+    """Largest distance of a segment's Bézier from its chord: Q1 lies on the chord and Q2 is offset by
+    (r/3) sin θ, so the offset is t²(1−t) r sin θ, at most (4/27) r sin θ (t = 2/3). For turns past 90°
+    Q2 also overshoots the chord's end; (4/27) r bounds both. Shapes broadcast → metres."""
+    c = np.clip(cos_turn, -1.0, 1.0)
+    return (4.0 / 27.0) * seg_len * np.where(c >= 0.0, np.sqrt(1.0 - c * c), 1.0)
+
+
+def cubic_range(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, q3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact min and max over t ∈ [0, 1] of a scalar cubic Bézier with coefficients q0…q3 (arrays).
+
+    Extremes lie at the ends or where the derivative 3[(1−t)² a + 2t(1−t) b + t² c] vanishes.
+    """
+    a, b, c = q1 - q0, q2 - q1, q3 - q2
+    qa = a - 2 * b + c  # derivative/3 = qa t² + qb t + a
+    qb = 2 * (b - a)
+    disc = qb * qb - 4 * qa * a
+    sq = np.sqrt(np.maximum(disc, 0.0))
+    lin = np.abs(qa) < 1e-12
+    with np.errstate(divide="ignore", invalid="ignore"):
+        den = np.where(lin, 1.0, 2 * qa)
+        r1 = np.where(lin, -a / np.where(np.abs(qb) > 1e-12, qb, np.inf), (-qb - sq) / den)
+        r2 = np.where(lin, r1, (-qb + sq) / den)
+    lo, hi = np.minimum(q0, q3), np.maximum(q0, q3)
+    for r in (r1, r2):
+        ok = (disc >= 0) & (r > 0.0) & (r < 1.0)
+        t = np.where(ok, r, 0.0)
+        s = 1.0 - t
+        val = s**3 * q0 + 3 * s**2 * t * q1 + 3 * s * t**2 * q2 + t**3 * q3
+        lo = np.where(ok, np.minimum(lo, val), lo)
+        hi = np.where(ok, np.maximum(hi, val), hi)
+    return lo, hi

@@ -33,6 +33,14 @@ class Terrain:
         object.__setattr__(self, "heights", h)
 
     @property
+    def max_slope(self) -> float:
+        """Upper bound of |∇h| of the bilinear surface (rise per horizontal metre): per cell the
+        gradient is a blend of its edge slopes, so the largest x and y edge slopes bound it."""
+        gx = np.abs(np.diff(self.heights, axis=1)).max() / self.dx
+        gy = np.abs(np.diff(self.heights, axis=0)).max() / self.dy
+        return float(np.hypot(gx, gy))
+
+    @property
     def max_height(self) -> float:
         return float(self.heights.max())
 
