@@ -48,12 +48,12 @@ def _height_range(z0, z1, z2, z3, env: Environment) -> tuple[np.ndarray, np.ndar
 
 def _per_particle(x: np.ndarray, axis: int) -> np.ndarray:
     """Sum an array over every axis but the particle axis, in an order that does not depend on how
-    many particles share the batch (trailing axes row by row, leading axes strictly in sequence), so a
-    path costs the same, bit for bit, alone or in any swarm."""
-    while x.ndim > axis + 1:
-        x = x.sum(axis=-1)
-    while x.ndim > 1:
+    many particles share the batch (leading axes strictly in sequence, then trailing axes row by row),
+    so a path costs the same, bit for bit, alone or in any swarm."""
+    for _ in range(axis):
         x = np.cumsum(x, axis=0)[-1]
+    while x.ndim > 1:
+        x = x.sum(axis=-1)
     return x
 
 
@@ -122,9 +122,9 @@ class PlanningProblem:
         def add(category: str, depth: np.ndarray, rate: float, axis: int = 0) -> None:
             """Add violations where depth > 0; ``axis`` of ``depth`` is the particle axis."""
             nonlocal pen
-            hit = depth > 0.0
-            if not hit.any():
+            if depth.size == 0 or not depth.max() > 0.0:  # the usual case once feasible: one pass
                 return
+            hit = depth > 0.0
             viol[category] += _per_particle(hit, axis)
             pen = pen + _per_particle(np.where(hit, self.penalty.constant + rate * depth, 0.0), axis)
 
@@ -134,13 +134,12 @@ class PlanningProblem:
         v = np.concatenate([u[:, 1:], u[:, -1:]], axis=1)  # next direction; the last segment stays straight
         cos_turn = _dot3(u, v)
         dev = deviation_bound(seg_len, cos_turn)  # (P, S) metres the curve may stray from its chord
-        q1 = a + seg / 3.0
-        q2 = b - (seg_len / 3.0)[..., None] * v
-        z_lo, z_hi = _height_range(a[..., 2], q1[..., 2], q2[..., 2], b[..., 2], self.env)
+        q2 = b - (seg_len / 3.0)[..., None] * v  # Q1 = a + seg/3 lies on the chord
+        z_lo, z_hi = _height_range(a[..., 2], a[..., 2] + seg[..., 2] / 3.0, q2[..., 2], b[..., 2], self.env)
 
         j1 = seg_len.sum(axis=1)
         j2 = self._hazard(paths, a, b, seg_len, dev, add)
-        j3 = self._altitude(paths, a, q1, q2, b, z_lo, z_hi, add)
+        j3 = self._altitude(paths, a, q2, b, z_lo, z_hi, add)
         j4 = self._smoothness(seg, seg_len, u, v, cos_turn, add)
         j5 = seg_len[:, -1] / max(self.direct_distance, _EPS)
         # bounds: the curve stays in the region; it lies in the hull of a, q1 (on the chord), q2 and b
@@ -160,10 +159,11 @@ class PlanningProblem:
     def _soft_and_violation(self, clearance: np.ndarray, add, axis: int) -> np.ndarray:  # noqa: ANN001
         """T_c(d) per particle; d < d_coll adds a violation of depth d_coll − d (SPEC §4)."""
         d_safe, d_coll = self.hazard.d_safe, self.hazard.d_coll
-        gap = d_safe - np.maximum(clearance, d_coll)
-        soft = np.maximum(gap, 0.0) ** 2 / d_safe
-        add("collision", d_coll - clearance, self.penalty.per_metre, axis)
-        return _per_particle(soft, axis)
+        gap = d_safe - clearance  # how far inside d_safe; capped where the violation takes over
+        add("collision", gap - (d_safe - d_coll), self.penalty.per_metre, axis)
+        np.clip(gap, 0.0, d_safe - d_coll, out=gap)
+        np.multiply(gap, gap, out=gap)
+        return _per_particle(gap, axis) / d_safe
 
     def _hazard(self, paths, a, b, seg_len, dev, add) -> np.ndarray:  # noqa: ANN001
         """J2: obstacles by exact segment distances; radars; time-aware dynamic threats.
@@ -181,8 +181,10 @@ class PlanningProblem:
             col = (slice(None), None, None)
             c = segment_point_distance_2d(
                 a[..., 0], a[..., 1], b[..., 0], b[..., 1], cyl.x[i][col], cyl.y[i][col]
-            ) - cyl.radius[i][col]
-            total += self._soft_and_violation(c - dev, add, 1)
+            )
+            c -= cyl.radius[i][col]
+            c -= dev
+            total += self._soft_and_violation(c, add, 1)
         if len(self._cyl_fin):
             i = self._cyl_fin
             c = segment_cylinder_clearance(a[..., None, :], b[..., None, :], cyl.x[i], cyl.y[i],
@@ -219,7 +221,7 @@ class PlanningProblem:
         p = len(a)
         return pts.reshape(p, -1, 3), t.reshape(p, -1)
 
-    def _altitude(self, paths, a, q1, q2, b, curve_lo, curve_hi, add) -> np.ndarray:  # noqa: ANN001
+    def _altitude(self, paths, a, q2, b, curve_lo, curve_hi, add) -> np.ndarray:  # noqa: ANN001
         """J3: distance from mid-band over interior waypoints; band violations of the flown curve."""
         env = self.env
         z_lo, z_hi = env.z_min, env.z_max  # band above terrain
@@ -230,6 +232,7 @@ class PlanningProblem:
         if env.terrain is None:  # exact height range of each Bézier segment
             depth = np.maximum(z_lo - curve_lo, curve_hi - z_hi)
         else:  # height above the ground under samples of the curve, less what the ground can rise
+            q1 = a + (b - a) / 3.0
             t = _TERRAIN_T[:, None]  # between two samples (max slope × half the sample gap)
             s = 1.0 - t
             pts = (s**3 * a[:, :, None] + 3 * s**2 * t * q1[:, :, None] + 3 * s * t**2 * q2[:, :, None]

@@ -116,17 +116,22 @@ def peak_climb(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     d = v − u, so the peak is at β = −1/3, β = 1 or β* clipped into the range. (..., 3) → (...).
     """
     d = v - u
-    hu_dh = u[..., 0] * d[..., 0] + u[..., 1] * d[..., 1]
-    hu2 = u[..., 0] ** 2 + u[..., 1] ** 2
-    dh2 = d[..., 0] ** 2 + d[..., 1] ** 2
-    num = u[..., 2] * hu_dh - d[..., 2] * hu2
-    den = d[..., 2] * hu_dh - u[..., 2] * dh2
+    ux, uy, uz = u[..., 0], u[..., 1], u[..., 2]
+    dx, dy, dz = d[..., 0], d[..., 1], d[..., 2]
+    hu_dh = ux * dx + uy * dy
+    hu2 = ux * ux + uy * uy
+    dh2 = dx * dx + dy * dy
+    num = uz * hu_dh - dz * hu2
+    den = dz * hu_dh - uz * dh2
     beta = np.clip(num / np.where(np.abs(den) > 1e-15, den, np.inf), -1.0 / 3.0, 1.0)
-    peak = np.zeros(u.shape[:-1])
-    for bb in (np.full(u.shape[:-1], -1.0 / 3.0), np.ones(u.shape[:-1]), beta):
-        w = u + bb[..., None] * d
-        peak = np.maximum(peak, np.abs(np.arctan2(w[..., 2], np.hypot(w[..., 0], w[..., 1]))))
-    return peak
+    # |angle| grows with |z| / |h|: compare the ratios squared and take one arctan at the end
+    best = np.zeros(u.shape[:-1])
+    for bb in (-1.0 / 3.0, 1.0, beta):
+        wz = uz + bb * dz
+        wx = ux + bb * dx
+        wy = uy + bb * dy
+        best = np.maximum(best, wz * wz / np.maximum(wx * wx + wy * wy, 1e-300))
+    return np.arctan(np.sqrt(best))
 
 
 def deviation_bound(seg_len: np.ndarray, cos_turn: np.ndarray) -> np.ndarray:
