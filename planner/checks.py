@@ -12,10 +12,11 @@ import numpy as np
 
 from planner.config import HazardConfig, VehicleLimits
 from planner.environment import Environment
-from planner.geometry import cylinder_signed_distance
+from planner.geometry import cylinder_signed_distance, horizontal_turn
+from planner.problem import CATEGORIES
 from planner.smoothing import climb_angle, sample_trajectory
 
-CHECK_CATEGORIES = ("collision", "altitude", "turn", "climb", "bounds")
+CHECK_CATEGORIES = CATEGORIES
 _TOL_M = 1e-6  # metres of slack for samples exactly on a limit (start on the band floor, say)
 _TOL_REL = 1e-6
 MAX_REPORTED = 5
@@ -106,9 +107,7 @@ def check_trajectory(
     locations = {c: p[_run_starts(bad[c])][:MAX_REPORTED].round(1).tolist() for c in CHECK_CATEGORIES}
     # waypoint turn angles beyond the vehicle's limit (horizontal heading change)
     seg = np.diff(np.asarray(waypoints, dtype=float), axis=0)
-    cross = seg[:-1, 0] * seg[1:, 1] - seg[:-1, 1] * seg[1:, 0]
-    dot = seg[:-1, 0] * seg[1:, 0] + seg[:-1, 1] * seg[1:, 1]
-    sharp = np.flatnonzero(np.abs(np.arctan2(cross, dot)) > vehicle.max_turn * (1.0 + _TOL_REL))
+    sharp = np.flatnonzero(horizontal_turn(seg) > vehicle.max_turn * (1.0 + _TOL_REL))
     counts["turn"] += len(sharp)
     locations["turn"] += np.asarray(waypoints)[sharp + 1][:MAX_REPORTED].round(1).tolist()
     return CheckResult(counts, {k: v for k, v in locations.items() if v}, np.minimum(solid, radar))

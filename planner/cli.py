@@ -57,6 +57,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if args.seed is not None:
         overrides.append(f"planner.seed={args.seed}")
     scenario = load_scenario(args.scenario, overrides)
+    if args.plot is not None and args.plot.suffix.lower() != ".png":
+        raise FuseplanError(f"{args.plot}: --plot writes a PNG; name the file *.png")
+    for out in (args.output, args.plot):  # fail before a long search, not after it
+        _check_writable(out)
     settings = scenario.planner
     problem = problem_from_scenario(scenario)
     if not args.quiet:
@@ -70,15 +74,20 @@ def cmd_plan(args: argparse.Namespace) -> int:
     m = doc["metrics"]
     direct = problem.direct_distance
     viol = ", ".join(f"{k} {v}" for k, v in doc["violations"].items())
+    extra = {k: v for k, v in doc["cost_violations"].items() if v}
+    if extra:
+        viol += " (cost terms on the waypoint path: " + ", ".join(f"{k} {v}" for k, v in extra.items()) + ")"
     print(f"{scenario.name}: {result.algorithm} seed {result.seed} -> {result.status.value}")
+    clearance = m["min_clearance_m"]
     print(f"  cost      {result.cost:.1f}  (penalty {doc['cost_terms']['penalty']:.1f})")
     print(f"  length    {m['length_m']:.1f} m  ({m['length_m'] / direct:.3f} x direct {direct:.1f} m), "
-          f"smoothness {m['smoothness']:.2f} rad, min clearance {m['min_clearance_m']:.1f} m")
+          f"smoothness {m['smoothness']:.2f} rad, min clearance "
+          + ("n/a (no obstacles)" if clearance is None else f"{clearance:.1f} m"))
     print(f"  violations {viol}")
     print(f"  time      {m['plan_time_s']:.2f} s, {m['iterations']} iterations "
           f"({result.optimiser.stop_reason}), converged at iteration {m['convergence_iteration']}")
     if args.output:
-        _write(args.output, json.dumps(doc, indent=1) + "\n")
+        _write(args.output, json.dumps(doc, indent=1, allow_nan=False) + "\n")
         print(f"  wrote {args.output}")
     if args.plot:
         from planner.plot import plot_plan
@@ -95,12 +104,25 @@ def cmd_plan(args: argparse.Namespace) -> int:
 def cmd_demo(args: argparse.Namespace) -> int:
     here = Path(__file__).resolve().parent.parent / "sitl_scenarios" / "rescue_static.toml"
     out = Path("fuseplan-demo")
-    out.mkdir(exist_ok=True)
+    try:
+        out.mkdir(exist_ok=True)
+    except OSError as e:
+        raise FuseplanError(f"{out}: cannot create the report directory: {e.strerror or e}") from e
     print("fuseplan demo: flying on the built-in simulated autopilot is not available yet "
           "(companion issue); planning the rescue scenario instead.")
     ns = argparse.Namespace(scenario=here, algorithm=None, seed=None, overrides=[], quiet=False,
                             output=out / "PLAN.json", plot=out / "plan.png")
     return cmd_plan(ns)
+
+
+def _check_writable(path: Path | None) -> None:
+    if path is None:
+        return
+    parent = path.resolve().parent
+    if not parent.is_dir():
+        raise FuseplanError(f"{path}: directory {parent} does not exist")
+    if path.is_dir():
+        raise FuseplanError(f"{path}: is a directory")
 
 
 def _write(path: Path, text: str) -> None:
@@ -120,6 +142,10 @@ def main(argv: list[str] | None = None) -> int:
         return cmd_demo(args)
     except FuseplanError as e:
         print(f"fuseplan: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except MemoryError:
+        print("fuseplan: error: out of memory: reduce planner.pso.n_pop, n_waypoints or the map size",
+              file=sys.stderr)
         return EXIT_BAD_INPUT
 
 

@@ -14,6 +14,7 @@ from pydantic import ConfigDict
 
 STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 G0 = 9.80665  # standard gravity, m/s²
+TERMS = ("J1", "J2", "J3", "J4", "J5")  # length, hazard, altitude, smoothness, destination (SPEC §4)
 
 
 @dataclass(frozen=True)
@@ -70,6 +71,10 @@ class CostWeights:
     altitude: float = 10.0
     smoothness: float = 5.0
     destination: float = 100.0
+
+    def by_term(self) -> dict[str, float]:
+        """Weights keyed by term name J1…J5."""
+        return dict(zip(TERMS, (self.length, self.hazard, self.altitude, self.smoothness, self.destination)))
 
 
 @dataclass(frozen=True)

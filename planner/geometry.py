@@ -147,3 +147,11 @@ def cartesian_to_spherical(
     horiz = np.hypot(steps[..., 0], steps[..., 1])
     r = np.hypot(horiz, steps[..., 2])
     return r, np.arctan2(steps[..., 2], horiz), np.arctan2(steps[..., 1], steps[..., 0])
+
+
+def horizontal_turn(seg: np.ndarray) -> np.ndarray:
+    """Heading change (rad, in [0, π]) between consecutive segment vectors (..., S, 3) → (..., S − 1)."""
+    x, y = seg[..., 0], seg[..., 1]
+    cross = x[..., :-1] * y[..., 1:] - y[..., :-1] * x[..., 1:]
+    dot = x[..., :-1] * x[..., 1:] + y[..., :-1] * y[..., 1:]
+    return np.abs(np.arctan2(cross, dot))

@@ -25,9 +25,12 @@ from planner.checks import (
     smoothness,
 )
 from planner.config import PlannerSettings
-from planner.problem import PlanningProblem
+from planner.problem import Evaluation, PlanningProblem
 from planner.scenario import Scenario
 from planner.spso import OptimiserResult, SphericalPSO
+
+
+MERGE_TOLERANCE_M = 1.0
 
 
 class PlanStatus(str, enum.Enum):
@@ -43,6 +46,7 @@ class PlanResult:
     algorithm: str
     seed: int | None
     waypoints: np.ndarray  # (N, 3) ENU metres, start and goal included
+    evaluation: Evaluation  # cost of exactly these waypoints (batch of one)
     trajectory: Trajectory
     check: CheckResult
     optimiser: OptimiserResult
@@ -54,14 +58,17 @@ class PlanResult:
 
     @property
     def cost(self) -> float:
-        return self.optimiser.cost
+        return float(self.evaluation.total[0])
 
     @property
     def violations(self) -> dict[str, int]:
-        """Per category: what the trajectory check found, or the cost's count on the waypoint path if higher."""
-        ev = self.optimiser.evaluation.violations
-        return {k: max(self.check.counts.get(k, 0), int(ev.get(k, np.zeros(1))[0]))
-                for k in self.check.counts}
+        """Per category: runs of offending samples on the smoothed trajectory (the checker's verdict)."""
+        return dict(self.check.counts)
+
+    @property
+    def cost_violations(self) -> dict[str, int]:
+        """Per category: violation terms the cost counted on the waypoint path (segment × obstacle pairs)."""
+        return {k: int(v[0]) for k, v in self.evaluation.violations.items()}
 
     def metrics(self, d_safe: float) -> dict[str, float | int]:
         return {
@@ -98,27 +105,53 @@ def plan(
         raise ValueError(f"unknown algorithm {settings.algorithm!r}")
     opt = SphericalPSO(settings.pso).run(problem, rng, initial_paths=initial_paths, budget_s=budget_s,
                                          progress=progress)
+    waypoints = merge_close_waypoints(opt.path)
+    evaluation = problem.evaluate(waypoints[None]) if len(waypoints) != len(opt.path) else opt.evaluation
     timed = problem.start_time is not None and len(problem.env.threats) > 0
-    traj = smooth(opt.path, settings.sample_spacing, problem.vehicle.cruise_speed,
+    traj = smooth(waypoints, settings.sample_spacing, problem.vehicle.cruise_speed,
                   problem.start_time or 0.0)
-    check = check_trajectory(traj, opt.path, problem.env, problem.hazard, problem.vehicle, timed)
-    path_ok = int(opt.evaluation.n_violations[0]) == 0
-    feasible = path_ok and check.feasible
+    check = check_trajectory(traj, waypoints, problem.env, problem.hazard, problem.vehicle, timed)
+    feasible = int(evaluation.n_violations[0]) == 0 and check.feasible
     if opt.stop_reason == "timeout":
         status = PlanStatus.APPROXIMATE if feasible else PlanStatus.TIMEOUT
     else:
         status = PlanStatus.EXACT if feasible else PlanStatus.INFEASIBLE
-    return PlanResult(status, settings.algorithm, seed, opt.path, traj, check, opt,
+    return PlanResult(status, settings.algorithm, seed, waypoints, evaluation, traj, check, opt,
                       time.perf_counter() - t0)
 
 
+def merge_close_waypoints(path: np.ndarray, tol: float = MERGE_TOLERANCE_M) -> np.ndarray:
+    """Drop interior waypoints closer than ``tol`` metres to the previous kept one or to the goal.
+
+    The destination term pulls P_n onto G, often to within micrometres; such a leg carries no route but
+    its Bézier has numerically meaningless curvature, and a mission would get two items at one place.
+    """
+    keep = [path[0]]
+    for p in path[1:-1]:  # a handful of waypoints: a loop is clearer than a mask here
+        if np.linalg.norm(p - keep[-1]) >= tol and np.linalg.norm(path[-1] - p) >= tol:
+            keep.append(p)
+    keep.append(path[-1])
+    return np.array(keep)
+
+
+def json_safe(value: Any) -> Any:
+    """Replace non-finite floats (an empty map's infinite clearance, say) by None, recursively, so the
+    document is strict JSON."""
+    if isinstance(value, float):
+        return value if np.isfinite(value) else None
+    if isinstance(value, dict):
+        return {k: json_safe(v) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [json_safe(v) for v in value]
+    return value
+
+
 def plan_to_json(result: PlanResult, scenario: Scenario) -> dict[str, Any]:
-    """The PLAN.json document (see README, "PLAN.json")."""
-    ev = result.optimiser.evaluation
-    w = scenario.planner.weights
-    weights = {"J1": w.length, "J2": w.hazard, "J3": w.altitude, "J4": w.smoothness, "J5": w.destination}
+    """The PLAN.json document (see README, "PLAN.json"); strict JSON (non-finite numbers become null)."""
+    ev = result.evaluation
+    weights = scenario.planner.weights.by_term()
     traj = result.trajectory
-    return {
+    return json_safe({
         "format": "fuseplan-plan/1",
         "scenario": scenario.name,
         "status": result.status.value,
@@ -139,10 +172,11 @@ def plan_to_json(result: PlanResult, scenario: Scenario) -> dict[str, Any]:
         },
         "violations": result.violations,
         "violation_locations": result.check.locations,
+        "cost_violations": result.cost_violations,
         "metrics": result.metrics(scenario.hazard.d_safe),
         "history": [float(h) for h in result.optimiser.history],
         "home": {"lat": scenario.home.lat, "lon": scenario.home.lon, "alt": scenario.home.alt},
         "vehicle": {"type": scenario.vehicle.type, "cruise_speed": scenario.vehicle.cruise_speed,
                     "min_turn_radius_m": scenario.vehicle.min_turn_radius},
         "hazard": {"d_safe": scenario.hazard.d_safe, "d_coll": scenario.hazard.d_coll},
-    }
+    })

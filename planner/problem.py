@@ -10,16 +10,17 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.config import CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
+from planner.config import TERMS, CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
 from planner.environment import Environment
 from planner.geometry import (
+    horizontal_turn,
     segment_cylinder_clearance,
     segment_point_distance,
     segment_point_distance_2d,
+    segment_sphere_clearance,
 )
-from planner.smoothing import cubic_range, deviation_bound, peak_climb, peak_curvature
+from planner.smoothing import bezier_point, climb_angle, cubic_range, deviation_bound, peak_climb, peak_curvature
 
-TERMS = ("J1", "J2", "J3", "J4", "J5")
 CATEGORIES = ("collision", "altitude", "bounds", "turn", "climb")
 _EPS = 1e-9
 _TERRAIN_T = np.linspace(0.0, 1.0, 17)  # samples per segment for terrain clearance
@@ -48,10 +49,13 @@ def _height_range(z0, z1, z2, z3, env: Environment) -> tuple[np.ndarray, np.ndar
 
 def _per_particle(x: np.ndarray, axis: int) -> np.ndarray:
     """Sum an array over every axis but the particle axis, in an order that does not depend on how
-    many particles share the batch (leading axes strictly in sequence, then trailing axes row by row),
-    so a path costs the same, bit for bit, alone or in any swarm."""
+    many particles share the batch, so a path costs the same, bit for bit, alone or in any swarm.
+
+    Leading (obstacle) axes are reduced first: with the segment axis still innermost numpy adds them
+    element-wise in sequence. Trailing axes are then reduced row by row. (Reducing the segment axis
+    first would leave (K, P) arrays whose sum over K is pairwise or sequential depending on P.)"""
     for _ in range(axis):
-        x = np.cumsum(x, axis=0)[-1]
+        x = np.add.reduce(x, axis=0)
     while x.ndim > 1:
         x = x.sum(axis=-1)
     return x
@@ -94,10 +98,7 @@ class PlanningProblem:
             v = np.array(getattr(self, name), dtype=float).reshape(3)
             v.setflags(write=False)
             object.__setattr__(self, name, v)
-        cyl = self.env.cylinders
-        unlimited = np.isinf(cyl.top)
-        object.__setattr__(self, "_cyl_inf", np.flatnonzero(unlimited))
-        object.__setattr__(self, "_cyl_fin", np.flatnonzero(~unlimited))
+        object.__setattr__(self, "_cyl_fin", np.flatnonzero(np.isfinite(self.env.cylinders.top)))
         terrain = self.env.terrain
         object.__setattr__(self, "_terrain_slope", terrain.max_slope if terrain is not None else 0.0)
 
@@ -149,10 +150,10 @@ class PlanningProblem:
                                  hi[..., 1] - self.env.size_y])
         add("bounds", out, per_m)
 
-        terms = {"J1": j1, "J2": j2, "J3": j3, "J4": j4, "J5": j5}
-        w = self.weights
-        total = (w.length * j1 + w.hazard * j2 + w.altitude * j3 + w.smoothness * j4
-                 + w.destination * j5 + pen)
+        terms = dict(zip(TERMS, (j1, j2, j3, j4, j5)))
+        total = pen
+        for name, weight in self.weights.by_term().items():  # five named terms, not a hot loop
+            total = total + weight * terms[name]
         return Evaluation(total=total, terms=terms, penalty=pen, violations=viol)
 
     # -- terms ------------------------------------------------------------------------------------
@@ -176,23 +177,21 @@ class PlanningProblem:
         total = np.zeros(len(paths))
         a3, b3 = a[None], b[None]  # (1, P, S, 3)
         cyl = env.cylinders
-        if len(self._cyl_inf):
-            i = self._cyl_inf
+        if len(cyl):
             col = (slice(None), None, None)
-            c = segment_point_distance_2d(
-                a[..., 0], a[..., 1], b[..., 0], b[..., 1], cyl.x[i][col], cyl.y[i][col]
-            )
-            c -= cyl.radius[i][col]
+            # 2-D distance to the axis − R: exact for unlimited cylinders, a lower bound for finite ones
+            c = segment_point_distance_2d(a[..., 0], a[..., 1], b[..., 0], b[..., 1], cyl.x[col], cyl.y[col])
+            c -= cyl.radius[col]
+            if len(self._cyl_fin):  # refine finite tops only where the bound says it could matter
+                need = np.isfinite(cyl.top)[col] & (c - dev < self.hazard.d_safe)
+                k, p, s = np.nonzero(need)
+                c[k, p, s] = segment_cylinder_clearance(a[p, s], b[p, s], cyl.x[k], cyl.y[k],
+                                                        cyl.radius[k], cyl.top[k])
             c -= dev
             total += self._soft_and_violation(c, add, 1)
-        if len(self._cyl_fin):
-            i = self._cyl_fin
-            c = segment_cylinder_clearance(a[..., None, :], b[..., None, :], cyl.x[i], cyl.y[i],
-                                           cyl.radius[i], cyl.top[i])  # (P, S, K)
-            total += self._soft_and_violation(c - dev[..., None], add, 0)
         if len(env.spheres):
-            c = segment_point_distance(a3, b3, env.spheres.center[:, None, None, :])
-            c = c - env.spheres.radius[:, None, None]
+            c = segment_sphere_clearance(a3, b3, env.spheres.center[:, None, None, :],
+                                         env.spheres.radius[:, None, None])
             total += self._soft_and_violation(c - dev, add, 1)
         if len(env.radars):
             rng = segment_point_distance(a3, b3, env.radars.center[:, None, None, :])  # (K, P, S)
@@ -234,9 +233,7 @@ class PlanningProblem:
         else:  # height above the ground under samples of the curve, less what the ground can rise
             q1 = a + (b - a) / 3.0
             t = _TERRAIN_T[:, None]  # between two samples (max slope × half the sample gap)
-            s = 1.0 - t
-            pts = (s**3 * a[:, :, None] + 3 * s**2 * t * q1[:, :, None] + 3 * s * t**2 * q2[:, :, None]
-                   + t**3 * b[:, :, None])  # (P, S, m, 3)
+            pts = bezier_point(a[:, :, None], q1[:, :, None], q2[:, :, None], b[:, :, None], t)  # (P, S, m, 3)
             z = pts[..., 2] - env.ground(pts[..., 0], pts[..., 1])
             gap = np.sqrt(_dot3(q1 - a, q1 - a)) * (3.0 / (len(_TERRAIN_T) - 1))  # ≥ chord/(m−1)
             margin = (0.5 * self._terrain_slope * gap)[..., None]
@@ -247,12 +244,8 @@ class PlanningProblem:
     def _smoothness(self, seg, seg_len, u, v, cos_turn, add) -> np.ndarray:  # noqa: ANN001
         """J4: turn and climb-change angles at interior waypoints; turn, curvature and climb limits."""
         veh = self.vehicle
-        x, y, z = seg[..., 0], seg[..., 1], seg[..., 2]
-        horiz = np.hypot(x, y)
-        gamma = np.arctan2(z, horiz)  # climb angle of every segment
-        cross = x[:, :-1] * y[:, 1:] - y[:, :-1] * x[:, 1:]
-        dot_h = x[:, :-1] * x[:, 1:] + y[:, :-1] * y[:, 1:]
-        turn = np.abs(np.arctan2(cross, dot_h))  # horizontal turn at each interior waypoint
+        gamma = climb_angle(seg)  # climb angle of every segment
+        turn = horizontal_turn(seg)  # horizontal turn at each interior waypoint
         dgamma = np.abs(np.diff(gamma, axis=1))
         over = np.maximum(turn - veh.max_turn, 0.0)
         j4 = (turn + dgamma + over**2).sum(axis=1)

@@ -449,6 +449,13 @@ def _build_terrain(spec: _FlatTerrain | _HillsTerrain | _FileTerrain | None, bou
     return terrain
 
 
+MIN_ROUTE_LENGTH = 10.0  # m between start and goal
+# Caps that keep a typo in --set from asking for gigabytes: far above any real use on a companion computer.
+MAX_POPULATION = 20_000
+MAX_WAYPOINTS = 200
+MAX_ITERATIONS = 100_000
+
+
 def _check_configs(file: str, vehicle: VehicleLimits, hazard: HazardConfig, planner: PlannerSettings) -> None:
     """Range checks the config dataclasses do not make themselves."""
     pso = planner.pso
@@ -460,8 +467,16 @@ def _check_configs(file: str, vehicle: VehicleLimits, hazard: HazardConfig, plan
         ("vehicle.takeoff_alt", vehicle.takeoff_alt, vehicle.takeoff_alt > 0, "must be > 0 m"),
         ("vehicle.acceptance_radius", vehicle.acceptance_radius, vehicle.acceptance_radius > 0, "must be > 0 m"),
         ("hazard.d_coll", hazard.d_coll, hazard.d_coll >= 0, "must be >= 0 m"),
-        ("hazard.d_safe", hazard.d_safe, hazard.d_safe >= hazard.d_coll, f"must be >= d_coll ({hazard.d_coll:g} m)"),
-        ("planner.sample_spacing", planner.sample_spacing, planner.sample_spacing > 0, "must be > 0 m"),
+        ("hazard.d_safe", hazard.d_safe, hazard.d_safe > 0 and hazard.d_safe >= hazard.d_coll,
+         f"must be > 0 and >= d_coll ({hazard.d_coll:g} m)"),
+        ("planner.seed", planner.seed, planner.seed >= 0, "must be >= 0"),
+        ("planner.sample_spacing", planner.sample_spacing, 0.1 <= planner.sample_spacing <= 1000,
+         "must be in [0.1, 1000] m"),
+        ("planner.pso.n_pop", pso.n_pop, pso.n_pop <= MAX_POPULATION, f"must be <= {MAX_POPULATION}"),
+        ("planner.pso.n_waypoints", pso.n_waypoints, pso.n_waypoints <= MAX_WAYPOINTS, f"must be <= {MAX_WAYPOINTS}"),
+        ("planner.pso.max_iter", pso.max_iter, pso.max_iter <= MAX_ITERATIONS, f"must be <= {MAX_ITERATIONS}"),
+        ("planner.pso.w_damp", pso.w_damp, 0 < pso.w_damp <= 1, "must be in (0, 1]"),
+        ("planner.pso.w0", pso.w0, pso.w0 <= 10, "must be <= 10"),
         ("planner.pso.velocity_limit", pso.velocity_limit, pso.velocity_limit > 0, "must be > 0"),
         ("planner.pso.w_min", pso.w_min, 0 <= pso.w_min <= pso.w_max, f"must be in [0, w_max={pso.w_max:g}]"),
         ("planner.pso.psi_max_deg", pso.psi_max_deg, 0 < pso.psi_max_deg <= 90, "must be in (0, 90] deg"),
@@ -556,6 +571,8 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
 
     start = np.array(spec.route.start, dtype=float)
     goal = np.array(spec.route.goal, dtype=float)
+    if np.linalg.norm(goal - start) < MIN_ROUTE_LENGTH:
+        raise ScenarioError(file, "route.goal", f"must be at least {MIN_ROUTE_LENGTH:g} m from route.start")
     home = Home(spec.home.lat, spec.home.lon, spec.home.alt)
     obstacles = _Obstacles()
     for i, c in enumerate(spec.cylinders):

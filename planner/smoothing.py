@@ -24,9 +24,15 @@ def bezier_controls(paths: np.ndarray) -> np.ndarray:
     return np.stack([a, a + r / 3.0 * u, b - r / 3.0 * u_next, b], axis=-2)
 
 
+def bezier_point(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, q3: np.ndarray, t: np.ndarray) -> np.ndarray:
+    """B(t) = (1−t)³ Q0 + 3(1−t)²t Q1 + 3(1−t)t² Q2 + t³ Q3 for broadcastable arrays."""
+    s = 1.0 - t
+    return s**3 * q0 + 3 * s**2 * t * q1 + 3 * s * t**2 * q2 + t**3 * q3
+
+
 def _evaluate(q0, q1, q2, q3, t):  # noqa: ANN001, ANN202 - broadcastable arrays
     s = 1.0 - t
-    pos = s**3 * q0 + 3 * s**2 * t * q1 + 3 * s * t**2 * q2 + t**3 * q3
+    pos = bezier_point(q0, q1, q2, q3, t)
     d1 = 3 * (s**2 * (q1 - q0) + 2 * s * t * (q2 - q1) + t**2 * (q3 - q2))
     d2 = 6 * (s * (q2 - 2 * q1 + q0) + t * (q3 - 2 * q2 + q1))
     return pos, d1, d2
@@ -160,9 +166,7 @@ def cubic_range(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, q3: np.ndarray) 
     lo, hi = np.minimum(q0, q3), np.maximum(q0, q3)
     for r in (r1, r2):
         ok = (disc >= 0) & (r > 0.0) & (r < 1.0)
-        t = np.where(ok, r, 0.0)
-        s = 1.0 - t
-        val = s**3 * q0 + 3 * s**2 * t * q1 + 3 * s * t**2 * q2 + t**3 * q3
+        val = bezier_point(q0, q1, q2, q3, np.where(ok, r, 0.0))
         lo = np.where(ok, np.minimum(lo, val), lo)
         hi = np.where(ok, np.maximum(hi, val), hi)
     return lo, hi

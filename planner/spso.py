@@ -103,6 +103,8 @@ class SphericalPSO:
         """Optimise; ``initial_paths`` (k, n + 2, 3) replace the first k random particles (warm start)."""
         cfg = self.cfg
         t0 = time.perf_counter()
+        stop = AnyOf([MaxIterations(cfg.max_iter), Stagnation(cfg.stagnation_iters),
+                      Diversity(cfg.diversity_min)])  # its clock starts now: the budget counts init too
         enc = encoding or make_encoding(problem, cfg)
         vmax = cfg.velocity_limit * (enc.hi - enc.lo)
         x = enc.sample(rng, cfg.n_pop)
@@ -116,8 +118,6 @@ class SphericalPSO:
         st = SwarmState(x, v, f, x.copy(), f.copy(), x[ib].copy(), float(f[ib]),
                         _take(ev, ib), cfg.w0)
         history = [st.gbest_f]
-        stop = AnyOf([MaxIterations(cfg.max_iter), Stagnation(cfg.stagnation_iters),
-                      Diversity(cfg.diversity_min)])
         if budget_s is not None:
             stop.criteria.append(WallClock(budget_s))
         stagnant = 0

@@ -107,3 +107,49 @@ def test_bad_input_in_a_real_process_has_no_traceback(tmp_path, rescue_static) -
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
     assert proc.stderr.strip().splitlines()[-1].startswith("fuseplan: error: ")
+
+
+def _empty_map(tmp_path: Path, rescue_static: Path) -> Path:
+    text = rescue_static.read_text()
+    cut = text.index("[[cylinders]]")
+    path = tmp_path / "empty.toml"
+    path.write_text(text[:cut])
+    return path
+
+
+def test_empty_map_plan_is_feasible_strict_json(tmp_path, rescue_static) -> None:
+    """No obstacles: the destination term pulls P_n onto G; the near-zero last leg must not read as a turn
+    violation, and the infinite clearance must not become a non-JSON Infinity."""
+    empty = _empty_map(tmp_path, rescue_static)
+    for seed in ("1", "8"):
+        code = main(["plan", str(empty), "-q", "--seed", seed, "--set", "planner.pso.n_pop=100",
+                     "-o", str(tmp_path / "e.json")])
+        assert code == 0
+        text = (tmp_path / "e.json").read_text()
+        doc = json.loads(text, parse_constant=lambda c: pytest.fail(f"non-JSON constant {c}"))
+        assert doc["status"] == "exact"
+        assert doc["metrics"]["min_clearance_m"] is None
+        wp = doc["waypoints"]
+        gaps = [sum((q - p) ** 2 for p, q in zip(a, b)) ** 0.5 for a, b in zip(wp, wp[1:])]
+        assert min(gaps) >= 1.0
+
+
+MORE_BAD = {
+    "zero d_safe": (["--set", "hazard.d_safe=0", "--set", "hazard.d_coll=0"], "hazard.d_safe"),
+    "negative seed": (["--seed", "-1"], "planner.seed"),
+    "huge swarm": (["--set", "planner.pso.n_pop=100000000"], "planner.pso.n_pop"),
+    "tiny sample spacing": (["--set", "planner.sample_spacing=1e-9"], "planner.sample_spacing"),
+    "runaway damping": (["--set", "planner.pso.w_damp=1e300"], "planner.pso.w_damp"),
+    "goal on start": (["--set", "route.goal=[200.0, 200.0, 50.0]"], "route.goal"),
+    "plot not png": (["--plot", "out.xyz"], "out.xyz"),
+    "output dir missing": (["-o", "/nonexistent/dir/p.json"], "/nonexistent/dir"),
+}
+
+
+@pytest.mark.parametrize("case", sorted(MORE_BAD))
+def test_more_user_mistakes_exit_2_with_one_line(rescue_static, capsys, case) -> None:
+    extra, word = MORE_BAD[case]
+    code = main(["plan", str(rescue_static), "-q", *extra])
+    err = capsys.readouterr().err.strip()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and word in err

@@ -339,7 +339,7 @@ def test_deviation_bound_covers_distance_from_chord(r, theta_deg, elev, azim, sp
     pos, _, _ = bezier_derivatives(bezier_controls(path)[0], np.linspace(0.0, 1.0, 2001))
     off = segment_point_distance(path[0], path[1], pos).max()
     bound = float(deviation_bound(np.float64(r), np.float64(u @ v)))
-    assert off <= bound * (1 + 1e-9) + 1e-9
+    assert off <= bound * (1 + 1e-9) + 1e-8 * r  # sin θ from cos θ loses ~1.5e-8 near θ = 0: nanometres
     if theta_deg <= 90.0:  # the bound is tight below 90°: (4/27) r sin θ at t = 2/3
         assert bound == pytest.approx((4.0 / 27.0) * r * math.sin(math.radians(theta_deg)), rel=1e-6,
                                       abs=1e-7 * r)

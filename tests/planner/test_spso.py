@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -125,3 +127,16 @@ def test_warm_start_seeds_the_swarm(rescue_static) -> None:
     warm = SphericalPSO(sc.planner.pso).run(prob, np.random.default_rng(3), initial_paths=good[None])
     assert warm.history[0] <= prob.evaluate(good[None]).total[0] + 1e-6
     assert warm.history[0] < cold.history[0]
+
+
+def test_cost_alone_equals_cost_in_swarm_with_many_obstacles() -> None:
+    """100 obstacles (≥ 8 per family, where numpy's pairwise summation would kick in): a path costs the
+    same, bit for bit, alone or inside a swarm of any size."""
+    sc = load_scenario(Path(__file__).resolve().parents[2] / "sitl_scenarios" / "large_obstacle_field.toml")
+    prob = problem_from_scenario(sc)
+    enc = make_encoding(prob, sc.planner.pso)
+    paths = enc.decode(enc.sample(np.random.default_rng(3), 37))
+    batch = prob.evaluate(paths).total
+    for i in (0, 5, 36):
+        assert prob.evaluate(paths[i : i + 1]).total[0] == batch[i]
+        assert prob.evaluate(paths[i : i + 2]).total[0] == batch[i]
