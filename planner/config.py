@@ -7,6 +7,7 @@ Angles are degrees here (file units) and exposed in radians through properties (
 from __future__ import annotations
 
 import math
+import typing
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -125,14 +126,89 @@ class SPSOConfig:
 
 
 @dataclass(frozen=True)
+class ACOConfig:
+    """Ant-colony refinement on a corridor lattice around the PSO route (SPEC §5, paper Tables 7, 8)."""
+
+    __pydantic_config__ = STRICT
+
+    n_ants: int = 30
+    max_iter: int = 50
+    alpha: float = 1.0  # pheromone exponent
+    beta: float = 2.0  # distance-heuristic exponent
+    gamma: float = 1.0  # smoothness-heuristic exponent
+    rho: float = 0.08  # evaporation
+    tau0: float = 0.1  # baseline pheromone
+    init: Literal["gkdm", "hard", "uniform"] = "gkdm"
+    amplitude: float = 12.0  # GKDM A: peak τ0 (1 + A) = 1.3
+    sigma: float = 40.0  # GKDM kernel bandwidth, m
+    hard_boost: float = 2.9  # hard init: τ0 + boost = 3.0 on the PSO route's edges
+    update: Literal["classic", "enhanced"] = "enhanced"
+    c1: float = 1.5  # enhanced rule (eq. 36): weight of the iteration-best deposit
+    c2: float = 1.5  # and of the global-best deposit
+    w_start: float = 0.92  # enhanced rule: ω(t) falls linearly from 1 − ρ …
+    w_end: float = 0.6  # … to this
+    deposit: float = 1.0  # Q: a path as good as the PSO route deposits Q on each of its edges
+    tau_min: float = 0.01  # floor, so every edge keeps a chance
+    tau_max: float = 10.0  # ceiling, so one path cannot freeze the colony
+    smooth_floor: float = 0.05  # ε in η_smooth = max(cos θ_turn, ε)
+    cross_step: float = 15.0  # lattice spacing across the route, m
+    vert_step: float = 10.0  # lattice spacing vertically, m
+    cross_half: int = 4  # nodes each side of the route across (9 across)
+    vert_half: int = 2  # nodes above and below (5 levels)
+    stagnation_iters: int = 20  # stop after this many iterations without improvement
+
+
+@dataclass(frozen=True)
+class QPSOConfig:
+    """Quantum-behaved PSO (Sun et al. 2004): contraction–expansion coefficient β falls linearly."""
+
+    __pydantic_config__ = STRICT
+
+    beta_start: float = 1.0
+    beta_end: float = 0.5
+
+
+@dataclass(frozen=True)
+class PSOGSAConfig:
+    """PSO–gravitational search hybrid (Mirjalili & Hashim 2010): G = G0 exp(−α t / T)."""
+
+    __pydantic_config__ = STRICT
+
+    g0: float = 1.0
+    alpha: float = 20.0
+    c1: float = 0.5  # weight of the gravitational acceleration
+    c2: float = 1.5  # weight of the social (gbest) term
+
+
+@dataclass(frozen=True)
+class BPSOConfig:
+    """Binary PSO (Kennedy & Eberhart 1997) over a lattice of waypoint choices."""
+
+    __pydantic_config__ = STRICT
+
+    bits_cross: int = 5  # 32 cross-track positions per waypoint
+    bits_alt: int = 4  # 16 altitude levels per waypoint
+    corridor_frac: float = 0.5  # corridor half-width as a fraction of ‖SG‖
+    v_max: float = 4.0  # velocity clamp of the sigmoid transfer
+
+
+Algorithm = Literal["fusion", "spso", "pso", "qpso", "psogsa", "bpso"]
+ALGORITHM_NAMES: tuple[str, ...] = typing.get_args(Algorithm)
+
+
+@dataclass(frozen=True)
 class PlannerSettings:
     """The scenario's ``[planner]`` section: which algorithm and its parameters."""
 
     __pydantic_config__ = STRICT
 
-    algorithm: Literal["spso"] = "spso"
+    algorithm: Algorithm = "fusion"
     seed: int = 1
     sample_spacing: float = 5.0  # m between checked samples of the smoothed trajectory
-    pso: SPSOConfig = field(default_factory=SPSOConfig)
+    pso: SPSOConfig = field(default_factory=SPSOConfig)  # also the shared budget of the PSO baselines
+    aco: ACOConfig = field(default_factory=ACOConfig)
+    qpso: QPSOConfig = field(default_factory=QPSOConfig)
+    psogsa: PSOGSAConfig = field(default_factory=PSOGSAConfig)
+    bpso: BPSOConfig = field(default_factory=BPSOConfig)
     weights: CostWeights = field(default_factory=CostWeights)
     penalty: PenaltyConfig = field(default_factory=PenaltyConfig)

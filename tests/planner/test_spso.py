@@ -121,8 +121,8 @@ def test_stagnation_and_budget_stop_early(rescue_static) -> None:
 def test_warm_start_seeds_the_swarm(rescue_static) -> None:
     sc = load_scenario(rescue_static, ["planner.pso.n_pop=40", "planner.pso.max_iter=1"])
     prob = problem_from_scenario(sc)
-    good = plan(problem_from_scenario(load_scenario(rescue_static)), sc.planner.__class__(),
-                np.random.default_rng(1)).waypoints
+    full = load_scenario(rescue_static)
+    good = plan(problem_from_scenario(full), full.planner, np.random.default_rng(1)).waypoints
     cold = SphericalPSO(sc.planner.pso).run(prob, np.random.default_rng(3))
     warm = SphericalPSO(sc.planner.pso).run(prob, np.random.default_rng(3), initial_paths=good[None])
     assert warm.history[0] <= prob.evaluate(good[None]).total[0] + 1e-6
