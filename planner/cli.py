@@ -13,10 +13,10 @@ from pathlib import Path
 
 import numpy as np
 
+from planner.config import ALGORITHM_NAMES
 from planner.errors import FuseplanError
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_INFEASIBLE = 0, 2, 3
-ALGORITHMS = ("spso",)
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -25,13 +25,27 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     pl = sub.add_parser("plan", help="plan a route for a scenario and write PLAN.json")
     pl.add_argument("scenario", type=Path, help="scenario TOML file (see docs/scenario_format.md)")
-    pl.add_argument("--algorithm", choices=ALGORITHMS, default=None, help="optimiser (default: the scenario's)")
+    pl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None,
+                    help="optimiser (default: the scenario's planner.algorithm, else fusion)")
+    pl.add_argument("--aco-init", choices=("gkdm", "hard", "uniform"), default=None,
+                    help="fusion: ACO pheromone initialisation (default gkdm)")
     pl.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
     pl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a scenario value, e.g. --set planner.pso.n_pop=100 (repeatable)")
     pl.add_argument("-o", "--output", type=Path, help="write the plan as JSON here")
     pl.add_argument("--plot", type=Path, help="write a PNG of the route and the convergence curve")
     pl.add_argument("-q", "--quiet", action="store_true", help="no progress output")
+    cp = sub.add_parser("compare", help="run every algorithm N times on a scenario and tabulate the results")
+    cp.add_argument("scenario", type=Path)
+    cp.add_argument("--runs", type=int, default=10, help="runs per algorithm (default 10)")
+    cp.add_argument("--seed", type=int, default=1, help="run r uses seed SEED + r (default 1)")
+    cp.add_argument("--algorithms", default=",".join(ALGORITHM_NAMES),
+                    help=f"comma-separated subset (default: {','.join(ALGORITHM_NAMES)})")
+    cp.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
+    cp.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    cp.add_argument("-o", "--output", type=Path, default=Path("compare"),
+                    help="directory for compare.csv, compare_runs.csv, compare.png (default ./compare)")
+    cp.add_argument("-q", "--quiet", action="store_true")
     sub.add_parser("demo", help="plan the rescue scenario and draw it (flies once the companion lands)")
     return p
 
@@ -56,6 +70,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         overrides.append(f'planner.algorithm="{args.algorithm}"')
     if args.seed is not None:
         overrides.append(f"planner.seed={args.seed}")
+    if getattr(args, "aco_init", None):
+        overrides.append(f'planner.aco.init="{args.aco_init}"')
     scenario = load_scenario(args.scenario, overrides)
     if args.plot is not None and args.plot.suffix.lower() != ".png":
         raise FuseplanError(f"{args.plot}: --plot writes a PNG; name the file *.png")
@@ -86,6 +102,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
     print(f"  violations {viol}")
     print(f"  time      {m['plan_time_s']:.2f} s, {m['iterations']} iterations "
           f"({result.optimiser.stop_reason}), converged at iteration {m['convergence_iteration']}")
+    if "phases" in doc:
+        ph = doc["phases"]
+        print(f"  phases    SPSO {ph['pso']['best_cost']:.1f} ({ph['pso']['iterations']} it, "
+              f"{ph['pso']['time_s']:.2f} s, {ph['pso']['stop_reason']}) -> ACO {ph['aco']['best_cost']:.1f} "
+              f"({ph['aco']['iterations']} it, {ph['aco']['time_s']:.2f} s); winner {ph['winner']}")
     if args.output:
         _write(args.output, json.dumps(doc, indent=1, allow_nan=False) + "\n")
         print(f"  wrote {args.output}")
@@ -99,6 +120,35 @@ def cmd_plan(args: argparse.Namespace) -> int:
             raise FuseplanError(f"{args.plot}: cannot write plot: {e.strerror or e}") from e
         print(f"  wrote {args.plot}")
     return EXIT_OK if result.feasible else EXIT_INFEASIBLE
+
+
+def cmd_compare(args: argparse.Namespace) -> int:
+    from planner import compare
+    from planner.scenario import load_scenario
+
+    if args.runs < 1:
+        raise FuseplanError("--runs must be >= 1")
+    if args.seed < 0:
+        raise FuseplanError("--seed must be >= 0")
+    try:
+        algorithms = compare.check_algorithms([a.strip() for a in args.algorithms.split(",") if a.strip()])
+    except ValueError as e:
+        raise FuseplanError(str(e)) from e
+    load_scenario(args.scenario, args.overrides)  # bad input fails here, once, not in every worker
+    workers = args.workers or compare.default_workers()
+    if not args.quiet:
+        print(f"comparing {', '.join(algorithms)} on {args.scenario.name}: {args.runs} runs each, "
+              f"seeds {args.seed}..{args.seed + args.runs - 1}, {workers} workers", file=sys.stderr)
+    specs = compare.specs_for(str(args.scenario), args.overrides, algorithms, args.runs, args.seed)
+    records = compare.run_all(specs, workers, show_progress=not args.quiet)
+    rows = compare.summarise(records, algorithms)
+    print(compare.format_table(rows))
+    try:
+        files = compare.write_outputs(args.output, "compare", records, rows)
+    except OSError as e:
+        raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
+    print("wrote " + ", ".join(str(f) for f in files))
+    return EXIT_OK
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -139,6 +189,8 @@ def main(argv: list[str] | None = None) -> int:
     try:
         if args.command == "plan":
             return cmd_plan(args)
+        if args.command == "compare":
+            return cmd_compare(args)
         return cmd_demo(args)
     except FuseplanError as e:
         print(f"fuseplan: error: {e}", file=sys.stderr)

@@ -151,10 +151,11 @@ class ACOConfig:
     tau_min: float = 0.01  # floor, so every edge keeps a chance
     tau_max: float = 10.0  # ceiling, so one path cannot freeze the colony
     smooth_floor: float = 0.05  # ε in η_smooth = max(cos θ_turn, ε)
-    cross_step: float = 15.0  # lattice spacing across the route, m
-    vert_step: float = 10.0  # lattice spacing vertically, m
-    cross_half: int = 4  # nodes each side of the route across (9 across)
-    vert_half: int = 2  # nodes above and below (5 levels)
+    cross_step: float = 3.0  # first lattice step across the route, m
+    vert_step: float = 3.0  # first lattice step vertically, m
+    lattice_growth: float = 2.0  # each further step is this many times the previous (1 = uniform grid)
+    cross_half: int = 5  # nodes each side of the route across (11 across: ±3, 9, 21, 45, 93 m)
+    vert_half: int = 2  # nodes above and below (5 levels: ±3, 9 m)
     stagnation_iters: int = 20  # stop after this many iterations without improvement
 
 

@@ -10,7 +10,7 @@ import enum
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -27,7 +27,8 @@ from planner.checks import (
 from planner.config import PlannerSettings
 from planner.problem import Evaluation, PlanningProblem
 from planner.scenario import Scenario
-from planner.spso import OptimiserResult, SphericalPSO
+from planner.spso import SphericalPSO
+from planner.swarm import OptimiserResult
 
 
 MERGE_TOLERANCE_M = 1.0
@@ -93,6 +94,34 @@ def problem_from_scenario(scenario: Scenario, start_time: float | None = None) -
                            scenario.hazard, s.weights, s.penalty, start_time)
 
 
+class Optimiser(Protocol):
+    def run(self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = ...,
+            budget_s: float | None = ..., progress: Callable[[int, int, float], None] | None = ...,
+            ) -> OptimiserResult: ...
+
+
+def make_optimiser(settings: PlannerSettings) -> Optimiser:
+    """The optimiser named by ``settings.algorithm``, configured from ``settings``."""
+    from planner.bpso import BPSO
+    from planner.cartesian_pso import CartesianPSO
+    from planner.fusion import Fusion
+    from planner.psogsa import PSOGSA
+    from planner.qpso import QPSO
+
+    name = settings.algorithm
+    factories: dict[str, Callable[[], Optimiser]] = {
+        "fusion": lambda: Fusion(settings),
+        "spso": lambda: SphericalPSO(settings.pso),
+        "pso": lambda: CartesianPSO(settings.pso),
+        "qpso": lambda: QPSO(settings.pso, settings.qpso),
+        "psogsa": lambda: PSOGSA(settings.pso, settings.psogsa),
+        "bpso": lambda: BPSO(settings.pso, settings.bpso),
+    }
+    if name not in factories:
+        raise ValueError(f"unknown algorithm {name!r}")
+    return factories[name]()
+
+
 def plan(
     problem: PlanningProblem, settings: PlannerSettings, rng: np.random.Generator,
     initial_paths: np.ndarray | None = None, budget_s: float | None = None, seed: int | None = None,
@@ -101,10 +130,8 @@ def plan(
     """Plan a route; every random choice comes from ``rng``. ``budget_s`` bounds the search time."""
     tune_allocator()
     t0 = time.perf_counter()
-    if settings.algorithm != "spso":
-        raise ValueError(f"unknown algorithm {settings.algorithm!r}")
-    opt = SphericalPSO(settings.pso).run(problem, rng, initial_paths=initial_paths, budget_s=budget_s,
-                                         progress=progress)
+    opt = make_optimiser(settings).run(problem, rng, initial_paths=initial_paths, budget_s=budget_s,
+                                       progress=progress)
     waypoints = merge_close_waypoints(opt.path)
     evaluation = problem.evaluate(waypoints[None]) if len(waypoints) != len(opt.path) else opt.evaluation
     timed = problem.start_time is not None and len(problem.env.threats) > 0
@@ -146,6 +173,18 @@ def json_safe(value: Any) -> Any:
     return value
 
 
+def _phases(opt: OptimiserResult) -> dict[str, Any]:
+    """PLAN.json's ``phases`` record for a two-phase (fusion) result; nothing for single-phase ones."""
+    phases = getattr(opt, "phases", None)
+    if not phases:
+        return {}
+    doc: dict[str, Any] = {name: {"best_cost": r.best_cost, "iterations": r.iterations, "time_s": r.time_s,
+                                  "evaluations": r.evaluations, "stop_reason": r.stop_reason}
+                           for name, r in phases.items()}
+    doc["winner"] = opt.winner
+    return {"phases": doc}
+
+
 def plan_to_json(result: PlanResult, scenario: Scenario) -> dict[str, Any]:
     """The PLAN.json document (see README, "PLAN.json"); strict JSON (non-finite numbers become null)."""
     ev = result.evaluation
@@ -175,6 +214,7 @@ def plan_to_json(result: PlanResult, scenario: Scenario) -> dict[str, Any]:
         "cost_violations": result.cost_violations,
         "metrics": result.metrics(scenario.hazard.d_safe),
         "history": [float(h) for h in result.optimiser.history],
+        **_phases(result.optimiser),
         "home": {"lat": scenario.home.lat, "lon": scenario.home.lon, "alt": scenario.home.alt},
         "vehicle": {"type": scenario.vehicle.type, "cruise_speed": scenario.vehicle.cruise_speed,
                     "min_turn_radius_m": scenario.vehicle.min_turn_radius},

@@ -166,6 +166,47 @@ class PlanningProblem:
         np.multiply(gap, gap, out=gap)
         return _per_particle(gap, axis) / d_safe
 
+    def static_clearances(
+        self, a: np.ndarray, b: np.ndarray, refine_below: float | np.ndarray = np.inf
+    ) -> tuple[np.ndarray | None, np.ndarray | None, np.ndarray | None]:
+        """Exact clearances of segments a→b (..., 3) from the static obstacles, obstacle axis first:
+        cylinders (K_c, ...) and spheres (K_s, ...) to their surfaces, radars (K_r, ...) distance to the
+        site (None for an absent family). Finite cylinder tops are searched only where the 2-D bound
+        (distance to the axis − R, exact for unlimited cylinders) is below ``refine_below``."""
+        env = self.env
+        lead = (slice(None),) + (None,) * (a.ndim - 1)
+        cyl_c = sph_c = radar_d = None
+        cyl = env.cylinders
+        if len(cyl):
+            cyl_c = segment_point_distance_2d(a[..., 0], a[..., 1], b[..., 0], b[..., 1],
+                                              cyl.x[lead], cyl.y[lead])
+            cyl_c -= cyl.radius[lead]
+            if len(self._cyl_fin):
+                need = np.isfinite(cyl.top)[lead] & (cyl_c < refine_below)
+                idx = np.nonzero(need)
+                k, rest = idx[0], idx[1:]
+                cyl_c[idx] = segment_cylinder_clearance(a[rest], b[rest], cyl.x[k], cyl.y[k],
+                                                        cyl.radius[k], cyl.top[k])
+        if len(env.spheres):
+            sph_c = segment_sphere_clearance(a[None], b[None], env.spheres.center[lead + (slice(None),)],
+                                             env.spheres.radius[lead])
+        if len(env.radars):
+            radar_d = segment_point_distance(a[None], b[None], env.radars.center[lead + (slice(None),)])
+        return cyl_c, sph_c, radar_d
+
+    def segment_blocked(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """True where segment a→b (..., 3) passes within d_coll of a static obstacle or inside a radar's
+        detection range (used to steer ant colonies away from hopeless edges)."""
+        blocked = np.zeros(a.shape[:-1], dtype=bool)
+        cyl_c, sph_c, radar_d = self.static_clearances(a, b, refine_below=self.hazard.d_coll)
+        for c in (cyl_c, sph_c):
+            if c is not None:
+                blocked |= (c < self.hazard.d_coll).any(axis=0)
+        if radar_d is not None:
+            lead = (slice(None),) + (None,) * (a.ndim - 1)
+            blocked |= (radar_d < self.env.radars.r_det[lead]).any(axis=0)
+        return blocked
+
     def _hazard(self, paths, a, b, seg_len, dev, add) -> np.ndarray:  # noqa: ANN001
         """J2: obstacles by exact segment distances; radars; time-aware dynamic threats.
 
@@ -175,29 +216,17 @@ class PlanningProblem:
         """
         env = self.env
         total = np.zeros(len(paths))
-        a3, b3 = a[None], b[None]  # (1, P, S, 3)
-        cyl = env.cylinders
-        if len(cyl):
-            col = (slice(None), None, None)
-            # 2-D distance to the axis − R: exact for unlimited cylinders, a lower bound for finite ones
-            c = segment_point_distance_2d(a[..., 0], a[..., 1], b[..., 0], b[..., 1], cyl.x[col], cyl.y[col])
-            c -= cyl.radius[col]
-            if len(self._cyl_fin):  # refine finite tops only where the bound says it could matter
-                need = np.isfinite(cyl.top)[col] & (c - dev < self.hazard.d_safe)
-                k, p, s = np.nonzero(need)
-                c[k, p, s] = segment_cylinder_clearance(a[p, s], b[p, s], cyl.x[k], cyl.y[k],
-                                                        cyl.radius[k], cyl.top[k])
-            c -= dev
-            total += self._soft_and_violation(c, add, 1)
-        if len(env.spheres):
-            c = segment_sphere_clearance(a3, b3, env.spheres.center[:, None, None, :],
-                                         env.spheres.radius[:, None, None])
-            total += self._soft_and_violation(c - dev, add, 1)
-        if len(env.radars):
-            rng = segment_point_distance(a3, b3, env.radars.center[:, None, None, :])  # (K, P, S)
+        # refine finite cylinder tops only where the 2-D bound, less the deviation, is inside d_safe
+        cyl_c, sph_c, radar_d = self.static_clearances(a, b, refine_below=self.hazard.d_safe + dev)
+        if cyl_c is not None:
+            cyl_c -= dev
+            total += self._soft_and_violation(cyl_c, add, 1)
+        if sph_c is not None:
+            total += self._soft_and_violation(sph_c - dev, add, 1)
+        if radar_d is not None:
             r_det = env.radars.r_det[:, None, None]
-            add("collision", r_det - (rng - dev), self.penalty.per_metre, 1)
-            soft = env.radars.soft_weight[:, None, None] * (r_det / np.maximum(rng, r_det)) ** 4
+            add("collision", r_det - (radar_d - dev), self.penalty.per_metre, 1)
+            soft = env.radars.soft_weight[:, None, None] * (r_det / np.maximum(radar_d, r_det)) ** 4
             total += _per_particle(soft, 1)
         if len(env.threats) and self.start_time is not None:
             pts, times = self._timed_samples(a, b, seg_len)

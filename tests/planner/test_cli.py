@@ -48,7 +48,7 @@ def test_readme_plan_example_twice_byte_identical(tmp_path, rescue_static) -> No
 def test_plot_and_overrides(tmp_path, rescue_static, capsys) -> None:
     png = tmp_path / "route.png"
     code = main(["plan", str(rescue_static), "--set", "planner.pso.n_pop=40", "--set", "planner.pso.max_iter=20",
-                 "--plot", str(png), "-q", "-o", str(tmp_path / "p.json")])
+                 "--algorithm", "spso", "--plot", str(png), "-q", "-o", str(tmp_path / "p.json")])
     assert code in (0, 3)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     doc = json.loads((tmp_path / "p.json").read_text())
@@ -153,3 +153,49 @@ def test_more_user_mistakes_exit_2_with_one_line(rescue_static, capsys, case) ->
     err = capsys.readouterr().err.strip()
     assert code == 2, err
     assert len(err.splitlines()) == 1 and word in err
+
+
+@pytest.mark.parametrize("init", ["gkdm", "hard", "uniform"])
+def test_fusion_plan_json_records_phases(tmp_path, rescue_static, init) -> None:
+    out = tmp_path / "f.json"
+    code = main(["plan", str(rescue_static), "-q", "--aco-init", init, "--set", "planner.pso.n_pop=60",
+                 "--set", "planner.pso.max_iter=30", "--set", "planner.aco.max_iter=10", "-o", str(out)])
+    assert code in (0, 3)
+    doc = json.loads(out.read_text())
+    assert doc["algorithm"] == "fusion"
+    ph = doc["phases"]
+    assert {"pso", "aco", "winner"} <= ph.keys()
+    for name in ("pso", "aco"):
+        assert {"best_cost", "iterations", "time_s"} <= ph[name].keys()
+    assert ph["winner"] in ("pso", "aco")
+    assert doc["cost"] <= ph["pso"]["best_cost"] + 1e-9
+    assert len(doc["history"]) == ph["pso"]["iterations"] + 1 + ph["aco"]["iterations"]
+
+
+def test_compare_table_csv_and_png_from_the_runs(tmp_path, rescue_static, capsys) -> None:
+    import csv
+
+    small = ["--set", "planner.pso.n_pop=30", "--set", "planner.pso.max_iter=8", "--set", "planner.aco.max_iter=4"]
+    args = ["compare", str(rescue_static), "--runs", "3", "--seed", "5", "--algorithms", "spso,qpso,fusion", "-q"]
+    assert main([*args, *small, "--workers", "1", "-o", str(tmp_path / "w1")]) == 0
+    table = capsys.readouterr().out
+    assert table.count("\n| ") == 3 and table.startswith("| algorithm |") and "| fusion |" in table
+    assert main([*args, *small, "--workers", "2", "-o", str(tmp_path / "w2")]) == 0
+    runs1 = list(csv.DictReader((tmp_path / "w1" / "compare_runs.csv").open()))
+    runs2 = list(csv.DictReader((tmp_path / "w2" / "compare_runs.csv").open()))
+    assert [r["cost"] for r in runs1] == [r["cost"] for r in runs2]  # workers change nothing but times
+    assert [int(r["seed"]) for r in runs1 if r["algorithm"] == "spso"] == [5, 6, 7]
+    summary = {r["algorithm"]: r for r in csv.DictReader((tmp_path / "w1" / "compare.csv").open())}
+    assert set(summary) == {"spso", "qpso", "fusion"}
+    for alg, row in summary.items():
+        costs = [float(r["cost"]) for r in runs1 if r["algorithm"] == alg]
+        assert float(row["cost_mean"]) == pytest.approx(sum(costs) / 3)
+        assert float(row["runs"]) == 3
+        ok = [r["feasible"] == "True" for r in runs1 if r["algorithm"] == alg]
+        assert float(row["success_rate"]) == pytest.approx(sum(ok) / 3)
+    assert (tmp_path / "w1" / "compare.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_compare_rejects_unknown_algorithm(rescue_static, capsys) -> None:
+    assert main(["compare", str(rescue_static), "--algorithms", "spso,magic", "-q"]) == 2
+    assert "magic" in capsys.readouterr().err

@@ -87,7 +87,7 @@ SMALL = ["planner.pso.n_pop=60", "planner.pso.max_iter=40"]
     ["planner.pso.reflection=false"], ["planner.pso.damping=false"], ["planner.pso.inertia=\"adaptive\""],
 ])
 def test_same_seed_same_plan_for_every_variant(rescue_static, variant) -> None:
-    sc = load_scenario(rescue_static, SMALL + variant)
+    sc = load_scenario(rescue_static, SMALL + variant + ['planner.algorithm="spso"'])
     prob = problem_from_scenario(sc)
     a = plan(prob, sc.planner, np.random.default_rng(5))
     b = plan(prob, sc.planner, np.random.default_rng(5))
@@ -101,7 +101,7 @@ def test_same_seed_same_plan_for_every_variant(rescue_static, variant) -> None:
 
 
 def test_rescue_static_full_budget_is_feasible(rescue_static) -> None:
-    sc = load_scenario(rescue_static)
+    sc = load_scenario(rescue_static, ['planner.algorithm="spso"'])
     prob = problem_from_scenario(sc)
     res = plan(prob, sc.planner, np.random.default_rng(1))
     assert res.status is PlanStatus.EXACT
@@ -121,7 +121,7 @@ def test_stagnation_and_budget_stop_early(rescue_static) -> None:
 def test_warm_start_seeds_the_swarm(rescue_static) -> None:
     sc = load_scenario(rescue_static, ["planner.pso.n_pop=40", "planner.pso.max_iter=1"])
     prob = problem_from_scenario(sc)
-    full = load_scenario(rescue_static)
+    full = load_scenario(rescue_static, ['planner.algorithm="spso"'])
     good = plan(problem_from_scenario(full), full.planner, np.random.default_rng(1)).waypoints
     cold = SphericalPSO(sc.planner.pso).run(prob, np.random.default_rng(3))
     warm = SphericalPSO(sc.planner.pso).run(prob, np.random.default_rng(3), initial_paths=good[None])
