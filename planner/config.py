@@ -151,12 +151,12 @@ class ACOConfig:
     tau_min: float = 0.01  # floor, so every edge keeps a chance
     tau_max: float = 10.0  # ceiling, so one path cannot freeze the colony
     smooth_floor: float = 0.05  # ε in η_smooth = max(cos θ_turn, ε)
-    cross_step: float = 3.0  # first lattice step across the route, m
-    vert_step: float = 3.0  # first lattice step vertically, m
+    cross_step: float = 1.0  # first lattice step across the route, m
+    vert_step: float = 1.0  # first lattice step vertically, m
     lattice_growth: float = 2.0  # each further step is this many times the previous (1 = uniform grid)
-    cross_half: int = 5  # nodes each side of the route across (11 across: ±3, 9, 21, 45, 93 m)
-    vert_half: int = 2  # nodes above and below (5 levels: ±3, 9 m)
-    stagnation_iters: int = 20  # stop after this many iterations without improvement
+    cross_half: int = 5  # nodes each side of the route across (11 across: ±1, 3, 7, 15, 31 m)
+    vert_half: int = 2  # nodes above and below (5 levels: ±1, 3 m)
+    stagnation_iters: int = 50  # stop after this many iterations without improvement (50: run T_ACO)
 
 
 @dataclass(frozen=True)

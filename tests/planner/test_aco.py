@@ -67,7 +67,7 @@ def test_lattice_centre_is_the_seed_route_and_offsets_are_geometric() -> None:
     lat = build_lattice(route, cfg)
     np.testing.assert_array_equal(lat.nodes[:, lat.centre], route)
     across = sorted({round(float(y) - 500.0, 9) for y in lat.nodes[1, :, 1]})
-    assert across == [-93.0, -45.0, -21.0, -9.0, -3.0, 0.0, 3.0, 9.0, 21.0, 45.0, 93.0]
+    assert across == [-31.0, -15.0, -7.0, -3.0, -1.0, 0.0, 1.0, 3.0, 7.0, 15.0, 31.0]
 
 
 def test_ants_follow_a_dominant_trail_and_deposits_land_on_their_edges(rescue_static) -> None:
