@@ -209,7 +209,7 @@ class AntColony:
         path = lattice.nodes[layers, best_choice]
         log.debug("aco stopped after %d iterations (%s), cost %.3f", it, stop.fired, best_cost)
         return OptimiserResult(path, best_cost, best_eval, history, it, stop.fired or "",
-                               time.perf_counter() - t0, cfg.n_ants * it)
+                               time.perf_counter() - t0, cfg.n_ants * it + 1)  # + the seed's evaluation
 
     def _update(self, tau, choice, costs, ib, best_choice, best_cost, ref, it, rng) -> None:  # noqa: ANN001
         """Classic (§P eq. 35) or enhanced (eq. 36) pheromone update, then clipping to [τ_min, τ_max]."""
@@ -218,7 +218,8 @@ class AntColony:
             tau *= 1.0 - cfg.rho
             deposit(tau, choice, cfg.deposit * ref / np.maximum(costs, 1e-9))
         else:  # τ ← ω(t) τ + c1 r Δτ_iteration-best + c2 r Δτ_global-best
-            omega = cfg.w_start + (cfg.w_end - cfg.w_start) * it / max(cfg.max_iter - 1, 1)
+            w_start = 1.0 - cfg.rho
+            omega = w_start + (cfg.w_end - w_start) * it / max(cfg.max_iter - 1, 1)
             r1, r2 = rng.random(2)
             tau *= omega
             deposit(tau, choice[ib : ib + 1], np.array([cfg.c1 * r1 * cfg.deposit * ref / max(costs[ib], 1e-9)]))

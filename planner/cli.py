@@ -9,14 +9,16 @@ import argparse
 import json
 import logging
 import sys
+import typing
 from pathlib import Path
 
 import numpy as np
 
-from planner.config import ALGORITHM_NAMES
+from planner.config import ALGORITHM_NAMES, ACOConfig
 from planner.errors import FuseplanError
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_INFEASIBLE = 0, 2, 3
+ACO_INITS: tuple[str, ...] = typing.get_args(typing.get_type_hints(ACOConfig)["init"])
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -27,7 +29,7 @@ def _parser() -> argparse.ArgumentParser:
     pl.add_argument("scenario", type=Path, help="scenario TOML file (see docs/scenario_format.md)")
     pl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None,
                     help="optimiser (default: the scenario's planner.algorithm, else fusion)")
-    pl.add_argument("--aco-init", choices=("gkdm", "hard", "uniform"), default=None,
+    pl.add_argument("--aco-init", choices=ACO_INITS, default=None,
                     help="fusion: ACO pheromone initialisation (default gkdm)")
     pl.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
     pl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
@@ -128,6 +130,8 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     if args.runs < 1:
         raise FuseplanError("--runs must be >= 1")
+    if args.workers is not None and args.workers < 1:
+        raise FuseplanError("--workers must be >= 1")
     if args.seed < 0:
         raise FuseplanError("--seed must be >= 0")
     try:
@@ -135,6 +139,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise FuseplanError(str(e)) from e
     load_scenario(args.scenario, args.overrides)  # bad input fails here, once, not in every worker
+    try:  # and an unusable output directory before the runs, not after them
+        args.output.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise FuseplanError(f"{args.output}: cannot create the output directory: {e.strerror or e}") from e
     workers = args.workers or compare.default_workers()
     if not args.quiet:
         print(f"comparing {', '.join(algorithms)} on {args.scenario.name}: {args.runs} runs each, "

@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from planner.config import ALGORITHM_NAMES
+from planner.errors import FuseplanError
 
 COLUMNS = ("cost", "length_m", "smoothness", "time_s", "robustness", "violations")
 
@@ -51,7 +52,15 @@ def run_all(specs: Sequence[RunSpec], workers: int, show_progress: bool = True) 
     with ProcessPoolExecutor(max_workers=workers) as pool:
         futures = {pool.submit(run_one, s): i for i, s in enumerate(specs)}
         for fut in as_completed(futures):
-            out[futures[fut]] = fut.result()
+            try:
+                out[futures[fut]] = fut.result()
+            except Exception as e:  # a failed run stops the comparison, with what failed and why
+                pool.shutdown(wait=False, cancel_futures=True)
+                spec = specs[futures[fut]]
+                if isinstance(e, FuseplanError):
+                    raise
+                raise FuseplanError(f"{spec.algorithm} run {spec.run} (seed {spec.seed}) failed: "
+                                    f"{type(e).__name__}: {e}") from e
             done += 1
             if show_progress:
                 _bar(done, len(specs))
@@ -152,9 +161,12 @@ def specs_for(scenario: str, overrides: Sequence[str], algorithms: Sequence[str]
 
 
 def check_algorithms(names: Sequence[str]) -> list[str]:
+    """Known names, each once, in the order given."""
     bad = [n for n in names if n not in ALGORITHM_NAMES]
     if bad:
         raise ValueError(f"unknown algorithm(s) {', '.join(bad)}; choose from {', '.join(ALGORITHM_NAMES)}")
-    return list(names)
+    if not names:
+        raise ValueError(f"no algorithm given; choose from {', '.join(ALGORITHM_NAMES)}")
+    return list(dict.fromkeys(names))
 
 

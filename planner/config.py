@@ -145,8 +145,8 @@ class ACOConfig:
     update: Literal["classic", "enhanced"] = "enhanced"
     c1: float = 1.5  # enhanced rule (eq. 36): weight of the iteration-best deposit
     c2: float = 1.5  # and of the global-best deposit
-    w_start: float = 0.92  # enhanced rule: ω(t) falls linearly from 1 − ρ …
-    w_end: float = 0.6  # … to this
+    w_end: float = 0.6  # enhanced rule: ω(t) falls linearly from 1 − ρ to this
+    budget_share: float = 0.2  # with a time budget, the share kept for the ACO phase
     deposit: float = 1.0  # Q: a path as good as the PSO route deposits Q on each of its edges
     tau_min: float = 0.01  # floor, so every edge keeps a chance
     tau_max: float = 10.0  # ceiling, so one path cannot freeze the colony

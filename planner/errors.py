@@ -19,3 +19,6 @@ class ScenarioError(FuseplanError):
         self.reason = reason
         where = f"{self.file}: {field}" if field else self.file
         super().__init__(f"{where}: {reason}")
+
+    def __reduce__(self):  # noqa: ANN204 - survives pickling across process pools
+        return (type(self), (self.file, self.field, self.reason))

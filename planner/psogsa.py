@@ -14,6 +14,11 @@ products. The paper draws w at random; here w follows the shared damped schedule
 :class:`SPSOConfig` (as SPSO and the Cartesian PSO baseline do), so the only difference between the
 PSO baselines is the gravitational term, not the inertia. A coordinate leaving its bounds is clamped and
 keeps its velocity. g0, alpha, c1, c2 come from :class:`PSOGSAConfig`; the budget from SPSOConfig.
+
+The gravitational acceleration is computed on positions normalised to the search box ([0, 1] per
+coordinate) and scaled back to metres. Mirjalili's G0 = 1 was set for benchmark functions on ranges of a
+few hundred units; in metres on a 1 km map, |a| ≤ G ≤ 1 m per iteration would leave the GSA term
+effectively off (measured: no better than G0 = 0), which would tune the baseline down.
 """
 
 from __future__ import annotations
@@ -63,7 +68,8 @@ def psogsa_step(
 ) -> tuple[np.ndarray, np.ndarray]:
     """One PSOGSA update. Shapes: x, v, r1, r2 (P, n, 3); f (P,); gbest, lo, hi, vmax (n, 3); r_pair (P, P)."""
     p = len(x)
-    a = gsa_acceleration(x.reshape(p, -1), masses(f), g, r_pair).reshape(x.shape)
+    span = np.where(hi > lo, hi - lo, 1.0)  # gravity acts in box-normalised coordinates, see module doc
+    a = gsa_acceleration(((x - lo) / span).reshape(p, -1), masses(f), g, r_pair).reshape(x.shape) * span
     v = w * v + c1 * r1 * a + c2 * r2 * (gbest - x)
     v = np.clip(v, -vmax, vmax)
     return np.clip(x + v, lo, hi), v

@@ -482,8 +482,36 @@ def _check_configs(file: str, vehicle: VehicleLimits, hazard: HazardConfig, plan
         ("planner.pso.psi_max_deg", pso.psi_max_deg, 0 < pso.psi_max_deg <= 90, "must be in (0, 90] deg"),
         ("planner.pso.cone_half_deg", pso.cone_half_deg, 0 < pso.cone_half_deg <= 180, "must be in (0, 180] deg"),
     ]
+    aco, bpso = planner.aco, planner.bpso
+    checks += [
+        ("planner.aco.n_ants", aco.n_ants, 1 <= aco.n_ants <= MAX_POPULATION, f"must be in [1, {MAX_POPULATION}]"),
+        ("planner.aco.max_iter", aco.max_iter, 1 <= aco.max_iter <= MAX_ITERATIONS,
+         f"must be in [1, {MAX_ITERATIONS}]"),
+        ("planner.aco.stagnation_iters", aco.stagnation_iters, aco.stagnation_iters >= 1, "must be >= 1"),
+        ("planner.aco.rho", aco.rho, 0 < aco.rho < 1, "must be in (0, 1)"),
+        ("planner.aco.tau0", aco.tau0, aco.tau0 > 0, "must be > 0"),
+        ("planner.aco.sigma", aco.sigma, aco.sigma > 0, "must be > 0 m"),
+        ("planner.aco.tau_min", aco.tau_min, 0 < aco.tau_min <= aco.tau_max, f"must be in (0, tau_max={aco.tau_max:g}]"),
+        ("planner.aco.w_end", aco.w_end, 0 < aco.w_end <= 1, "must be in (0, 1]"),
+        ("planner.aco.lattice_growth", aco.lattice_growth, 1 <= aco.lattice_growth <= 10, "must be in [1, 10]"),
+        ("planner.aco.cross_step", aco.cross_step, aco.cross_step > 0, "must be > 0 m"),
+        ("planner.aco.vert_step", aco.vert_step, aco.vert_step > 0, "must be > 0 m"),
+        ("planner.aco.cross_half", aco.cross_half, 0 <= aco.cross_half <= 20, "must be in [0, 20]"),
+        ("planner.aco.vert_half", aco.vert_half, 0 <= aco.vert_half <= 10, "must be in [0, 10]"),
+        ("planner.aco.smooth_floor", aco.smooth_floor, 0 < aco.smooth_floor <= 1, "must be in (0, 1]"),
+        ("planner.aco.budget_share", aco.budget_share, 0 <= aco.budget_share < 1, "must be in [0, 1)"),
+        ("planner.qpso.beta_end", planner.qpso.beta_end, planner.qpso.beta_end > 0, "must be > 0"),
+        ("planner.bpso.bits_cross", bpso.bits_cross, 1 <= bpso.bits_cross <= 10, "must be in [1, 10]"),
+        ("planner.bpso.bits_alt", bpso.bits_alt, 1 <= bpso.bits_alt <= 10, "must be in [1, 10]"),
+        ("planner.bpso.corridor_frac", bpso.corridor_frac, 0 < bpso.corridor_frac <= 2, "must be in (0, 2]"),
+        ("planner.bpso.v_max", bpso.v_max, bpso.v_max > 0, "must be > 0"),
+    ]
     for group, obj in (("planner.weights", planner.weights), ("planner.penalty", planner.penalty),
-                       ("planner.pso", {"c1": pso.c1, "c2": pso.c2, "w0": pso.w0, "w_damp": pso.w_damp})):
+                       ("planner.pso", {"c1": pso.c1, "c2": pso.c2, "w0": pso.w0, "w_damp": pso.w_damp}),
+                       ("planner.aco", {"alpha": aco.alpha, "beta": aco.beta, "gamma": aco.gamma, "c1": aco.c1,
+                                        "c2": aco.c2, "amplitude": aco.amplitude, "hard_boost": aco.hard_boost,
+                                        "deposit": aco.deposit}),
+                       ("planner.qpso", planner.qpso), ("planner.psogsa", planner.psogsa)):
         values = obj if isinstance(obj, dict) else dataclasses.asdict(obj)
         checks += [(f"{group}.{k}", v, v >= 0, "must be >= 0") for k, v in values.items()]
     for path, value, ok, reason in checks:

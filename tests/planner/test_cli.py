@@ -199,3 +199,25 @@ def test_compare_table_csv_and_png_from_the_runs(tmp_path, rescue_static, capsys
 def test_compare_rejects_unknown_algorithm(rescue_static, capsys) -> None:
     assert main(["compare", str(rescue_static), "--algorithms", "spso,magic", "-q"]) == 2
     assert "magic" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("extra,word", [
+    (["--algorithms", ""], "no algorithm"),
+    (["--algorithms", ","], "no algorithm"),
+    (["--workers", "-1"], "--workers"),
+    (["--runs", "0"], "--runs"),
+    (["--set", "planner.aco.n_ants=0"], "planner.aco.n_ants"),
+    (["--set", "planner.aco.sigma=0"], "planner.aco.sigma"),
+    (["--set", "planner.bpso.bits_cross=30"], "planner.bpso.bits_cross"),
+])
+def test_compare_user_mistakes_exit_2(rescue_static, capsys, tmp_path, extra, word) -> None:
+    code = main(["compare", str(rescue_static), "-q", "-o", str(tmp_path / "c"), *extra])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1 and word in err
+
+
+def test_compare_output_checked_before_running(rescue_static, capsys, tmp_path) -> None:
+    blocker = tmp_path / "file"
+    blocker.write_text("x")
+    assert main(["compare", str(rescue_static), "-q", "-o", str(blocker)]) == 2
+    assert "cannot create the output directory" in capsys.readouterr().err
