@@ -1,0 +1,658 @@
+"""The built-in simulated autopilot: an ArduPilot-like MAVLink vehicle over UDP or TCP on this machine.
+
+:class:`SimAutopilot` ties together the transport (``transport``), the mission protocol (``mission_server``),
+mission execution (``navigator``), the kinematic vehicle (``flight_model``) and scripted ADS-B traffic
+(``intruders``). It runs as three parts on one asyncio loop: the socket (protocol callbacks), a physics task and a
+telemetry task. Simulated time runs ``speedup`` times faster than wall time, in physics steps of at most 0.05 s;
+every timeout of the autopilot (mission protocol, readiness) is on simulated time, as in ArduPilot SITL.
+
+Behaviour that differs from a real ArduPilot is listed in :mod:`companion.sim`.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import dataclasses
+import logging
+import math
+from typing import Literal
+
+import numpy as np
+import pymap3d
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.items import FRAME_GLOBAL, MISSION, MissionItem
+from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, bearing
+from companion.sim.intruders import IntruderTrack, heading_deg
+from companion.sim.mission_server import MissionServer
+from companion.sim.navigator import Land, Loiter, Navigator, NavTask, ReturnHome, Takeoff, rtl_altitude
+from companion.sim.transport import SimTransport
+from planner.scenario import Scenario
+
+logger = logging.getLogger(__name__)
+
+COMPONENT_ID = mavlink.MAV_COMP_ID_AUTOPILOT1
+PLANE_MODES = {"MANUAL": 0, "CIRCLE": 1, "STABILIZE": 2, "TRAINING": 3, "ACRO": 4, "FBWA": 5, "FBWB": 6,
+               "CRUISE": 7, "AUTOTUNE": 8, "AUTO": 10, "RTL": 11, "LOITER": 12, "TAKEOFF": 13, "GUIDED": 15}
+COPTER_MODES = {"STABILIZE": 0, "ACRO": 1, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6,
+                "CIRCLE": 7, "LAND": 9, "POSHOLD": 16, "BRAKE": 17}
+READY_AFTER_S = 2.0  # sim s until GPS 3D fix, EKF good and pre-arm checks pass
+PHYSICS_DT = 0.05  # s of sim time per physics step
+TRUTH_DT = 0.1  # s of sim time between truth samples
+MAX_CATCH_UP_S = 0.25  # wall s simulated per tick at most (a stalled loop does not make time jump)
+FORCE_DISARM = 21196  # MAV_CMD_COMPONENT_ARM_DISARM param2 magic
+EKF_GOOD = 0x33F
+EKF_UNINITIALISED = 0x400
+SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
+           | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
+           | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_AHRS | mavlink.MAV_SYS_STATUS_PREARM_CHECK)
+ADSB_FLAGS = (mavlink.ADSB_FLAGS_VALID_COORDS | mavlink.ADSB_FLAGS_VALID_ALTITUDE | mavlink.ADSB_FLAGS_VALID_HEADING
+              | mavlink.ADSB_FLAGS_VALID_VELOCITY | mavlink.ADSB_FLAGS_VALID_CALLSIGN)
+
+
+@dataclasses.dataclass
+class _Stream:
+    """A periodic message: ``sim_hz`` in simulated time, kept within [min_wall_hz, max_wall_hz] of wall time."""
+
+    sim_hz: float
+    min_wall_hz: float
+    max_wall_hz: float
+    next_due: float = 0.0
+
+    def wall_period(self, speedup: float) -> float:
+        if self.sim_hz <= 0.0:
+            return math.inf
+        return 1.0 / min(max(self.sim_hz * speedup, self.min_wall_hz), self.max_wall_hz)
+
+
+def _default_streams() -> dict[int, _Stream]:
+    return {
+        mavlink.MAVLINK_MSG_ID_HEARTBEAT: _Stream(1.0, 1.0, 5.0),
+        mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: _Stream(10.0, 2.0, 25.0),
+        mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: _Stream(1.0, 1.0, 2.0),
+        mavlink.MAVLINK_MSG_ID_SYS_STATUS: _Stream(1.0, 0.5, 2.0),
+        mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: _Stream(1.0, 0.5, 2.0),
+        mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT: _Stream(1.0, 0.5, 2.0),
+        mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE: _Stream(2.0, 1.0, 10.0),
+    }
+
+
+class _Events:
+    """Navigator → autopilot notifications."""
+
+    def __init__(self, ap: SimAutopilot) -> None:
+        self._ap = ap
+
+    def reached(self, seq: int) -> None:
+        self._ap._reached.append(seq)
+        self._ap._send(mavlink.MAVLink_mission_item_reached_message(seq))
+
+    def text(self, severity: int, text: str) -> None:
+        self._ap._text(severity, text)
+
+    def current_changed(self, seq: int) -> None:
+        self._ap._send_mission_current()
+
+    def mission_complete(self) -> None:
+        self._ap._on_mission_complete()
+
+    def landed(self) -> None:
+        self._ap._on_landed()
+
+
+class SimAutopilot:
+    """A simulated ArduPilot Plane or Copter serving MAVLink 2 (system ``system_id``, component 1).
+
+    ``listen``: ``"udpin:HOST:PORT"`` (replies go to the last sender) or ``"tcp:HOST:PORT"`` (a TCP server, as
+    SITL's port 5760); port 0 picks a free port, see :attr:`port`. ``loss`` drops each packet in either direction
+    with that probability and ``latency_s`` delays outgoing packets (seeded from ``seed``). ``vehicle`` overrides
+    ``scenario.vehicle.type``.
+    """
+
+    def __init__(self, scenario: Scenario, listen: str = "udpin:127.0.0.1:14550", speedup: float = 1.0,
+                 loss: float = 0.0, latency_s: float = 0.0, seed: int = 0, system_id: int = 1,
+                 vehicle: Literal["plane", "copter"] | None = None) -> None:
+        if speedup <= 0.0:
+            raise ValueError(f"speedup must be > 0, got {speedup}")
+        limits = scenario.vehicle
+        if vehicle is not None and vehicle != limits.type:
+            limits = dataclasses.replace(limits, type=vehicle)
+        self.scenario = scenario
+        self.vehicle = limits
+        self.is_plane = limits.type == "plane"
+        self.system_id = system_id
+        self.speedup = float(speedup)
+        self._home = scenario.home
+        self._rng = np.random.default_rng(seed)
+        self._transport = SimTransport(listen, self._on_message, system_id=system_id, component_id=COMPONENT_ID,
+                                       loss=loss, latency_s=latency_s, rng=self._rng)
+        start_xy = (float(scenario.start[0]), float(scenario.start[1]))
+        heading = bearing(*start_xy) if math.hypot(*start_xy) > 1.0 else 0.0  # "runway" pointing the way out
+        self._model = FlightModel(limits, heading)
+        self._events = _Events(self)
+        self._nav = Navigator(self._model, self._item_to_enu, self._events)
+        self._server = MissionServer(self._send, self._home_item, lambda: self._nav.running,
+                                     self._set_current, self._text)
+        self._modes = PLANE_MODES if self.is_plane else COPTER_MODES
+        self._mode_names = {v: k for k, v in self._modes.items()}
+        self._custom_mode = self._modes["MANUAL" if self.is_plane else "STABILIZE"]
+        self._mode_task: NavTask | None = None
+        self._armed = False
+        self._ready = False
+        self._sim_time = 0.0
+        self._next_truth = 0.0
+        self._mission_t0: float | None = None
+        self._tracks = [IntruderTrack(i) for i in scenario.intruders]
+        self._truth: list[tuple[float, float, float, float, float, float, float]] = []
+        self._intruder_truth: dict[str, list[tuple[float, float, float, float]]] = {
+            i.id: [] for i in scenario.intruders}
+        self._reached: list[int] = []
+        self._streams = _default_streams()
+        self._tasks: list[asyncio.Task[None]] = []
+
+    # --- public state ---------------------------------------------------------------------------------------
+
+    @property
+    def port(self) -> int:
+        return self._transport.port
+
+    @property
+    def sim_time(self) -> float:
+        return self._sim_time
+
+    @property
+    def truth(self) -> list[tuple[float, float, float, float, float, float, float]]:
+        """(t_sim, lat, lon, alt_rel, x, y, z) every 0.1 s of simulated time (ENU m from home)."""
+        return self._truth
+
+    @property
+    def intruder_truth(self) -> dict[str, list[tuple[float, float, float, float]]]:
+        """Per intruder id: (t_sim, x, y, z) every 0.1 s of simulated time while it flies."""
+        return self._intruder_truth
+
+    @property
+    def mission(self) -> list[MissionItem]:
+        """The stored mission, item 0 = home (a copy)."""
+        return list(self._server.mission)
+
+    @property
+    def fence(self) -> list[MissionItem]:
+        return list(self._server.lists[mavlink.MAV_MISSION_TYPE_FENCE])
+
+    @property
+    def current_seq(self) -> int:
+        return self._nav.current_seq
+
+    @property
+    def active_item(self) -> MissionItem | None:
+        """The NAV command being flown (a copy taken when it started)."""
+        return self._nav.active
+
+    @property
+    def armed(self) -> bool:
+        return self._armed
+
+    @property
+    def mode(self) -> str:
+        return self._mode_names[self._custom_mode]
+
+    @property
+    def custom_mode(self) -> int:
+        return self._custom_mode
+
+    @property
+    def reached(self) -> list[int]:
+        return list(self._reached)
+
+    @property
+    def ready(self) -> bool:
+        return self._ready
+
+    @property
+    def position(self) -> tuple[float, float, float]:
+        s = self._model.state
+        return s.x, s.y, s.z
+
+    @property
+    def mission_time(self) -> float | None:
+        """Simulated seconds since the mission started (intruders are scheduled on this), or None."""
+        return None if self._mission_t0 is None else self._sim_time - self._mission_t0
+
+    # --- lifecycle ------------------------------------------------------------------------------------------
+
+    async def start(self) -> None:
+        if self._tasks:
+            return
+        await self._transport.open()
+        self._tasks = [asyncio.create_task(self._physics(), name="sim-physics"),
+                       asyncio.create_task(self._telemetry(), name="sim-telemetry")]
+
+    async def stop(self) -> None:
+        tasks, self._tasks = self._tasks, []
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        await self._transport.close()
+
+    async def __aenter__(self) -> SimAutopilot:
+        await self.start()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    async def run_until(self, sim_time: float) -> None:
+        """Sleep until the simulated clock reaches ``sim_time``."""
+        while self._sim_time < sim_time:
+            await asyncio.sleep(max((sim_time - self._sim_time) / self.speedup, 0.005))
+
+    # --- tasks ----------------------------------------------------------------------------------------------
+
+    async def _physics(self) -> None:
+        loop = asyncio.get_running_loop()
+        tick = max(0.01, min(0.05, PHYSICS_DT / self.speedup))
+        last = loop.time()
+        while True:
+            await asyncio.sleep(tick)
+            now = loop.time()
+            self.advance(min(now - last, MAX_CATCH_UP_S) * self.speedup)
+            last = now
+
+    def advance(self, sim_seconds: float) -> None:
+        """Run the simulation forward by ``sim_seconds`` in steps of at most PHYSICS_DT."""
+        remaining = sim_seconds
+        while remaining > 1e-9:
+            dt = min(PHYSICS_DT, remaining)
+            remaining -= dt
+            self._step(dt)
+            self._sim_time += dt
+            self._server.tick(self._sim_time)
+            if not self._ready and self._sim_time >= READY_AFTER_S:
+                self._ready = True
+                self._text(mavlink.MAV_SEVERITY_INFO, "EKF3 IMU0 is using GPS")
+                self._send(self._home_position())
+            if self._sim_time >= self._next_truth:
+                self._record_truth()
+                self._next_truth += TRUTH_DT
+
+    async def _telemetry(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            now = loop.time()
+            for msg_id, stream in self._streams.items():
+                if now >= stream.next_due:
+                    for msg in self._stream_messages(msg_id):
+                        self._send(msg)
+                    stream.next_due = max(stream.next_due + stream.wall_period(self.speedup), now)
+            next_due = min(s.next_due for s in self._streams.values())
+            await asyncio.sleep(min(max(next_due - loop.time(), 0.001), 0.2))
+
+    # --- flight ---------------------------------------------------------------------------------------------
+
+    def _step(self, dt: float) -> None:
+        model = self._model
+        s = model.state
+        if not self._armed:
+            if not s.on_ground:
+                model.touch_down()  # forced disarm in the air: it falls (no crash model)
+            model.stay()
+            return
+        if self.mode == "AUTO":
+            if self._nav.running:
+                self._nav.step(self._server.mission, dt)
+            elif s.on_ground:
+                model.stay()
+            else:
+                model.circle((s.x, s.y), PLANE_LOITER_RADIUS, s.z, True, dt)  # copter: hover
+            return
+        task = self._mode_task
+        if task is not None:
+            if task.step(model, dt):
+                self._mode_task = None
+                if s.on_ground:
+                    self._on_landed()
+                elif isinstance(task, Takeoff):
+                    self._mode_task = Loiter((s.x, s.y, s.z), PLANE_LOITER_RADIUS)
+        elif s.on_ground:
+            model.stay()
+        else:
+            model.straight(s.z, dt)
+
+    def _item_to_enu(self, item: MissionItem) -> tuple[float, float, float]:
+        s = self._model.state
+        if item.x == 0 and item.y == 0:
+            x, y = s.x, s.y
+        else:
+            e, n, _ = pymap3d.geodetic2enu(item.lat, item.lon, self._home.alt, self._home.lat, self._home.lon,
+                                           self._home.alt)
+            x, y = float(e), float(n)
+        if item.frame in (mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT):
+            z = item.z - self._home.alt
+        elif item.frame == mavlink.MAV_FRAME_MISSION:
+            z = s.z
+        else:  # relative; terrain frames count as relative (the simulator's ground is flat at home altitude)
+            z = item.z
+        return x, y, float(z)
+
+    def _start_mission(self, seq: int | None = None) -> None:
+        if self._mission_t0 is None:
+            self._mission_t0 = self._sim_time
+            logger.info("simulator: mission started at t=%.1f s", self._sim_time)
+        self._nav.start(self._server.mission, seq)
+
+    def _on_mission_complete(self) -> None:
+        if self.is_plane:
+            self._text(mavlink.MAV_SEVERITY_INFO, "Mission complete, changing mode to RTL")
+            self._set_mode(PLANE_MODES["RTL"])
+        self._send_mission_current()
+
+    def _on_landed(self) -> None:
+        self._nav.stop()
+        self._mode_task = None
+        self._armed = False
+        self._model.touch_down()
+        self._text(mavlink.MAV_SEVERITY_INFO, "Disarming motors")
+
+    def _set_mode(self, custom_mode: int) -> bool:
+        if custom_mode not in self._mode_names:
+            return False
+        if custom_mode == self._custom_mode:
+            return True
+        previous = self.mode
+        self._custom_mode = custom_mode
+        name = self.mode
+        s = self._model.state
+        if previous == "AUTO":
+            self._nav.stop()
+        self._mode_task = None
+        here = (s.x, s.y, s.z)
+        if name == "AUTO":
+            if self._armed and (self.is_plane or not s.on_ground):
+                self._start_mission()
+        elif name == "RTL":
+            self._mode_task = ReturnHome((s.x, s.y), self.vehicle.acceptance_radius, rtl_altitude(self._model),
+                                         for_ever=True)
+        elif name == "LAND":
+            self._mode_task = Land((s.x, s.y), (s.x, s.y))
+        elif name == "TAKEOFF":
+            self._mode_task = Takeoff(self.vehicle.takeoff_alt)
+        elif name in ("LOITER", "GUIDED", "CIRCLE") and not s.on_ground:
+            self._mode_task = Loiter(here, PLANE_LOITER_RADIUS)
+        logger.info("simulator: mode %s → %s", previous, name)
+        self._send(self._heartbeat())
+        return True
+
+    def _set_current(self, seq: int) -> bool:
+        """MISSION_SET_CURRENT / DO_SET_MISSION_CURRENT: restart that item now if the mission is running."""
+        mission = self._server.mission
+        if not 0 <= seq < len(mission):
+            return False
+        seq = max(seq, 1) if len(mission) > 1 else 0
+        if self.mode == "AUTO" and self._armed and (self._nav.running or not self._model.state.on_ground):
+            self._start_mission(seq)
+        else:
+            self._nav.current_seq = seq
+        self._send_mission_current()
+        return True
+
+    # --- incoming -------------------------------------------------------------------------------------------
+
+    def _on_message(self, msg: mavlink.MAVLink_message) -> None:
+        target = getattr(msg, "target_system", 0)
+        if target not in (0, self.system_id):
+            return
+        try:
+            if self._server.handle(msg, self._sim_time):
+                return
+            kind = msg.get_type()
+            if kind in ("COMMAND_LONG", "COMMAND_INT"):
+                if getattr(msg, "target_component", 0) not in (0, COMPONENT_ID):
+                    return
+                self._command(msg)
+            elif kind == "SET_MODE":
+                ok = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED) and \
+                    self._set_mode(msg.custom_mode)
+                self._ack(msg, mavlink.MAVLINK_MSG_ID_SET_MODE,
+                          mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED)
+        except Exception:  # a malformed request must not take the simulated vehicle down
+            logger.exception("simulator: error handling %s", msg)
+
+    def _ack(self, msg: mavlink.MAVLink_message, command: int, result: int) -> None:
+        self._send(mavlink.MAVLink_command_ack_message(command, result, 0, 0, msg.get_srcSystem(),
+                                                       msg.get_srcComponent()))
+
+    def _command(self, msg: mavlink.MAVLink_message) -> None:
+        if msg.get_type() == "COMMAND_LONG":
+            p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
+        else:
+            p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x / 1e7, msg.y / 1e7, msg.z)
+        self._ack(msg, msg.command, self._run_command(msg.command, p))
+
+    def _run_command(self, cmd: int, p: tuple[float, ...]) -> int:
+        ok, failed = mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_FAILED
+        if cmd == mavlink.MAV_CMD_COMPONENT_ARM_DISARM:
+            return self._arm(p[0] == 1.0, force=int(p[1]) == FORCE_DISARM)
+        if cmd == mavlink.MAV_CMD_DO_SET_MODE:
+            custom = int(p[0]) & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+            return ok if custom and self._set_mode(int(p[1])) else failed
+        if cmd == mavlink.MAV_CMD_MISSION_START:
+            if not self._set_mode(self._modes["AUTO"]):
+                return failed
+            if self._armed and not self._nav.running:
+                self._start_mission()
+            return ok
+        if cmd == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
+            return ok if self._set_current(int(p[0])) else failed
+        if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
+            messages = self._on_request(int(p[0]))
+            for m in messages or ():
+                self._send(m)
+            return ok if messages else failed
+        if cmd == mavlink.MAV_CMD_GET_HOME_POSITION:
+            if not self._ready:
+                return failed
+            self._send(self._home_position())
+            return ok
+        if cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+            stream = self._streams.get(int(p[0]))
+            if stream is None:
+                return failed
+            interval_us = p[1]
+            default = _default_streams()[int(p[0])].sim_hz
+            stream.sim_hz = default if interval_us == 0 else (0.0 if interval_us < 0 else 1e6 / interval_us)
+            stream.next_due = 0.0
+            return ok
+        if cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
+            if p[1] > 0.0:
+                self._model.target_speed = float(p[1])
+            return ok
+        if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+            return ok if self._set_mode(self._modes["RTL"]) else failed
+        if cmd == mavlink.MAV_CMD_NAV_LAND and not self.is_plane:
+            return ok if self._set_mode(COPTER_MODES["LAND"]) else failed
+        if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
+            return self._takeoff_command(p[6])
+        return mavlink.MAV_RESULT_UNSUPPORTED
+
+    def _arm(self, arm: bool, force: bool) -> int:
+        if not arm:
+            if self._armed and not self._model.state.on_ground and not force:
+                self._text(mavlink.MAV_SEVERITY_CRITICAL, "Disarm: vehicle is flying")
+                return mavlink.MAV_RESULT_FAILED
+            self._armed = False
+            self._nav.stop()
+            self._mode_task = None
+            return mavlink.MAV_RESULT_ACCEPTED
+        if self._armed:
+            return mavlink.MAV_RESULT_ACCEPTED
+        if not self.is_plane and self.mode == "AUTO":
+            self._text(mavlink.MAV_SEVERITY_CRITICAL, "Arm: AUTO mode not armable")
+            return mavlink.MAV_RESULT_FAILED
+        if not self._ready and not force:
+            self._text(mavlink.MAV_SEVERITY_CRITICAL, "Arm: System not initialised")
+            return mavlink.MAV_RESULT_FAILED
+        self._armed = True
+        self._text(mavlink.MAV_SEVERITY_INFO, "Throttle armed")
+        if self.mode == "AUTO":
+            self._start_mission()
+        elif self.mode == "TAKEOFF":
+            self._mode_task = Takeoff(self.vehicle.takeoff_alt)
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _takeoff_command(self, altitude: float) -> int:
+        if not self._armed or not altitude > 0.0:
+            return mavlink.MAV_RESULT_FAILED
+        if self.is_plane:
+            if not self._set_mode(PLANE_MODES["TAKEOFF"]):
+                return mavlink.MAV_RESULT_FAILED
+        elif self.mode != "GUIDED":
+            return mavlink.MAV_RESULT_FAILED
+        self._mode_task = Takeoff(float(altitude))
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    def _on_request(self, msg_id: int) -> list[mavlink.MAVLink_message] | None:
+        if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
+            return [self._home_position()] if self._ready else None
+        if msg_id in self._streams:
+            return self._stream_messages(msg_id) or None
+        return None
+
+    # --- outgoing -------------------------------------------------------------------------------------------
+
+    def _send(self, msg: mavlink.MAVLink_message) -> None:
+        self._transport.send(msg)
+
+    def _text(self, severity: int, text: str) -> None:
+        logger.debug("simulator STATUSTEXT: %s", text)
+        self._send(mavlink.MAVLink_statustext_message(severity, text[:50].encode(), 0, 0))
+
+    def _send_mission_current(self) -> None:
+        self._send(self._mission_current())
+
+    def _time_boot_ms(self) -> int:
+        return int(self._sim_time * 1000) & 0xFFFFFFFF
+
+    def _home_item(self) -> MissionItem:
+        return MissionItem(0, FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, x=round(self._home.lat * 1e7),
+                           y=round(self._home.lon * 1e7), z=float(self._home.alt), mission_type=MISSION)
+
+    def _geodetic(self) -> tuple[float, float]:
+        s = self._model.state
+        lat, lon, _ = pymap3d.enu2geodetic(s.x, s.y, 0.0, self._home.lat, self._home.lon, self._home.alt)
+        return float(lat), float(lon)
+
+    def _record_truth(self) -> None:
+        s = self._model.state
+        lat, lon = self._geodetic()
+        self._truth.append((self._sim_time, lat, lon, s.z, s.x, s.y, s.z))
+        t_mission = self.mission_time
+        if t_mission is None:
+            return
+        for track in self._tracks:
+            sample = track.sample(t_mission)
+            if sample is not None:
+                self._intruder_truth[track.intruder.id].append((self._sim_time, sample.x, sample.y, sample.z))
+
+    def _heartbeat(self) -> mavlink.MAVLink_heartbeat_message:
+        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
+        if self.mode in ("MANUAL", "STABILIZE", "ACRO"):
+            base |= mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+        else:
+            base |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        if self._armed:
+            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        return mavlink.MAVLink_heartbeat_message(
+            mavlink.MAV_TYPE_FIXED_WING if self.is_plane else mavlink.MAV_TYPE_QUADROTOR,
+            mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base, self._custom_mode,
+            mavlink.MAV_STATE_ACTIVE if self._armed else mavlink.MAV_STATE_STANDBY, 3)
+
+    def _mission_current(self) -> mavlink.MAVLink_mission_current_message:
+        total = len(self._server.mission) - 1
+        if total < 1:
+            state = mavlink.MISSION_STATE_NO_MISSION
+        elif self._nav.running:
+            state = mavlink.MISSION_STATE_ACTIVE
+        elif self._mission_t0 is None:
+            state = mavlink.MISSION_STATE_NOT_STARTED
+        elif self.mode == "AUTO" and self._nav.active is None:
+            state = mavlink.MISSION_STATE_COMPLETE
+        else:
+            state = mavlink.MISSION_STATE_PAUSED
+        return mavlink.MAVLink_mission_current_message(self._nav.current_seq, max(total, 0), state,
+                                                       1 if self.mode == "AUTO" else 0)
+
+    def _home_position(self) -> mavlink.MAVLink_home_position_message:
+        h = self._home
+        return mavlink.MAVLink_home_position_message(
+            round(h.lat * 1e7), round(h.lon * 1e7), round(h.alt * 1000), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0],
+            0.0, 0.0, 0.0, int(self._sim_time * 1e6))
+
+    def _stream_messages(self, msg_id: int) -> list[mavlink.MAVLink_message]:
+        s = self._model.state
+        if msg_id == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            return [self._heartbeat()]
+        if msg_id == mavlink.MAVLINK_MSG_ID_MISSION_CURRENT:
+            return [self._mission_current()]
+        if msg_id == mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT:
+            lat, lon = self._geodetic()
+            hdg = round(math.degrees(s.heading) * 100) % 36000
+            return [mavlink.MAVLink_global_position_int_message(
+                self._time_boot_ms(), round(lat * 1e7), round(lon * 1e7), round((self._home.alt + s.z) * 1000),
+                round(s.z * 1000), round(s.vy * 100), round(s.vx * 100), round(-s.vz * 100), hdg)]
+        if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
+            health = SENSORS if self._ready else SENSORS & ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
+            return [mavlink.MAVLink_sys_status_message(SENSORS, SENSORS, health, 100, 12600, -1, 100, 0, 0, 0, 0,
+                                                       0, 0)]
+        if msg_id == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:
+            lat, lon = self._geodetic()
+            fix = mavlink.GPS_FIX_TYPE_3D_FIX if self._ready else mavlink.GPS_FIX_TYPE_NO_GPS
+            return [mavlink.MAVLink_gps_raw_int_message(
+                int(self._sim_time * 1e6), fix, round(lat * 1e7) if self._ready else 0,
+                round(lon * 1e7) if self._ready else 0, round((self._home.alt + s.z) * 1000),
+                121 if self._ready else 65535, 200 if self._ready else 65535, round(s.speed * 100),
+                round(math.degrees(s.heading) * 100) % 36000, 10 if self._ready else 0)]
+        if msg_id == mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT:
+            flags = EKF_GOOD if self._ready else EKF_UNINITIALISED
+            return [mavlink.MAVLink_ekf_status_report_message(flags, 0.01, 0.01, 0.01, 0.01, 0.0, 0.0)]
+        if msg_id == mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE:
+            return self._adsb_messages()
+        return []
+
+    def _adsb_messages(self) -> list[mavlink.MAVLink_message]:
+        t_mission = self.mission_time
+        if t_mission is None:
+            return []
+        out = []
+        for track in self._tracks:
+            sample = track.sample(t_mission)
+            if sample is None:
+                continue
+            lat, lon, _ = pymap3d.enu2geodetic(sample.x, sample.y, 0.0, self._home.lat, self._home.lon,
+                                               self._home.alt)
+            intruder = track.intruder
+            out.append(mavlink.MAVLink_adsb_vehicle_message(
+                intruder.icao, round(float(lat) * 1e7), round(float(lon) * 1e7),
+                mavlink.ADSB_ALTITUDE_TYPE_GEOMETRIC, round((self._home.alt + sample.z) * 1000),
+                round(heading_deg(sample) * 100) % 36000, round(math.hypot(sample.vx, sample.vy) * 100),
+                round(sample.vz * 100), intruder.id[:9].encode(), mavlink.ADSB_EMITTER_TYPE_UAV, 0, ADSB_FLAGS,
+                0))
+        return out
+
+
+async def serve(scenario: Scenario, listen: str = "udpin:127.0.0.1:14550", speedup: float = 1.0,
+                loss: float = 0.0, latency_s: float = 0.0, until: float | asyncio.Event | None = None,
+                seed: int = 0) -> None:
+    """Run a :class:`SimAutopilot` until cancelled, until ``until`` seconds of simulated time have passed (a
+    number), or until ``until`` is set (an :class:`asyncio.Event`). Used by ``fuseplan sim``."""
+    async with SimAutopilot(scenario, listen, speedup, loss, latency_s, seed) as sim:
+        logger.info("simulated %s serving on %s (port %d), speed-up %g", sim.vehicle.type, listen, sim.port,
+                    speedup)
+        if until is None:
+            await asyncio.Event().wait()
+        elif isinstance(until, asyncio.Event):
+            await until.wait()
+        else:
+            await sim.run_until(float(until))

@@ -1,0 +1,206 @@
+"""Server end of the simulated autopilot's MAVLink connection: ``udpin:`` or ``tcp:`` listen, with fault injection.
+
+Pure asyncio: a :class:`asyncio.DatagramProtocol` (UDP) or an :func:`asyncio.start_server` (TCP) feeds bytes to
+pymavlink's parser (``MAVLink(file=None).parse_buffer``); no threads, no polling. Outgoing messages are packed with
+the autopilot's system/component id and go to the last UDP sender, or to every connected TCP client (as
+ArduPilot SITL's serial-over-TCP port does).
+
+Fault injection: each incoming datagram (TCP: each parsed message) and each outgoing packet is dropped with
+probability ``loss`` (one seeded ``numpy.random.Generator``); outgoing packets are delayed by ``latency_s`` with
+``loop.call_later``.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.errors import LinkError
+
+logger = logging.getLogger(__name__)
+
+MessageHandler = Callable[[mavlink.MAVLink_message], None]
+
+
+@dataclass(frozen=True)
+class ListenAddress:
+    scheme: str  # "udpin" | "tcp"
+    host: str
+    port: int
+
+
+def parse_listen(listen: str) -> ListenAddress:
+    """``"udpin:127.0.0.1:14550"`` / ``"tcp:127.0.0.1:5760"`` → :class:`ListenAddress` (port 0 = any free port)."""
+    scheme, sep, rest = listen.partition(":")
+    host, sep2, port_text = rest.rpartition(":")
+    if not sep or not sep2 or scheme not in ("udpin", "udp", "tcp", "tcpin") or not host:
+        raise LinkError(f"simulator listen address {listen!r}: expected udpin:HOST:PORT or tcp:HOST:PORT")
+    try:
+        port = int(port_text)
+    except ValueError:
+        raise LinkError(f"simulator listen address {listen!r}: port {port_text!r} is not a number") from None
+    if not 0 <= port <= 65535:
+        raise LinkError(f"simulator listen address {listen!r}: port out of range")
+    return ListenAddress("tcp" if scheme.startswith("tcp") else "udpin", host, port)
+
+
+def new_mavlink(system_id: int, component_id: int) -> mavlink.MAVLink:
+    """A MAVLink 2 packer/parser with no file behind it."""
+    mav = mavlink.MAVLink(None, srcSystem=system_id, srcComponent=component_id)
+    mav.robust_parsing = True
+    return mav
+
+
+class SimTransport:
+    """Listening MAVLink endpoint of the simulator; ``on_message`` gets every parsed, not-dropped message."""
+
+    def __init__(self, listen: str, on_message: MessageHandler, *, system_id: int, component_id: int,
+                 loss: float = 0.0, latency_s: float = 0.0, rng: np.random.Generator | None = None) -> None:
+        if not 0.0 <= loss < 1.0:
+            raise ValueError(f"loss must be in [0, 1), got {loss}")
+        if latency_s < 0.0:
+            raise ValueError(f"latency_s must be >= 0, got {latency_s}")
+        self.address = parse_listen(listen)
+        self._on_message = on_message
+        self._loss = loss
+        self._latency = latency_s
+        self._rng = rng if rng is not None else np.random.default_rng(0)
+        self._packer = new_mavlink(system_id, component_id)
+        self._udp: asyncio.DatagramTransport | None = None
+        self._udp_parser = new_mavlink(system_id, component_id)
+        self._peer: tuple[str, int] | None = None
+        self._server: asyncio.Server | None = None
+        self._tcp_clients: dict[asyncio.StreamWriter, asyncio.Task[None]] = {}
+        self._pending: set[asyncio.TimerHandle] = set()
+        self.port = self.address.port
+        self.sent = 0
+        self.received = 0
+
+    @property
+    def connected(self) -> bool:
+        """True once a peer exists to send to."""
+        return self._peer is not None or bool(self._tcp_clients)
+
+    async def open(self) -> None:
+        loop = asyncio.get_running_loop()
+        host, port = self.address.host, self.address.port
+        try:
+            if self.address.scheme == "udpin":
+                self._udp, _ = await loop.create_datagram_endpoint(
+                    lambda: _UdpProtocol(self), local_addr=(host, port))
+                self.port = self._udp.get_extra_info("sockname")[1]
+            else:
+                self._server = await asyncio.start_server(self._serve_tcp_client, host, port)
+                self.port = self._server.sockets[0].getsockname()[1]
+        except OSError as exc:
+            raise LinkError(f"simulator cannot listen on {self.address.scheme}:{host}:{port}: {exc}") from exc
+        logger.info("simulated autopilot listening on %s:%s:%d", self.address.scheme, host, self.port)
+
+    async def close(self) -> None:
+        for handle in self._pending:
+            handle.cancel()
+        self._pending.clear()
+        if self._udp is not None:
+            protocol = self._udp.get_protocol()
+            self._udp.close()
+            self._udp = None
+            assert isinstance(protocol, _UdpProtocol)
+            await protocol.closed  # the socket is really closed only after connection_lost
+        if self._server is not None:
+            self._server.close()
+            for writer, task in list(self._tcp_clients.items()):
+                task.cancel()
+                writer.close()
+            await asyncio.gather(*self._tcp_clients.values(), return_exceptions=True)
+            self._tcp_clients.clear()
+            await self._server.wait_closed()
+            self._server = None
+
+    # --- outgoing -------------------------------------------------------------------------------------------
+
+    def send(self, msg: mavlink.MAVLink_message) -> None:
+        """Pack and send one message (subject to loss and latency); silently nothing if no peer yet."""
+        buf = msg.pack(self._packer)
+        self._packer.seq = (self._packer.seq + 1) % 256
+        if not self.connected:
+            return
+        if self._loss and self._rng.random() < self._loss:
+            return
+        if self._latency > 0.0:
+            loop = asyncio.get_running_loop()
+            handle: asyncio.TimerHandle
+
+            def deliver() -> None:
+                self._pending.discard(handle)
+                self._write(buf)
+
+            handle = loop.call_later(self._latency, deliver)
+            self._pending.add(handle)
+        else:
+            self._write(buf)
+
+    def _write(self, buf: bytes) -> None:
+        self.sent += 1
+        if self._udp is not None and self._peer is not None:
+            self._udp.sendto(buf, self._peer)
+        for writer in self._tcp_clients:
+            if not writer.is_closing():
+                writer.write(buf)
+
+    # --- incoming -------------------------------------------------------------------------------------------
+
+    def _feed(self, parser: mavlink.MAVLink, data: bytes, per_message_loss: bool) -> None:
+        try:
+            messages = parser.parse_buffer(data) or []
+        except mavlink.MAVError as exc:  # robust_parsing makes this rare; a bad packet must not kill the link
+            logger.debug("simulator: unparsable input dropped: %s", exc)
+            return
+        for msg in messages:
+            if msg.get_type() == "BAD_DATA":
+                continue
+            if per_message_loss and self._loss and self._rng.random() < self._loss:
+                continue
+            self.received += 1
+            self._on_message(msg)
+
+    def _datagram(self, data: bytes, addr: tuple[str, int]) -> None:
+        if self._loss and self._rng.random() < self._loss:
+            return
+        self._peer = addr  # reply to the last sender, as ArduPilot's udpin does
+        self._feed(self._udp_parser, data, per_message_loss=False)
+
+    async def _serve_tcp_client(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+        task = asyncio.current_task()
+        assert task is not None
+        self._tcp_clients[writer] = task
+        parser = new_mavlink(self._packer.srcSystem, self._packer.srcComponent)
+        logger.info("simulator: TCP client %s connected", writer.get_extra_info("peername"))
+        try:
+            while data := await reader.read(4096):
+                self._feed(parser, data, per_message_loss=True)
+        except (ConnectionError, asyncio.IncompleteReadError):
+            pass
+        finally:
+            self._tcp_clients.pop(writer, None)
+            writer.close()
+
+
+class _UdpProtocol(asyncio.DatagramProtocol):
+    def __init__(self, owner: SimTransport) -> None:
+        self._owner = owner
+        self.closed: asyncio.Future[None] = asyncio.get_running_loop().create_future()
+
+    def connection_lost(self, exc: Exception | None) -> None:
+        if not self.closed.done():
+            self.closed.set_result(None)
+
+    def datagram_received(self, data: bytes, addr: tuple[str, int]) -> None:
+        self._owner._datagram(data, addr)
+
+    def error_received(self, exc: Exception) -> None:  # e.g. ICMP port unreachable after the client left
+        logger.debug("simulator: UDP error %s", exc)
