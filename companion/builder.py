@@ -65,7 +65,9 @@ class MissionSpec:
     """How to turn a route into items: target autopilot, vehicle conventions, ENU origin, densification.
 
     ``fly_to_start`` adds a NAV_WAYPOINT at the planned start (the route's index 0) right after the takeoff,
-    so the vehicle joins the planned route where the planner's checks begin; off by default.
+    so the vehicle joins the planned route where the planner's checks begin (without it the first leg runs
+    from wherever the takeoff ends straight to P_1, a leg nobody planned). The climb-out from home to the
+    start is not part of the plan: choose the start so that leg is clear.
     """
 
     autopilot: Autopilot
@@ -73,7 +75,7 @@ class MissionSpec:
     home: Home
     densify: bool = False
     densify_spacing_m: float = 50.0
-    fly_to_start: bool = False
+    fly_to_start: bool = True
 
     def __post_init__(self) -> None:
         if self.autopilot not in ("ardupilot", "px4"):
@@ -256,14 +258,11 @@ def _vehicle_of(source: VehicleLimits | Scenario) -> VehicleLimits:
 
 
 def mission_from_plan_json(doc: Mapping[str, Any], vehicle: VehicleLimits | Scenario,
-                           autopilot: Autopilot = "ardupilot", *, densify: bool = False,
-                           densify_spacing_m: float = 50.0, fly_to_start: bool = False,
-                           ) -> list[MissionItem]:
+                           autopilot: Autopilot = "ardupilot", **options: Any) -> list[MissionItem]:
     """Mission items for a PLAN.json document (``fuseplan plan`` output); home from ``doc["home"]``, the
-    densified route from ``doc["trajectory"]["points"]``."""
-    spec = spec_from_plan_json(doc, vehicle, autopilot, densify=densify, densify_spacing_m=densify_spacing_m,
-                               fly_to_start=fly_to_start)
-    trajectory = doc.get("trajectory", {}).get("points") if densify else None
+    densified route from ``doc["trajectory"]["points"]``; ``options`` are :class:`MissionSpec` fields."""
+    spec = spec_from_plan_json(doc, vehicle, autopilot, **options)
+    trajectory = doc.get("trajectory", {}).get("points") if spec.densify else None
     return build_mission(np.asarray(doc["waypoints"], dtype=float), spec, trajectory)
 
 

@@ -48,6 +48,39 @@ def _parser() -> argparse.ArgumentParser:
     cp.add_argument("-o", "--output", type=Path, default=Path("compare"),
                     help="directory for compare.csv, compare_runs.csv, compare.png (default ./compare)")
     cp.add_argument("-q", "--quiet", action="store_true")
+    ex = sub.add_parser("export", help="write a mission file (.waypoints, QGroundControl .plan, GeoJSON)")
+    ex.add_argument("source", type=Path, help="a scenario TOML (planned first) or a PLAN.json")
+    ex.add_argument("--format", required=True, choices=("waypoints", "plan", "geojson"))
+    ex.add_argument("-o", "--output", type=Path, required=True)
+    ex.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
+    ex.add_argument("--scenario", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
+    ex.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory")
+    ex.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    ex.add_argument("--seed", type=int, default=None)
+    fl = sub.add_parser("fly", help="plan, upload, start and monitor a mission over MAVLink")
+    fl.add_argument("scenario", type=Path, help="scenario TOML (planned now) or a PLAN.json")
+    where = fl.add_mutually_exclusive_group(required=True)
+    where.add_argument("--connect", metavar="URL", help="autopilot link, e.g. tcp:127.0.0.1:5760 (ArduPilot SITL), "
+                       "udpin:0.0.0.0:14550, /dev/ttyACM0")
+    where.add_argument("--sim", action="store_true", help="fly on the built-in simulated autopilot (arming implied)")
+    fl.add_argument("--speedup", type=float, default=1.0, help="simulator speed-up (with --sim)")
+    fl.add_argument("--sim-loss", type=float, default=0.0, help="simulator packet loss probability (with --sim)")
+    fl.add_argument("--arm", action="store_true", help="let the companion arm the vehicle (never without this)")
+    fl.add_argument("--no-fence", action="store_true", help="do not upload the no-fly cylinders as a fence")
+    fl.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory as waypoints")
+    fl.add_argument("--report", type=Path, default=Path("fuseplan-report"), help="report directory")
+    fl.add_argument("--scenario-file", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
+    fl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    fl.add_argument("--seed", type=int, default=None)
+    fl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None)
+    fl.add_argument("-q", "--quiet", action="store_true")
+    sm = sub.add_parser("sim", help="run the built-in simulated autopilot alone")
+    sm.add_argument("scenario", type=Path)
+    sm.add_argument("--listen", default="udpin:127.0.0.1:14550", help="udpin:HOST:PORT or tcp:HOST:PORT "
+                    "(loopback unless you name another address)")
+    sm.add_argument("--speedup", type=float, default=1.0)
+    sm.add_argument("--loss", type=float, default=0.0, help="packet loss probability")
+    sm.add_argument("--latency", type=float, default=0.0, help="extra outgoing latency, s")
     sub.add_parser("demo", help="plan the rescue scenario and draw it (flies once the companion lands)")
     return p
 
@@ -159,18 +192,127 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    here = Path(__file__).resolve().parent.parent / "sitl_scenarios" / "rescue_static.toml"
-    out = Path("fuseplan-demo")
+def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str], seed: int | None,
+                  feasible_only: bool = True) -> tuple[dict, object]:
+    """(PLAN.json document, scenario) from a PLAN.json or by planning a scenario TOML now."""
+    from planner.plan import plan, plan_to_json, problem_from_scenario
+    from planner.scenario import load_scenario
+
+    if source.suffix.lower() == ".json":
+        try:
+            doc = json.loads(source.read_text())
+        except (OSError, ValueError) as e:
+            raise FuseplanError(f"{source}: cannot read the plan: {e}") from e
+        if not isinstance(doc, dict) or "waypoints" not in doc:
+            raise FuseplanError(f"{source}: not a fuseplan PLAN.json (no waypoints)")
+        named = scenario_path or (Path(doc["scenario_file"]) if doc.get("scenario_file") else None)
+        if named is None:
+            raise FuseplanError(f"{source}: names no scenario file; pass --scenario")
+        return doc, load_scenario(named, overrides)
+    sc = load_scenario(source, overrides + ([f"planner.seed={seed}"] if seed is not None else []))
+    res = plan(problem_from_scenario(sc), sc.planner, np.random.default_rng(sc.planner.seed), seed=sc.planner.seed)
+    if feasible_only and not res.feasible:
+        raise FuseplanError(f"{source}: no feasible plan ({res.status.value}); nothing exported")
+    return plan_to_json(res, sc), sc
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from companion.exports import export_from_plan_json
+
+    _check_writable(args.output)
+    doc, sc = _plan_doc_for(args.source, args.scenario, args.overrides, args.seed)
     try:
-        out.mkdir(exist_ok=True)
+        path = export_from_plan_json(doc, sc, args.format, args.output, args.autopilot, densify=args.densify)
+    except (KeyError, ValueError) as e:
+        raise FuseplanError(f"{args.source}: cannot export: {e}") from e
     except OSError as e:
-        raise FuseplanError(f"{out}: cannot create the report directory: {e.strerror or e}") from e
-    print("fuseplan demo: flying on the built-in simulated autopilot is not available yet "
-          "(companion issue); planning the rescue scenario instead.")
-    ns = argparse.Namespace(scenario=here, algorithm=None, seed=None, overrides=[], quiet=False,
-                            output=out / "PLAN.json", plot=out / "plan.png")
-    return cmd_plan(ns)
+        raise FuseplanError(f"{args.output}: cannot write: {e.strerror or e}") from e
+    print(f"wrote {path} ({args.format}, {args.autopilot})")
+    return EXIT_OK
+
+
+EXIT_LINK, EXIT_ABORTED = 4, 5
+
+
+def cmd_fly(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from companion.errors import CompanionError
+    from companion.events import EventLog
+    from companion.fly import FlyOptions, fly
+
+    if args.speedup <= 0 or not 0 <= args.sim_loss < 1:
+        raise FuseplanError("--speedup must be > 0 and --sim-loss in [0, 1)")
+    overrides = list(args.overrides) + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else [])
+    try:
+        args.report.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise FuseplanError(f"{args.report}: cannot create the report directory: {e.strerror or e}") from e
+    say = (lambda *_: None) if args.quiet else (lambda text: print(text, flush=True))
+    say(f"planning {args.scenario.name} ...")
+    doc, sc = _plan_doc_for(args.scenario, args.scenario_file, overrides, args.seed, feasible_only=False)
+    _write(args.report / "PLAN.json", json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    say(f"  {doc['status']}: cost {doc['cost']:.1f}, {doc['metrics']['length_m']:.0f} m, "
+        f"{doc['metrics']['plan_time_s']:.2f} s")
+    if doc["status"] not in ("exact", "approximate"):
+        print(f"fuseplan: no feasible plan ({doc['status']}); not flying. See {args.report / 'PLAN.json'}",
+              file=sys.stderr)
+        return EXIT_INFEASIBLE
+    opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
+                      arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report)
+    events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
+    try:
+        flight = asyncio.run(fly(doc, sc, opts, events))
+    except CompanionError as e:
+        events.log("failed", error=str(e))
+        print(f"fuseplan: error: {e}", file=sys.stderr)
+        return EXIT_LINK
+    finally:
+        events.close()
+    say(f"{'completed' if flight['completed'] else 'NOT completed'}: {flight['reason']}; "
+        f"{len(flight['items_reached'])} items reached, upload {flight['upload_s']:.2f} s, "
+        f"min clearance {flight['min_clearance_m']:.1f} m; report in {args.report}/")
+    return EXIT_OK if flight["completed"] else EXIT_ABORTED
+
+
+def _echo_event(rec: dict) -> None:
+    """Progress lines for the events a person watching the flight cares about."""
+    e = rec["event"]
+    detail = {k: v for k, v in rec.items() if k not in ("t", "event")}
+    if e in ("reached", "statustext", "mode", "armed", "upload_verified", "mission_start", "ready", "connected",
+             "finished", "timeout", "heartbeat_lost", "arm_refused", "waiting_for_pilot_arm", "failed"):
+        text = " ".join(f"{k}={v}" for k, v in detail.items())
+        print(f"  [{rec['t']:6.1f} s] {e} {text}".rstrip(), flush=True)
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from companion.sim import serve
+    from planner.scenario import load_scenario
+
+    sc = load_scenario(args.scenario)
+    if args.speedup <= 0 or not 0 <= args.loss < 1 or args.latency < 0:
+        raise FuseplanError("--speedup must be > 0, --loss in [0, 1), --latency >= 0")
+    print(f"simulated {sc.vehicle.type} for {sc.name} on {args.listen} (speed-up {args.speedup:g}); Ctrl-C stops",
+          flush=True)
+    try:
+        asyncio.run(serve(sc, args.listen, args.speedup, args.loss, args.latency))
+    except KeyboardInterrupt:
+        pass
+    except OSError as e:
+        raise FuseplanError(f"{args.listen}: cannot listen: {e.strerror or e}") from e
+    return EXIT_OK
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """fly sitl_scenarios/rescue_static.toml --sim --speedup 20 --report fuseplan-demo/"""
+    here = Path(__file__).resolve().parent.parent / "sitl_scenarios" / "rescue_static.toml"
+    print("fuseplan demo: planning the rescue scenario and flying it on the built-in simulated autopilot")
+    ns = argparse.Namespace(scenario=here, connect=None, sim=True, speedup=20.0, sim_loss=0.0, arm=False,
+                            no_fence=False, densify=False, report=Path("fuseplan-demo"), scenario_file=None,
+                            overrides=[], seed=None, algorithm=None, quiet=False)
+    return cmd_fly(ns)
 
 
 def _check_writable(path: Path | None) -> None:
@@ -199,6 +341,12 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_plan(args)
         if args.command == "compare":
             return cmd_compare(args)
+        if args.command == "export":
+            return cmd_export(args)
+        if args.command == "fly":
+            return cmd_fly(args)
+        if args.command == "sim":
+            return cmd_sim(args)
         return cmd_demo(args)
     except FuseplanError as e:
         print(f"fuseplan: error: {e}", file=sys.stderr)

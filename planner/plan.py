@@ -193,6 +193,7 @@ def plan_to_json(result: PlanResult, scenario: Scenario) -> dict[str, Any]:
     return json_safe({
         "format": "fuseplan-plan/1",
         "scenario": scenario.name,
+        "scenario_file": str(scenario.source),
         "status": result.status.value,
         "algorithm": result.algorithm,
         "seed": result.seed,

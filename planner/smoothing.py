@@ -148,6 +148,14 @@ def deviation_bound(seg_len: np.ndarray, cos_turn: np.ndarray) -> np.ndarray:
     return (4.0 / 27.0) * seg_len * np.where(c >= 0.0, np.sqrt(1.0 - c * c), 1.0)
 
 
+def corner_cut_bound(acceptance_radius: float, cos_turn: np.ndarray) -> np.ndarray:
+    """How far a vehicle that switches to the next leg at ``acceptance_radius`` before a waypoint strays
+    from the two legs meeting there: it flies (about) the chord from A before the corner to A after it,
+    whose midpoint is (A/2) sin θ from the nearer leg for a turn θ (A/2 past 90°). Shapes broadcast → m."""
+    c = np.clip(cos_turn, -1.0, 1.0)
+    return 0.5 * acceptance_radius * np.where(c >= 0.0, np.sqrt(1.0 - c * c), 1.0)
+
+
 def cubic_range(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, q3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Exact min and max over t ∈ [0, 1] of a scalar cubic Bézier with coefficients q0…q3 (arrays).
 

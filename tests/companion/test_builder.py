@@ -35,6 +35,7 @@ C = mavlink
 
 
 def spec(autopilot: str = "ardupilot", vehicle: VehicleLimits = PLANE, **kw: object) -> MissionSpec:
+    kw.setdefault("fly_to_start", False)  # most cases test the route items alone
     return MissionSpec(autopilot, vehicle, HOME, **kw)  # type: ignore[arg-type]
 
 
@@ -240,7 +241,7 @@ def test_fence_items():
 def test_mission_from_plan_json():
     doc = {"waypoints": WPS.tolist(), "home": {"lat": HOME.lat, "lon": HOME.lon, "alt": HOME.alt},
            "trajectory": {"points": sample_trajectory(WPS, 5.0)["points"].tolist()}}
-    assert mission_from_plan_json(doc, PLANE, "px4") == build_mission(WPS, spec("px4"))
+    assert mission_from_plan_json(doc, PLANE, "px4") == build_mission(WPS, spec("px4", fly_to_start=True))
     dense = mission_from_plan_json(doc, PLANE, "ardupilot", densify=True, densify_spacing_m=40.0)
     assert len(dense) > len(build_mission(WPS, spec()))
 

@@ -186,7 +186,7 @@ def test_export_from_plan_json_all_formats(tmp_path: Path, plan_doc):
     doc, scenario = plan_doc
     wp = export_from_plan_json(doc, scenario, "waypoints", tmp_path / "r.waypoints")
     loader = mavwp.MAVWPLoader()
-    assert loader.load(str(wp)) == 1 + 2 + 2 + 1  # home, takeoff, speed, 2 waypoints, loiter
+    assert loader.load(str(wp)) == 1 + 2 + 1 + 2 + 1  # home, takeoff, speed, start, 2 waypoints, loiter
     plan = export_from_plan_json(doc, scenario, "plan", tmp_path / "r.plan", "px4", densify=True)
     pdoc = json.loads(plan.read_text())
     check_qgc_plan(pdoc)

@@ -1,0 +1,338 @@
+"""MAVLink mission protocol client (upload, download, clear, set current) and COMMAND_LONG, over a :class:`Link`.
+
+Follows https://mavlink.io/en/services/mission.html and what real autopilots do (../shared/AUTOPILOT_FACTS.md):
+
+* Upload: MISSION_COUNT → the autopilot requests items (MISSION_REQUEST_INT, or the legacy MISSION_REQUEST
+  that ArduPilot uses) → we answer every request at once with MISSION_ITEM_INT for the requested seq (repeats,
+  earlier seqs and out-of-order requests included) → MISSION_ACK. The autopilot drives the item phase and
+  re-requests on its own clock (ArduPilot: after 1 s of *its* time), so our timeouts only decide when to nudge
+  and when to give up: no first request within ``timeout`` → MISSION_COUNT again; no next request within
+  ``item_timeout`` → the last requested item again; no ACK after the last item within ``timeout`` → the last
+  item again. ``retries`` consecutive timeouts without progress → :class:`MissionTimeout`.
+* Any MISSION_ACK error ends the operation with :class:`MissionUploadError` (result, seq in progress), with one
+  exception: MAV_MISSION_INVALID_SEQUENCE during the item phase. ArduPilot sends it for a duplicate or
+  out-of-order item *and keeps the transfer going* (it re-requests the item it wants), so it is logged and the
+  transfer continues; it still counts against ``retries``.
+* Download: MISSION_REQUEST_LIST → MISSION_COUNT → MISSION_REQUEST_INT per item (MISSION_ITEM_INT or legacy
+  MISSION_ITEM accepted) → our MISSION_ACK.
+* Only the target autopilot's messages addressed to us (or broadcast) and of the operation's mission type count.
+
+One operation at a time per client (an internal lock serialises callers).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+from collections.abc import Sequence
+from dataclasses import replace
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.errors import CommandError, MissionTimeout, MissionUploadError, MissionVerifyError
+from companion.items import MISSION, MissionItem, compare_items
+from companion.link import Link, Message
+
+log = logging.getLogger(__name__)
+
+ACCEPTED = mavlink.MAV_MISSION_ACCEPTED
+_CMD_OK = (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS)
+
+
+def command_result_name(result: int) -> str:
+    entry = mavlink.enums["MAV_RESULT"].get(result)
+    return entry.name if entry is not None else f"MAV_RESULT {result}"
+
+
+def command_name(command: int) -> str:
+    entry = mavlink.enums["MAV_CMD"].get(command)
+    return entry.name if entry is not None else f"MAV_CMD {command}"
+
+
+class MissionClient:
+    """Mission protocol client for MISSION and FENCE (and RALLY) lists. Times in seconds.
+
+    ``timeout`` (1.5 s): wait for the answer to MISSION_COUNT / MISSION_REQUEST_LIST / MISSION_CLEAR_ALL and for
+    the final MISSION_ACK; ``item_timeout`` (0.25 s): wait for the next item request (upload) or item
+    (download); ``retries`` (5): consecutive timeouts tolerated per step before :class:`MissionTimeout`.
+    """
+
+    def __init__(self, link: Link, *, timeout: float = 1.5, item_timeout: float = 0.25, retries: int = 5) -> None:
+        self.link = link
+        self.timeout = timeout
+        self.item_timeout = item_timeout
+        self.retries = retries
+        self._lock = asyncio.Lock()
+
+    # ------------------------------------------------------------------ helpers
+    def _to_us(self, msg: Message) -> bool:
+        """Addressed to us (or broadcast); messages without target fields pass."""
+        ts = getattr(msg, "target_system", 0)
+        tc = getattr(msg, "target_component", 0)
+        return ts in (0, self.link.source_system) and tc in (0, self.link.source_component)
+
+    def _for(self, mission_type: int) -> object:
+        def predicate(msg: Message) -> bool:
+            return getattr(msg, "mission_type", MISSION) == mission_type and self._to_us(msg)
+        return predicate
+
+    def _target(self) -> tuple[int, int]:
+        if self.link.target_system is None or self.link.target_component is None:
+            raise MissionTimeout("target discovery")  # no autopilot HEARTBEAT yet
+        return self.link.target_system, self.link.target_component
+
+    # ------------------------------------------------------------------ upload
+    async def upload(self, items: Sequence[MissionItem], mission_type: int = MISSION) -> None:
+        """Upload ``items`` as the whole ``mission_type`` list. Items are renumbered 0… in order and stamped with
+        ``mission_type``. Raises :class:`MissionUploadError` on a MISSION_ACK error, :class:`MissionTimeout`
+        when the autopilot stops answering, :class:`LinkError` if the link drops."""
+        items = [replace(it, seq=i, mission_type=mission_type) for i, it in enumerate(items)]
+        async with self._lock:
+            await self._upload(items, mission_type)
+
+    async def _upload(self, items: list[MissionItem], mission_type: int) -> None:
+        ambiguous = await self._transfer(items, mission_type)
+        if ambiguous is None:
+            return
+        # The final MISSION_ACK went missing, and our resent last item met an autopilot that had already
+        # finished (ArduPilot answers an item outside an upload with MAV_MISSION_ERROR) or nothing answered:
+        # only a readback can tell whether the upload completed.
+        result, seq = ambiguous
+        log.info("final MISSION_ACK of the upload not seen; checking by readback")
+        try:
+            got = await self._download(mission_type)
+        except (MissionTimeout, MissionUploadError):
+            got = None
+        if got is None or self._difference(items, got, self._home_at_zero(mission_type)) is not None:
+            if result is None:
+                raise MissionTimeout("upload", seq)
+            raise MissionUploadError(result, seq)
+        log.info("uploaded %d items (mission type %d; confirmed by readback)", len(items), mission_type)
+
+    async def _transfer(self, items: list[MissionItem], mission_type: int) -> tuple[int | None, int] | None:
+        """The upload exchange: None once the autopilot ACKs it; ``(result or None, seq)`` when the outcome is
+        ambiguous because the final ACK went missing."""
+        link = self.link
+        ts, tc = self._target()
+        count = len(items)
+        count_msg = mavlink.MAVLink_mission_count_message(ts, tc, count, mission_type)
+        with link.subscribe("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK",
+                            predicate=self._for(mission_type)) as sub:
+            link.send(count_msg)
+            requested: int | None = None  # seq of the latest request (the item being processed)
+            last_sent: int | None = None
+            final_resent = False  # the last item went out again unasked, while waiting for the final ACK
+            misses = 0
+            answered = 0  # bounded even against a peer that re-requests forever
+            max_answers = (count + 1) * (self.retries + 1) * 2
+            while True:
+                waiting_ack = count > 0 and last_sent == count - 1 and requested == count - 1
+                wait = self.timeout if requested is None or waiting_ack else self.item_timeout
+                try:
+                    msg = await sub.get(wait)
+                except TimeoutError:
+                    misses += 1
+                    if misses > self.retries:
+                        if final_resent:
+                            return None, count - 1
+                        raise MissionTimeout("upload", requested) from None
+                    if last_sent is None:
+                        log.debug("no request for MISSION_COUNT(%d); resending (%d)", count, misses)
+                        link.send(count_msg)
+                    else:
+                        log.debug("no request after item %d; resending it (%d)", last_sent, misses)
+                        link.send(items[last_sent].to_message(ts, tc))
+                        final_resent = waiting_ack
+                    continue
+                if msg.get_type() == "MISSION_ACK":
+                    if msg.type == ACCEPTED:
+                        if count == 0 or last_sent == count - 1:
+                            log.info("uploaded %d items (mission type %d)", count, mission_type)
+                            return None
+                        log.debug("ignoring early MISSION_ACK ACCEPTED (stale?) at item %s", requested)
+                        continue
+                    if final_resent:
+                        return msg.type, count - 1
+                    if msg.type == mavlink.MAV_MISSION_INVALID_SEQUENCE and last_sent is not None:
+                        misses += 1  # ArduPilot: duplicate/out-of-order item; it keeps requesting
+                        log.debug("MISSION_ACK INVALID_SEQUENCE after item %d; continuing", last_sent)
+                        if misses > self.retries:
+                            raise MissionUploadError(msg.type, requested)
+                        continue
+                    raise MissionUploadError(msg.type, requested)
+                seq = msg.seq
+                if not 0 <= seq < count:
+                    log.warning("autopilot requested item %d of %d; ignored", seq, count)
+                    continue
+                answered += 1
+                if answered > max_answers:
+                    raise MissionTimeout("upload", seq)
+                misses = 0  # the autopilot is talking to us
+                final_resent = False
+                requested = seq
+                link.send(items[seq].to_message(ts, tc))
+                last_sent = seq
+
+    async def upload_verified(self, items: Sequence[MissionItem], mission_type: int = MISSION,
+                              home_at_zero: bool | None = None) -> list[MissionItem]:
+        """Upload, download and compare item by item (:func:`compare_items`). ``home_at_zero`` (default: the
+        target is ArduPilot and this is the MISSION list) skips seq 0, which ArduPilot replaces with home.
+        Returns the readback; raises :class:`MissionVerifyError` on the first difference."""
+        if home_at_zero is None:
+            home_at_zero = self._home_at_zero(mission_type)
+        sent = [replace(it, seq=i, mission_type=mission_type) for i, it in enumerate(items)]
+        async with self._lock:
+            await self._upload(sent, mission_type)
+            got = await self._download(mission_type)
+        diff = self._difference(sent, got, home_at_zero)
+        if diff is not None:
+            raise MissionVerifyError(*diff)
+        return got
+
+    def _home_at_zero(self, mission_type: int) -> bool:
+        return mission_type == MISSION and self.link.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+
+    @staticmethod
+    def _difference(sent: Sequence[MissionItem], got: Sequence[MissionItem],
+                    home_at_zero: bool) -> tuple[int, str, object, object] | None:
+        """First ``(seq, field, sent, got)`` difference between an upload and its readback, or None."""
+        if len(got) != len(sent):
+            return min(len(got), len(sent)), "count", len(sent), len(got)
+        for a, b in zip(sent, got):
+            if home_at_zero and a.seq == 0:
+                continue  # ArduPilot's home: acknowledged, ignored, read back as the real home
+            diff = compare_items(a, b)
+            if diff is not None:
+                return (a.seq, *diff)
+        return None
+
+    # ------------------------------------------------------------------ download
+    async def download(self, mission_type: int = MISSION) -> list[MissionItem]:
+        """The autopilot's ``mission_type`` list, as sent (frames not normalised)."""
+        async with self._lock:
+            return await self._download(mission_type)
+
+    async def _download(self, mission_type: int) -> list[MissionItem]:
+        link = self.link
+        ts, tc = self._target()
+        pred = self._for(mission_type)
+        with link.subscribe("MISSION_COUNT", "MISSION_ACK", predicate=pred) as sub:
+            count_msg = await self._request(
+                sub, mavlink.MAVLink_mission_request_list_message(ts, tc, mission_type), "MISSION_COUNT",
+                self.timeout, "download", None)
+        count = count_msg.count
+        got: list[MissionItem] = []
+        with link.subscribe("MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_ACK", predicate=pred) as sub:
+            for seq in range(count):
+                msg = await self._request(
+                    sub, mavlink.MAVLink_mission_request_int_message(ts, tc, seq, mission_type),
+                    ("MISSION_ITEM_INT", "MISSION_ITEM"), self.item_timeout, "download", seq,
+                    match=lambda m, seq=seq: m.seq == seq)
+                got.append(replace(MissionItem.from_message(msg), mission_type=mission_type))
+        link.send(mavlink.MAVLink_mission_ack_message(ts, tc, ACCEPTED, mission_type))
+        log.info("downloaded %d items (mission type %d)", count, mission_type)
+        return got
+
+    async def _request(self, sub, request: Message, want: str | tuple[str, ...], wait: float, operation: str,
+                       seq: int | None, match=None) -> Message:
+        """Send ``request`` until a ``want`` message (passing ``match``) arrives; MISSION_ACK errors raise."""
+        want = (want,) if isinstance(want, str) else want
+        self.link.send(request)
+        misses = 0
+        while True:
+            try:
+                msg = await sub.get(wait)
+            except TimeoutError:
+                misses += 1
+                if misses > self.retries:
+                    raise MissionTimeout(operation, seq) from None
+                self.link.send(request)
+                continue
+            mtype = msg.get_type()
+            if mtype == "MISSION_ACK":
+                if msg.type != ACCEPTED:
+                    raise MissionUploadError(msg.type, seq, operation)
+                continue  # a stale ACK of something else
+            if mtype in want and (match is None or match(msg)):
+                return msg
+
+    # ------------------------------------------------------------------ clear / current
+    async def clear(self, mission_type: int = MISSION) -> None:
+        """MISSION_CLEAR_ALL, confirmed by MISSION_ACK."""
+        async with self._lock:
+            ts, tc = self._target()
+            with self.link.subscribe("MISSION_ACK", predicate=self._for(mission_type)) as sub:
+                msg = mavlink.MAVLink_mission_clear_all_message(ts, tc, mission_type)
+                self.link.send(msg)
+                misses = 0
+                while True:
+                    try:
+                        ack = await sub.get(self.timeout)
+                    except TimeoutError:
+                        misses += 1
+                        if misses > self.retries:
+                            raise MissionTimeout("clear") from None
+                        self.link.send(msg)
+                        continue
+                    if ack.type != ACCEPTED:
+                        raise MissionUploadError(ack.type, None, "clear")
+                    return
+
+    async def set_current(self, seq: int, *, timeout: float = 0.5, retries: int = 2) -> None:
+        """Make ``seq`` the active mission item: MAV_CMD_DO_SET_MISSION_CURRENT (ArduPilot restarts the item
+        even if it already was current). If nothing ACKs the command (MAVSDK's server does not), falls back to
+        MISSION_SET_CURRENT confirmed by MISSION_CURRENT.seq. Raises :class:`CommandError` when refused or
+        when neither confirms."""
+        cmd = mavlink.MAV_CMD_DO_SET_MISSION_CURRENT
+        try:
+            await self.command_long(cmd, seq, timeout=timeout, retries=retries)
+            return
+        except CommandError as exc:
+            if exc.result is not None:
+                raise  # an explicit refusal (e.g. seq out of range)
+            log.info("no COMMAND_ACK for DO_SET_MISSION_CURRENT; trying MISSION_SET_CURRENT")
+        link = self.link
+        ts, tc = self._target()
+        msg = mavlink.MAVLink_mission_set_current_message(ts, tc, seq)
+        with link.subscribe("MISSION_CURRENT", predicate=lambda m: m.seq == seq) as sub:
+            for _ in range(retries + 1):
+                link.send(msg)
+                try:
+                    await sub.get(timeout)
+                    return
+                except TimeoutError:
+                    continue
+        raise CommandError(cmd, None, f"neither COMMAND_ACK nor MISSION_CURRENT confirmed item {seq}")
+
+    # ------------------------------------------------------------------ commands
+    async def command_long(self, command: int, *params: float, timeout: float = 1.0, retries: int = 3,
+                           target_component: int | None = None) -> int:
+        """Send COMMAND_LONG (params padded to 7 with 0) until a COMMAND_ACK for it arrives, counting up
+        ``confirmation`` on each resend. Returns the MAV_RESULT when ACCEPTED or IN_PROGRESS; otherwise raises
+        :class:`CommandError` with the result (or ``None`` after ``retries`` resends without an ACK)."""
+        if len(params) > 7:
+            raise ValueError("COMMAND_LONG has 7 params")
+        p = [float(x) for x in params] + [0.0] * (7 - len(params))
+        link = self.link
+        ts, tc = self._target()
+        tc = tc if target_component is None else target_component
+
+        def is_ack(m: Message) -> bool:
+            return m.command == command and self._to_us(m)
+
+        with link.subscribe("COMMAND_ACK", predicate=is_ack,
+                            any_source=target_component is not None) as sub:
+            for confirmation in range(min(retries, 255) + 1):
+                link.send(mavlink.MAVLink_command_long_message(ts, tc, command, confirmation, *p))
+                try:
+                    ack = await sub.get(timeout)
+                except TimeoutError:
+                    log.debug("no COMMAND_ACK for %s (try %d)", command_name(command), confirmation + 1)
+                    continue
+                if ack.result in _CMD_OK:
+                    return ack.result
+                raise CommandError(command, ack.result, command_result_name(ack.result))
+        raise CommandError(command, None, command_name(command))
+
+
+__all__ = ["MissionClient", "command_result_name", "command_name"]

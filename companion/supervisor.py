@@ -1,0 +1,201 @@
+"""Flight supervisor: readiness, verified upload, mode/arm/start, progress monitoring (SPEC §9).
+
+Top of the companion's layers (link → mission protocol → builder → supervisor). Every decision is written
+to the :class:`EventLog`; the CLI decides what the user sees.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.errors import CommandError, CompanionError
+from companion.events import EventLog
+from companion.items import FENCE, MISSION, MissionItem
+from companion.link import Link
+from companion.modes import mode_name, mode_number
+from companion.protocol import MissionClient
+
+log = logging.getLogger(__name__)
+PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
+EKF_GOOD = 0x33F  # attitude, velocities, horizontal/vertical position, predicted positions
+
+
+@dataclass
+class FlightOutcome:
+    completed: bool
+    reason: str
+    items_reached: list[int] = field(default_factory=list)
+    upload_s: float = 0.0
+    flight_s: float = 0.0
+    mission_count: int = 0
+    fence_count: int = 0
+    track: list[tuple[float, float, float, float]] = field(default_factory=list)  # (t, lat, lon, alt_rel)
+    statustexts: list[str] = field(default_factory=list)
+
+
+class FlightSupervisor:
+    """Flies one mission. ``arm``: may the companion arm the vehicle (only when asked, or our own sim)."""
+
+    def __init__(self, link: Link, client: MissionClient, events: EventLog, *, arm: bool) -> None:
+        self.link = link
+        self.client = client
+        self.events = events
+        self.arm = arm
+
+    # -- readiness ---------------------------------------------------------------------------------
+    async def wait_ready(self, timeout: float) -> None:
+        """Wait for a 3-D GPS fix, a healthy pre-arm check and a good EKF (each only if the autopilot
+        reports it), instead of retrying arming blindly (AUTOPILOT_FACTS: 'System not initialised')."""
+        state = {"gps": None, "prearm": None, "ekf": None}
+
+        def ready() -> bool:
+            return all(v is None or v for v in state.values()) and state["gps"] is not None
+
+        deadline = time.monotonic() + timeout
+        with self.link.subscribe("GPS_RAW_INT", "SYS_STATUS", "EKF_STATUS_REPORT") as sub:
+            while not ready():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise CompanionError(f"vehicle not ready to arm after {timeout:.0f} s: {state}")
+                try:
+                    msg = await sub.get(left)
+                except TimeoutError:
+                    continue
+                kind = msg.get_type()
+                if kind == "GPS_RAW_INT":
+                    state["gps"] = msg.fix_type >= 3
+                elif kind == "SYS_STATUS" and msg.onboard_control_sensors_present & PREARM_BIT:
+                    state["prearm"] = bool(msg.onboard_control_sensors_health & PREARM_BIT)
+                elif kind == "EKF_STATUS_REPORT":
+                    state["ekf"] = (msg.flags & EKF_GOOD) == EKF_GOOD
+        self.events.log("ready", **{k: v for k, v in state.items() if v is not None})
+
+    # -- upload ------------------------------------------------------------------------------------
+    async def upload(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = ()) -> float:
+        """Upload and verify by readback (mission, then fence if any); returns the seconds it took."""
+        t0 = time.monotonic()
+        self.events.log("upload_start", mission_items=len(items), fence_items=len(fence))
+        await self.client.upload_verified(items, MISSION)
+        if fence:
+            await self.client.upload_verified(fence, FENCE)
+        dt = time.monotonic() - t0
+        self.events.log("upload_verified", seconds=round(dt, 3))
+        return dt
+
+    # -- start -------------------------------------------------------------------------------------
+    async def set_mode(self, name: str) -> None:
+        custom = mode_number(self.link.autopilot or 0, self.link.vehicle_type or 0, name)
+        await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                                       custom)
+        self.events.log("mode", mode=name)
+
+    async def arm_vehicle(self, attempts: int = 5) -> None:
+        for attempt in range(attempts):
+            try:
+                await self.client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+                self.events.log("armed")
+                return
+            except CommandError as e:
+                self.events.log("arm_refused", result=e.result, attempt=attempt + 1)
+                if e.result is None or attempt == attempts - 1:
+                    raise
+                await asyncio.sleep(1.0)
+
+    async def start(self, first_seq: int) -> None:
+        """Make the first item current, then the autopilot's start sequence: ArduPlane AUTO → arm → start;
+        ArduCopter GUIDED → arm → AUTO → start (it refuses to arm in AUTO); PX4 arm → mission → start."""
+        link = self.link
+        px4 = link.autopilot == mavlink.MAV_AUTOPILOT_PX4
+        plane = link.vehicle_type == mavlink.MAV_TYPE_FIXED_WING
+        await self.client.set_current(first_seq)
+        self.events.log("set_current", seq=first_seq)
+        if not self.arm:
+            await self.set_mode("AUTO")
+            self.events.log("waiting_for_pilot_arm", note="the companion arms only with --arm")
+            await link.wait_for("HEARTBEAT", predicate=lambda m: m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED,
+                                timeout=600.0)
+        elif plane or px4:
+            if not px4:
+                await self.set_mode("AUTO")
+            await self.arm_vehicle()
+            if px4:
+                await self.set_mode("AUTO")
+        else:
+            await self.set_mode("GUIDED")
+            await self.arm_vehicle()
+            await self.set_mode("AUTO")
+        await self.client.command_long(mavlink.MAV_CMD_MISSION_START, 0, 0)
+        self.events.log("mission_start")
+
+    # -- monitor -----------------------------------------------------------------------------------
+    async def monitor(self, items: Sequence[MissionItem], timeout: float, outcome: FlightOutcome) -> None:
+        """Follow progress until the goal waypoint is reached (or the autopilot says the mission is
+        complete); fills ``outcome``. ``timeout`` in wall seconds."""
+        goal_seq = max(it.seq for it in items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
+        t0 = time.monotonic()
+        last_current = None
+        types = ("MISSION_ITEM_REACHED", "MISSION_CURRENT", "GLOBAL_POSITION_INT", "STATUSTEXT", "HEARTBEAT")
+        with self.link.subscribe(*types) as sub:
+            while True:
+                left = timeout - (time.monotonic() - t0)
+                if left <= 0:
+                    outcome.reason = f"timeout after {timeout:.0f} s"
+                    self.events.log("timeout", seconds=timeout)
+                    break
+                try:
+                    msg = await sub.get(min(left, 1.0))
+                except TimeoutError:
+                    if self.link.heartbeat_age > self.link.heartbeat_timeout:
+                        self.events.log("heartbeat_lost", age_s=round(self.link.heartbeat_age, 1))
+                    continue
+                kind = msg.get_type()
+                t = time.monotonic() - t0
+                if kind == "GLOBAL_POSITION_INT":
+                    outcome.track.append((t, msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0))
+                elif kind == "MISSION_ITEM_REACHED":
+                    if msg.seq not in outcome.items_reached:
+                        outcome.items_reached.append(msg.seq)
+                        self.events.log("reached", seq=msg.seq, of=len(items) - 1)
+                    if msg.seq == goal_seq:
+                        outcome.completed, outcome.reason = True, "goal waypoint reached"
+                        break
+                elif kind == "MISSION_CURRENT" and msg.seq != last_current:
+                    last_current = msg.seq
+                    self.events.log("current", seq=msg.seq)
+                    if msg.seq > goal_seq:  # past the goal (its REACHED may have been lost on the link)
+                        outcome.completed, outcome.reason = True, f"mission current item {msg.seq} is past the goal"
+                        break
+                elif kind == "STATUSTEXT":
+                    text = msg.text.rstrip("\x00")
+                    outcome.statustexts.append(text)
+                    self.events.log("statustext", severity=msg.severity, text=text)
+                    if "mission complete" in text.lower():
+                        outcome.completed, outcome.reason = True, text
+                        break
+                elif kind == "HEARTBEAT" and not msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED \
+                        and outcome.items_reached:
+                    outcome.reason = "vehicle disarmed before the goal"
+                    self.events.log("disarmed")
+                    break
+        outcome.flight_s = time.monotonic() - t0
+
+    async def fly(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (), *,
+                  ready_timeout: float = 60.0, flight_timeout: float = 600.0) -> FlightOutcome:
+        """Ready → upload + verify → start → monitor. Raises on link/upload failures (the CLI maps them)."""
+        out = FlightOutcome(False, "", mission_count=len(items), fence_count=len(fence))
+        hb = await self.link.wait_heartbeat(timeout=10.0)
+        self.events.log("connected", system=self.link.target_system, autopilot=hb.autopilot,
+                        vehicle_type=hb.type, mode=mode_name(hb.autopilot, hb.type, hb.custom_mode))
+        out.upload_s = await self.upload(items, fence)
+        await self.wait_ready(ready_timeout)
+        first = next(it.seq for it in items if it.command != mavlink.MAV_CMD_NAV_WAYPOINT or it.seq > 0)
+        await self.start(first)
+        await self.monitor(items, flight_timeout, out)
+        self.events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
+        return out

@@ -1,0 +1,111 @@
+"""Companion test fixtures: a leak check on every test (tasks, threads, sockets — as pymodbus' test/conftest.py
+does) and a raw MAVLink peer on a plain UDP socket, for talking to a :class:`Link` without going through it."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import socket
+import threading
+
+import pytest
+import pytest_asyncio
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+
+def _socket_fds() -> set[str]:
+    found = set()
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith("socket:"):
+            found.add(f"{fd}->{target}")
+    return found
+
+
+@pytest_asyncio.fixture(autouse=True)
+async def no_leaks():
+    """Fail a test that leaves asyncio tasks, threads or open sockets behind (after a short grace period
+    for things already closing)."""
+    me = asyncio.current_task()
+    tasks_before = {t for t in asyncio.all_tasks() if t is not me}
+    threads_before = set(threading.enumerate())
+    sockets_before = _socket_fds()
+    yield
+    me = asyncio.current_task()
+    for _ in range(40):
+        tasks = {t for t in asyncio.all_tasks() if t is not me and not t.done()} - tasks_before
+        threads = {t for t in threading.enumerate() if t.is_alive()} - threads_before
+        sockets = _socket_fds() - sockets_before
+        if not (tasks or threads or sockets):
+            return
+        await asyncio.sleep(0.05)
+    problems = []
+    if tasks:
+        problems.append(f"tasks: {sorted(t.get_name() for t in tasks)}")
+    if threads:
+        problems.append(f"threads: {sorted(t.name for t in threads)}")
+    if sockets:
+        problems.append(f"sockets: {sorted(sockets)}")
+    pytest.fail("test leaked " + "; ".join(problems))
+
+
+class RawPeer:
+    """A MAVLink endpoint on a bare UDP socket bound to 127.0.0.1 (ephemeral port): it packs and parses with
+    pymavlink's MAVLink 2 codec only, so it shares no code path with :class:`companion.link.Link`."""
+
+    def __init__(self, system: int = 1, component: int = 1) -> None:
+        self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        self.sock.bind(("127.0.0.1", 0))
+        self.sock.setblocking(False)
+        self.port = self.sock.getsockname()[1]
+        self.peer_addr: tuple[str, int] | None = None
+        self._codecs: dict[tuple[int, int], mavlink.MAVLink] = {}
+        self.parser = mavlink.MAVLink(None)
+        self.parser.robust_parsing = True
+        self.system, self.component = system, component
+
+    def close(self) -> None:
+        self.sock.close()
+
+    def __enter__(self) -> RawPeer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def pack(self, msg, system: int | None = None, component: int | None = None) -> bytes:
+        key = (self.system if system is None else system, self.component if component is None else component)
+        codec = self._codecs.setdefault(key, mavlink.MAVLink(None, srcSystem=key[0], srcComponent=key[1]))
+        return msg.pack(codec)
+
+    def send(self, msg, system: int | None = None, component: int | None = None) -> None:
+        self.send_raw(self.pack(msg, system, component))
+
+    def send_raw(self, data: bytes) -> None:
+        assert self.peer_addr is not None, "nothing received yet: peer address unknown"
+        self.sock.sendto(data, self.peer_addr)
+
+    async def recv(self, timeout: float = 2.0) -> list:
+        """The messages of the next datagram (good ones only)."""
+        loop = asyncio.get_running_loop()
+        data, addr = await asyncio.wait_for(loop.sock_recvfrom(self.sock, 65535), timeout)
+        self.peer_addr = addr
+        return [m for m in self.parser.parse_buffer(data) or [] if m.get_type() != "BAD_DATA"]
+
+    async def recv_type(self, mtype: str, timeout: float = 2.0):
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + timeout
+        while True:
+            for m in await self.recv(max(0.0, deadline - loop.time())):
+                if m.get_type() == mtype:
+                    return m
+
+
+@pytest.fixture
+def raw_peer():
+    with RawPeer() as peer:
+        yield peer
+
