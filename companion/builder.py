@@ -128,7 +128,7 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
     items.append(MissionItem(0, FRAME_MISSION, CMD_CHANGE_SPEED,
                              param1=SPEED_TYPE_AIRSPEED if plane else SPEED_TYPE_GROUNDSPEED,
                              param2=float(vehicle.cruise_speed), param3=NO_CHANGE))
-    accept = _acceptance_param(radius, spec.autopilot)
+    accept = _acceptance_param(radius, spec.autopilot, vehicle.type)
     for i, p in enumerate(route, start=1):
         items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_WAYPOINT, param1=0.0, param2=accept, param4=yaw,
                                  x=x[i], y=y[i], z=float(p[2])))
@@ -144,9 +144,12 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
     return [item.with_seq(seq) for seq, item in enumerate(items)]
 
 
-def _acceptance_param(radius: float, autopilot: Autopilot) -> float:
-    """NAV_WAYPOINT param2. ArduPilot keeps whole metres in one byte, so send exactly what it will read back."""
+def _acceptance_param(radius: float, autopilot: Autopilot, vehicle_type: str) -> float:
+    """NAV_WAYPOINT param2. ArduPlane keeps whole metres in one byte, so send exactly what it will read back;
+    ArduCopter does not store it at all (reads back 0, uses its WPNAV_RADIUS), so send 0 there."""
     if autopilot == "ardupilot":
+        if vehicle_type == "copter":
+            return 0.0
         return float(min(ARDUPILOT_MAX_ACCEPTANCE_M, max(0, round(radius))))
     return float(radius)
 

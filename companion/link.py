@@ -230,8 +230,13 @@ class Link:
 
     def _connect(self) -> None:
         """(Re-)create the pymavlink connection and register its fd with the loop."""
-        conn = mavutil.mavlink_connection(self.url, baud=self.baud, source_system=self.source_system,
-                                          source_component=self.source_component, retries=0)
+        try:
+            conn = mavutil.mavlink_connection(self.url, baud=self.baud, source_system=self.source_system,
+                                              source_component=self.source_component, retries=0)
+        except OSError:
+            raise  # transient: retried with back-off
+        except (ValueError, ImportError, TypeError) as exc:  # a malformed URL, or serial without pyserial
+            raise LinkError(f"cannot use connection {self.url!r}: {exc}") from exc
         # Our own MAVLink 2 encoder/parser: pymavlink's default is chosen from process-wide state (and its
         # auto-switch to MAVLink 2 rewrites os.environ and the global dialect), which we do not want to touch.
         conn.mav = self.dialect.MAVLink(conn, srcSystem=self.source_system, srcComponent=self.source_component)

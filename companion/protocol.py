@@ -57,14 +57,22 @@ class MissionClient:
     (download); ``retries`` (5): consecutive timeouts tolerated per step before :class:`MissionTimeout`.
     """
 
-    def __init__(self, link: Link, *, timeout: float = 1.5, item_timeout: float = 0.25, retries: int = 5) -> None:
+    def __init__(self, link: Link, *, timeout: float = 1.5, item_timeout: float = 0.25, retries: int = 5,
+                 item_giveup_s: float = 10.0) -> None:
         self.link = link
         self.timeout = timeout
         self.item_timeout = item_timeout
         self.retries = retries
+        self.item_giveup_s = item_giveup_s  # longer than ArduPilot's own 8 s abandon time
         self._lock = asyncio.Lock()
 
     # ------------------------------------------------------------------ helpers
+    def _give_up(self, since: float) -> bool:
+        """After the protocol's retries: stop when the autopilot has gone quiet (no HEARTBEAT), but keep
+        going for up to ``item_giveup_s`` while it is alive and only our packets are being lost."""
+        alive = self.link.heartbeat_age <= self.link.heartbeat_timeout
+        return not alive or asyncio.get_running_loop().time() - since > self.item_giveup_s
+
     def _to_us(self, msg: Message) -> bool:
         """Addressed to us (or broadcast); messages without target fields pass."""
         ts = getattr(msg, "target_system", 0)
@@ -125,6 +133,8 @@ class MissionClient:
             misses = 0
             answered = 0  # bounded even against a peer that re-requests forever
             max_answers = (count + 1) * (self.retries + 1) * 2
+            loop = asyncio.get_running_loop()
+            progress = loop.time()  # when the autopilot last asked for an item
             while True:
                 waiting_ack = count > 0 and last_sent == count - 1 and requested == count - 1
                 wait = self.timeout if requested is None or waiting_ack else self.item_timeout
@@ -132,7 +142,12 @@ class MissionClient:
                     msg = await sub.get(wait)
                 except TimeoutError:
                     misses += 1
-                    if misses > self.retries:
+                    # before the first request: MISSION_COUNT retries; after it: the autopilot re-requests
+                    # on its own clock (ArduPilot: every 1 s, abandoning after 8 s), so give up only when it
+                    # has been silent longer than that, whatever our resend count
+                    silent = loop.time() - progress
+                    if (last_sent is None and misses > self.retries and self._give_up(progress)) or (
+                            last_sent is not None and silent > self.item_giveup_s):
                         if final_resent:
                             return None, count - 1
                         raise MissionTimeout("upload", requested) from None
@@ -140,7 +155,7 @@ class MissionClient:
                         log.debug("no request for MISSION_COUNT(%d); resending (%d)", count, misses)
                         link.send(count_msg)
                     else:
-                        log.debug("no request after item %d; resending it (%d)", last_sent, misses)
+                        log.debug("no request after item %d for %.2f s; resending it", last_sent, silent)
                         link.send(items[last_sent].to_message(ts, tc))
                         final_resent = waiting_ack
                     continue
@@ -154,10 +169,8 @@ class MissionClient:
                     if final_resent:
                         return msg.type, count - 1
                     if msg.type == mavlink.MAV_MISSION_INVALID_SEQUENCE and last_sent is not None:
-                        misses += 1  # ArduPilot: duplicate/out-of-order item; it keeps requesting
+                        # ArduPilot's answer to a duplicate (our own resend): the transfer goes on
                         log.debug("MISSION_ACK INVALID_SEQUENCE after item %d; continuing", last_sent)
-                        if misses > self.retries:
-                            raise MissionUploadError(msg.type, requested)
                         continue
                     raise MissionUploadError(msg.type, requested)
                 seq = msg.seq
@@ -168,6 +181,7 @@ class MissionClient:
                 if answered > max_answers:
                     raise MissionTimeout("upload", seq)
                 misses = 0  # the autopilot is talking to us
+                progress = loop.time()
                 final_resent = False
                 requested = seq
                 link.send(items[seq].to_message(ts, tc))
@@ -239,12 +253,13 @@ class MissionClient:
         want = (want,) if isinstance(want, str) else want
         self.link.send(request)
         misses = 0
+        start = asyncio.get_running_loop().time()
         while True:
             try:
                 msg = await sub.get(wait)
             except TimeoutError:
                 misses += 1
-                if misses > self.retries:
+                if misses > self.retries and self._give_up(start):
                     raise MissionTimeout(operation, seq) from None
                 self.link.send(request)
                 continue
@@ -285,7 +300,7 @@ class MissionClient:
         when neither confirms."""
         cmd = mavlink.MAV_CMD_DO_SET_MISSION_CURRENT
         try:
-            await self.command_long(cmd, seq, timeout=timeout, retries=retries)
+            await self.command_long(cmd, seq, timeout=timeout, retries=retries, persist=False)
             return
         except CommandError as exc:
             if exc.result is not None:
@@ -306,10 +321,12 @@ class MissionClient:
 
     # ------------------------------------------------------------------ commands
     async def command_long(self, command: int, *params: float, timeout: float = 1.0, retries: int = 3,
-                           target_component: int | None = None) -> int:
+                           target_component: int | None = None, persist: bool = True) -> int:
         """Send COMMAND_LONG (params padded to 7 with 0) until a COMMAND_ACK for it arrives, counting up
         ``confirmation`` on each resend. Returns the MAV_RESULT when ACCEPTED or IN_PROGRESS; otherwise raises
-        :class:`CommandError` with the result (or ``None`` after ``retries`` resends without an ACK)."""
+        :class:`CommandError` with the result (or ``None`` when no ACK came: after ``retries`` resends if the
+        autopilot is silent or ``persist`` is off, else once it has been alive without answering for
+        ``item_giveup_s`` — a lossy link must not fail a mode change that a second try would make)."""
         if len(params) > 7:
             raise ValueError("COMMAND_LONG has 7 params")
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
@@ -322,7 +339,10 @@ class MissionClient:
 
         with link.subscribe("COMMAND_ACK", predicate=is_ack,
                             any_source=target_component is not None) as sub:
-            for confirmation in range(min(retries, 255) + 1):
+            start = asyncio.get_running_loop().time()
+            for confirmation in range(256):  # ``retries`` resends, more while the autopilot is alive (_give_up)
+                if confirmation > retries and (not persist or self._give_up(start)):
+                    break
                 link.send(mavlink.MAVLink_command_long_message(ts, tc, command, confirmation, *p))
                 try:
                     ack = await sub.get(timeout)

@@ -17,13 +17,14 @@ from pymavlink.dialects.v20 import common as mavlink
 from companion.errors import CommandError, CompanionError
 from companion.events import EventLog
 from companion.items import FENCE, MISSION, MissionItem
-from companion.link import Link
+from companion.link import Link, Subscription
 from companion.modes import mode_name, mode_number
 from companion.protocol import MissionClient
 
 log = logging.getLogger(__name__)
 PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
 EKF_GOOD = 0x33F  # attitude, velocities, horizontal/vertical position, predicted positions
+PILOT_ARM_TIMEOUT_S = 600.0
 
 
 @dataclass
@@ -90,9 +91,15 @@ class FlightSupervisor:
 
     # -- start -------------------------------------------------------------------------------------
     async def set_mode(self, name: str) -> None:
+        """MAV_CMD_DO_SET_MODE: ArduPilot takes the custom mode in param2; PX4 its main mode in param2 and
+        sub mode in param3."""
         custom = mode_number(self.link.autopilot or 0, self.link.vehicle_type or 0, name)
+        if self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+            params = ((custom >> 16) & 0xFF, (custom >> 24) & 0xFF)
+        else:
+            params = (custom,)
         await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-                                       custom)
+                                       *params)
         self.events.log("mode", mode=name)
 
     async def arm_vehicle(self, attempts: int = 5) -> None:
@@ -115,11 +122,18 @@ class FlightSupervisor:
         plane = link.vehicle_type == mavlink.MAV_TYPE_FIXED_WING
         await self.client.set_current(first_seq)
         self.events.log("set_current", seq=first_seq)
-        if not self.arm:
-            await self.set_mode("AUTO")
+        if not self.arm:  # a copter must be armed outside AUTO, so only planes and PX4 wait in AUTO
+            if plane or px4:
+                await self.set_mode("AUTO")
             self.events.log("waiting_for_pilot_arm", note="the companion arms only with --arm")
-            await link.wait_for("HEARTBEAT", predicate=lambda m: m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED,
-                                timeout=600.0)
+            try:
+                await link.wait_for("HEARTBEAT", timeout=PILOT_ARM_TIMEOUT_S,
+                                    predicate=lambda m: m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            except TimeoutError:
+                raise CompanionError(f"the vehicle was not armed within {PILOT_ARM_TIMEOUT_S:.0f} s "
+                                     "(pass --arm to let the companion arm it)") from None
+            if not (plane or px4):
+                await self.set_mode("AUTO")
         elif plane or px4:
             if not px4:
                 await self.set_mode("AUTO")
@@ -134,14 +148,17 @@ class FlightSupervisor:
         self.events.log("mission_start")
 
     # -- monitor -----------------------------------------------------------------------------------
-    async def monitor(self, items: Sequence[MissionItem], timeout: float, outcome: FlightOutcome) -> None:
+    MONITORED = ("MISSION_ITEM_REACHED", "MISSION_CURRENT", "GLOBAL_POSITION_INT", "STATUSTEXT", "HEARTBEAT")
+
+    async def monitor(self, items: Sequence[MissionItem], timeout: float, outcome: FlightOutcome,
+                      sub: Subscription | None = None) -> None:
         """Follow progress until the goal waypoint is reached (or the autopilot says the mission is
-        complete); fills ``outcome``. ``timeout`` in wall seconds."""
+        complete); fills ``outcome``. ``timeout`` in wall seconds. Pass a subscription opened before the
+        start so nothing sent right after MISSION_START is missed."""
         goal_seq = max(it.seq for it in items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
         t0 = time.monotonic()
         last_current = None
-        types = ("MISSION_ITEM_REACHED", "MISSION_CURRENT", "GLOBAL_POSITION_INT", "STATUSTEXT", "HEARTBEAT")
-        with self.link.subscribe(*types) as sub:
+        with sub if sub is not None else self.link.subscribe(*self.MONITORED) as sub:
             while True:
                 left = timeout - (time.monotonic() - t0)
                 if left <= 0:
@@ -195,7 +212,8 @@ class FlightSupervisor:
         out.upload_s = await self.upload(items, fence)
         await self.wait_ready(ready_timeout)
         first = next(it.seq for it in items if it.command != mavlink.MAV_CMD_NAV_WAYPOINT or it.seq > 0)
-        await self.start(first)
-        await self.monitor(items, flight_timeout, out)
+        with self.link.subscribe(*self.MONITORED) as sub:
+            await self.start(first)
+            await self.monitor(items, flight_timeout, out, sub)
         self.events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
         return out

@@ -1,6 +1,7 @@
-"""The ``fuseplan`` command line: subcommands plan and demo (fly, sim, export, bench arrive with their issues).
+"""The ``fuseplan`` command line: plan, compare, export, fly, sim, demo.
 
-User mistakes print one line and exit 2; an infeasible plan exits 3; success exits 0.
+User mistakes print one line and exit 2; an infeasible plan exits 3; success exits 0; ``fly`` adds 4 (link or
+upload failure) and 5 (started but not completed).
 """
 
 from __future__ import annotations
@@ -8,6 +9,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import math
 import sys
 import typing
 from pathlib import Path
@@ -81,7 +83,7 @@ def _parser() -> argparse.ArgumentParser:
     sm.add_argument("--speedup", type=float, default=1.0)
     sm.add_argument("--loss", type=float, default=0.0, help="packet loss probability")
     sm.add_argument("--latency", type=float, default=0.0, help="extra outgoing latency, s")
-    sub.add_parser("demo", help="plan the rescue scenario and draw it (flies once the companion lands)")
+    sub.add_parser("demo", help="plan the rescue scenario and fly it on the built-in simulated autopilot at 20x")
     return p
 
 
@@ -208,12 +210,25 @@ def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str]
         named = scenario_path or (Path(doc["scenario_file"]) if doc.get("scenario_file") else None)
         if named is None:
             raise FuseplanError(f"{source}: names no scenario file; pass --scenario")
-        return doc, load_scenario(named, overrides)
+        sc = load_scenario(named, overrides)
+        _check_plan_matches(source, doc, sc)
+        return doc, sc
     sc = load_scenario(source, overrides + ([f"planner.seed={seed}"] if seed is not None else []))
     res = plan(problem_from_scenario(sc), sc.planner, np.random.default_rng(sc.planner.seed), seed=sc.planner.seed)
     if feasible_only and not res.feasible:
         raise FuseplanError(f"{source}: no feasible plan ({res.status.value}); nothing exported")
     return plan_to_json(res, sc), sc
+
+
+def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
+    """A PLAN.json is only flown or exported with its own scenario: same name, home, start and goal."""
+    home = doc.get("home") or {}
+    same = (doc.get("scenario") == sc.name
+            and all(abs(float(home.get(k, math.nan)) - getattr(sc.home, k)) < 1e-9 for k in ("lat", "lon", "alt"))
+            and np.allclose(doc["waypoints"][0], sc.start) and np.allclose(doc["waypoints"][-1], sc.goal))
+    if not same:
+        raise FuseplanError(f"{source}: planned for scenario {doc.get('scenario')!r}, not {sc.name!r} "
+                            f"({sc.source}): home, start or goal differ; plan again for this scenario")
 
 
 def cmd_export(args: argparse.Namespace) -> int:
@@ -241,8 +256,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from companion.events import EventLog
     from companion.fly import FlyOptions, fly
 
-    if args.speedup <= 0 or not 0 <= args.sim_loss < 1:
-        raise FuseplanError("--speedup must be > 0 and --sim-loss in [0, 1)")
+    if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.sim_loss < 1:
+        raise FuseplanError("--speedup must be a finite number > 0 and --sim-loss in [0, 1)")
+    if not args.sim and (args.speedup != 1.0 or args.sim_loss):
+        raise FuseplanError("--speedup and --sim-loss apply to the built-in simulator (--sim) only")
     overrides = list(args.overrides) + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else [])
     try:
         args.report.mkdir(parents=True, exist_ok=True)
@@ -265,8 +282,14 @@ def cmd_fly(args: argparse.Namespace) -> int:
         flight = asyncio.run(fly(doc, sc, opts, events))
     except CompanionError as e:
         events.log("failed", error=str(e))
+        _write(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e)}, indent=1) + "\n")
         print(f"fuseplan: error: {e}", file=sys.stderr)
         return EXIT_LINK
+    except KeyboardInterrupt:
+        events.log("aborted", reason="interrupted by the user")
+        _write(args.report / "flight.json", json.dumps({"completed": False, "reason": "interrupted"}) + "\n")
+        print("fuseplan: interrupted; the vehicle keeps its current mode and mission", file=sys.stderr)
+        return 130
     finally:
         events.close()
     say(f"{'completed' if flight['completed'] else 'NOT completed'}: {flight['reason']}; "
@@ -292,8 +315,9 @@ def cmd_sim(args: argparse.Namespace) -> int:
     from planner.scenario import load_scenario
 
     sc = load_scenario(args.scenario)
-    if args.speedup <= 0 or not 0 <= args.loss < 1 or args.latency < 0:
-        raise FuseplanError("--speedup must be > 0, --loss in [0, 1), --latency >= 0")
+    if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.loss < 1 or not (
+            math.isfinite(args.latency) and args.latency >= 0):
+        raise FuseplanError("--speedup must be a finite number > 0, --loss in [0, 1), --latency >= 0")
     print(f"simulated {sc.vehicle.type} for {sc.name} on {args.listen} (speed-up {args.speedup:g}); Ctrl-C stops",
           flush=True)
     try:
