@@ -1,4 +1,4 @@
-"""The ``fuseplan`` command line: plan, compare, export, fly, sim, demo.
+"""The ``fuseplan`` command line: plan, compare, export, fly, sim, bench, demo.
 
 User mistakes print one line and exit 2; an infeasible plan exits 3; success exits 0; ``fly`` adds 4 (link or
 upload failure) and 5 (started but not completed).
@@ -83,6 +83,17 @@ def _parser() -> argparse.ArgumentParser:
     sm.add_argument("--speedup", type=float, default=1.0)
     sm.add_argument("--loss", type=float, default=0.0, help="packet loss probability")
     sm.add_argument("--latency", type=float, default=0.0, help="extra outgoing latency, s")
+    bn = sub.add_parser("bench", help="reproduce one of the paper's experiments (e.g. ablation) and report it")
+    bn.add_argument("name", help="which bench (e.g. ablation)")
+    bn.add_argument("--runs", type=int, default=None, help="runs per variant (default: the bench's, 30)")
+    bn.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
+    bn.add_argument("--seed-base", type=int, default=2000, help="run r uses seed SEED_BASE + r (default 2000)")
+    bn.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="override a scenario value for every variant (repeatable)")
+    bn.add_argument("-o", "--output", type=Path, default=Path("bench-results"),
+                    help="directory for NAME.jsonl (records, resumable), NAME.md, NAME.csv, PNGs "
+                    "(default ./bench-results)")
+    bn.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     sub.add_parser("demo", help="plan the rescue scenario and fly it on the built-in simulated autopilot at 20x")
     return p
 
@@ -190,6 +201,49 @@ def cmd_compare(args: argparse.Namespace) -> int:
         files = compare.write_outputs(args.output, "compare", records, rows)
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
+    print("wrote " + ", ".join(str(f) for f in files))
+    return EXIT_OK
+
+
+def cmd_bench(args: argparse.Namespace) -> int:
+    import time
+
+    from planner.bench import BENCHES
+    from planner.bench.runner import BenchSettings, progress_bar, run_bench
+    from planner.compare import default_workers
+    from planner.scenario import load_scenario
+
+    bench = BENCHES.get(args.name)
+    if bench is None:
+        raise FuseplanError(f"unknown bench {args.name!r}; choose from {', '.join(sorted(BENCHES))}")
+    runs = bench.default_runs if args.runs is None else args.runs
+    if runs < 1 or (args.workers is not None and args.workers < 1) or args.seed_base < 0:
+        raise FuseplanError("--runs and --workers must be >= 1 and --seed-base >= 0")
+    settings = BenchSettings(bench, runs, args.seed_base, tuple(args.overrides))
+    for v in bench.variants:  # bad input fails here, once, not in every worker
+        load_scenario(bench.scenario, settings.overrides_for(v))
+    try:
+        args.output.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise FuseplanError(f"{args.output}: cannot create the output directory: {e.strerror or e}") from e
+    workers = args.workers or default_workers()
+    if not args.quiet:
+        print(f"bench {bench.name}: {bench.description}; {len(bench.variants)} variants × {runs} runs, seeds "
+              f"{args.seed_base}..{args.seed_base + runs - 1}, {workers} workers", file=sys.stderr)
+    t0 = time.perf_counter()
+    try:
+        outcome = run_bench(settings, args.output, workers, None if args.quiet else progress_bar)
+    except KeyboardInterrupt:
+        print(f"fuseplan: interrupted; finished runs are in {args.output / (bench.name + '.jsonl')}; "
+              "run the same command again to resume", file=sys.stderr)
+        return 130
+    wall = time.perf_counter() - t0
+    print(f"{outcome.computed} runs computed, {outcome.reused} reused from {outcome.jsonl}; {wall:.1f} s")
+    try:
+        files = bench.report(args.output, outcome.records, settings)
+    except OSError as e:
+        raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
+    print((args.output / f"{bench.name}.md").read_text())
     print("wrote " + ", ".join(str(f) for f in files))
     return EXIT_OK
 
@@ -371,6 +425,8 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_fly(args)
         if args.command == "sim":
             return cmd_sim(args)
+        if args.command == "bench":
+            return cmd_bench(args)
         return cmd_demo(args)
     except FuseplanError as e:
         print(f"fuseplan: error: {e}", file=sys.stderr)

@@ -1,0 +1,194 @@
+"""The bench runner: every (variant, run) of a bench in a process pool, each finished run appended at once as
+one JSON line to ``DIR/NAME.jsonl``, so an interrupted bench resumes where it stopped.
+
+Run r of every variant plans with ``numpy.random.default_rng(seed_base + r)``; records are put back in
+(variant, run) order before anything is summarised, so every number except the wall-clock times is the same,
+bit for bit, whatever the number of workers or the order in which runs finished.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from planner.compare import _bar
+from planner.errors import FuseplanError
+
+log = logging.getLogger(__name__)
+
+SCENARIO_DIR = Path(__file__).resolve().parent.parent.parent / "sitl_scenarios"
+
+
+@dataclass(frozen=True)
+class Variant:
+    key: str  # "V1" …: the table's row id and the records' "variant"
+    label: str  # what it is, e.g. "w/o spherical"
+    overrides: tuple[str, ...] = ()  # scenario ``--set`` strings that make this variant
+
+
+@dataclass(frozen=True)
+class Bench:
+    name: str
+    description: str
+    scenario: Path
+    base_overrides: tuple[str, ...]  # the bench's budget; the user's --set come after, the variant's last
+    variants: tuple[Variant, ...]
+    default_runs: int
+    # (output dir, records in (variant, run) order, the run settings) -> files written
+    report: Callable[[Path, list[dict[str, Any]], "BenchSettings"], list[Path]]
+
+
+@dataclass(frozen=True)
+class BenchSettings:
+    bench: Bench
+    runs: int
+    seed_base: int
+    user_overrides: tuple[str, ...] = ()
+
+    def overrides_for(self, variant: Variant) -> tuple[str, ...]:
+        return (*self.bench.base_overrides, *self.user_overrides, *variant.overrides)
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    scenario: str
+    overrides: tuple[str, ...]
+    variant: str
+    run: int
+    seed: int
+
+    @property
+    def fingerprint(self) -> str:
+        """What decides the result (scenario file name, overrides, seed): a resumed record must match it."""
+        text = json.dumps([Path(self.scenario).name, list(self.overrides), self.seed])
+        return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+@dataclass
+class BenchOutcome:
+    records: list[dict[str, Any]]  # (variant, run) order
+    reused: int  # runs found in the JSON-lines file
+    computed: int  # runs planned now
+    jsonl: Path = field(default_factory=Path)
+
+
+def specs_for(settings: BenchSettings) -> list[RunSpec]:
+    b = settings.bench
+    return [RunSpec(str(b.scenario), settings.overrides_for(v), v.key, r, settings.seed_base + r)
+            for v in b.variants for r in range(settings.runs)]
+
+
+def run_one(spec: RunSpec) -> dict[str, Any]:
+    """Plan once (in a worker process) and return a flat, JSON-ready record."""
+    from planner.plan import json_safe, plan, problem_from_scenario
+    from planner.scenario import load_scenario
+
+    sc = load_scenario(spec.scenario, spec.overrides)
+    res = plan(problem_from_scenario(sc), sc.planner, np.random.default_rng(spec.seed), seed=spec.seed)
+    m = res.metrics(sc.hazard.d_safe)
+    return json_safe({
+        "variant": spec.variant, "run": spec.run, "seed": spec.seed, "fingerprint": spec.fingerprint,
+        "status": res.status.value, "feasible": res.feasible, "cost": res.cost,
+        "penalty": float(res.evaluation.penalty[0]), "length_m": m["length_m"], "smoothness": m["smoothness"],
+        "time_s": m["plan_time_s"], "convergence_iteration": m["convergence_iteration"],
+        "iterations": m["iterations"], "evaluations": m["evaluations"],
+        "violations": sum(res.violations.values()) + sum(res.cost_violations.values()),
+        "history": [float(h) for h in res.optimiser.history],
+    })
+
+
+def load_records(path: Path) -> dict[tuple[str, int], dict[str, Any]]:
+    """Records already in ``path`` by (variant, run); a line cut short by an interruption is skipped."""
+    if not path.exists():
+        return {}
+    out: dict[tuple[str, int], dict[str, Any]] = {}
+    for n, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            rec = json.loads(line)
+            key = (str(rec["variant"]), int(rec["run"]))
+        except (ValueError, KeyError, TypeError):
+            log.warning("%s:%d: not a bench record, skipped (an interrupted write?)", path, n)
+            continue
+        out[key] = rec
+    return out
+
+
+def run_bench(settings: BenchSettings, out_dir: Path, workers: int,
+              progress: Callable[[int, int], None] | None = None) -> BenchOutcome:
+    """Run what ``DIR/NAME.jsonl`` does not hold yet, appending each record as its run finishes."""
+    specs = specs_for(settings)
+    jsonl = out_dir / f"{settings.bench.name}.jsonl"
+    have = load_records(jsonl)
+    for s in specs:
+        rec = have.get((s.variant, s.run))
+        if rec is not None and rec.get("fingerprint") != s.fingerprint:
+            raise FuseplanError(f"{jsonl}: {s.variant} run {s.run} was made with other settings (scenario, --set "
+                                f"or --seed-base); delete the file or choose another -o to start afresh")
+    todo = [s for s in specs if (s.variant, s.run) not in have]
+    new: dict[tuple[str, int], dict[str, Any]] = {}
+    if todo:
+        _run_pool(todo, jsonl, workers, new, progress)
+    records = [have.get((s.variant, s.run)) or new[(s.variant, s.run)] for s in specs]
+    return BenchOutcome(records, len(specs) - len(todo), len(todo), jsonl)
+
+
+def _run_pool(todo: Sequence[RunSpec], jsonl: Path, workers: int, new: dict[tuple[str, int], dict[str, Any]],
+              progress: Callable[[int, int], None] | None) -> None:
+    """Submit ``todo`` to a pool; the parent alone writes the file, one flushed line per finished run."""
+    with jsonl.open("a+") as f:
+        f.seek(0, 2)
+        if f.tell() > 0:  # a line cut short by an interruption must not swallow the next record
+            f.seek(f.tell() - 1)
+            if f.read(1) != "\n":
+                f.write("\n")
+        pool = ProcessPoolExecutor(max_workers=max(1, min(workers, len(todo))))
+        try:
+            pending = {pool.submit(run_one, s): s for s in todo}
+            while pending:
+                finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in finished:
+                    spec = pending.pop(fut)
+                    try:
+                        rec = fut.result()
+                    except FuseplanError:
+                        raise
+                    except Exception as e:  # a failed run stops the bench, saying which run and why
+                        raise FuseplanError(f"{spec.variant} run {spec.run} (seed {spec.seed}) failed: "
+                                            f"{type(e).__name__}: {e}") from e
+                    f.write(json.dumps(rec, allow_nan=False) + "\n")
+                    f.flush()
+                    new[(spec.variant, spec.run)] = rec
+                    if progress is not None:
+                        progress(len(new), len(todo))
+        finally:
+            pool.shutdown(wait=False, cancel_futures=True)
+
+
+def progress_bar(done: int, total: int) -> None:
+    _bar(done, total)
+
+
+def summarise(records: Sequence[dict[str, Any]], variants: Sequence[Variant], columns: Sequence[str],
+              ) -> list[dict[str, Any]]:
+    """Per variant: runs, mean and sample std of every column, success (feasible) rate."""
+    rows = []
+    for v in variants:
+        rec = [r for r in records if r["variant"] == v.key]
+        row: dict[str, Any] = {"variant": v.key, "label": v.label, "runs": len(rec)}
+        for col in columns:
+            x = np.array([r[col] for r in rec], dtype=float)
+            row[f"{col}_mean"] = float(x.mean())
+            row[f"{col}_std"] = float(x.std(ddof=1)) if len(x) > 1 else 0.0
+        row["success_rate"] = float(np.mean([bool(r["feasible"]) for r in rec]))
+        rows.append(row)
+    return rows
