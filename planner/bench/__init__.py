@@ -7,9 +7,27 @@ own tables and figures.
 
 from __future__ import annotations
 
-from planner.bench import ablation
+import importlib
+
 from planner.bench.runner import Bench
 
-BENCHES: dict[str, Bench] = {b.name: b for b in (ablation.BENCH,)}
+# each module exports BENCHES, a tuple of Bench
+_MODULES = ("ablation", "comparison", "constraints", "gkdm", "large_scale", "speed")
+
+
+def _load() -> dict[str, Bench]:
+    benches: dict[str, Bench] = {}
+    for name in _MODULES:
+        try:
+            module = importlib.import_module(f"planner.bench.{name}")
+        except ModuleNotFoundError as e:  # a bench not written yet
+            if e.name == f"planner.bench.{name}":
+                continue
+            raise
+        benches.update({b.name: b for b in module.BENCHES})
+    return benches
+
+
+BENCHES: dict[str, Bench] = _load()
 
 __all__ = ["BENCHES", "Bench"]

@@ -195,3 +195,5 @@ def plot_bars(path: Path, rows: Sequence[dict[str, Any]]) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+BENCHES = (BENCH,)

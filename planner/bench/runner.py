@@ -101,7 +101,12 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         "time_s": m["plan_time_s"], "convergence_iteration": m["convergence_iteration"],
         "iterations": m["iterations"], "evaluations": m["evaluations"],
         "violations": sum(res.violations.values()) + sum(res.cost_violations.values()),
+        "violations_by_category": {k: res.violations[k] + res.cost_violations.get(k, 0) for k in res.violations},
+        "robustness": m["robustness"],
         "history": [float(h) for h in res.optimiser.history],
+        "phases": {name: {"best_cost": ph.best_cost, "iterations": ph.iterations, "time_s": ph.time_s,
+                          "evaluations": ph.evaluations}
+                   for name, ph in (getattr(res.optimiser, "phases", None) or {}).items()},
     })
 
 
