@@ -435,6 +435,11 @@ def main(argv: list[str] | None = None) -> int:
         print("fuseplan: error: out of memory: reduce planner.pso.n_pop, n_waypoints or the map size",
               file=sys.stderr)
         return EXIT_BAD_INPUT
+    except BrokenPipeError:  # `fuseplan compare | head`: the reader left; files are already written
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
 
 
 if __name__ == "__main__":
