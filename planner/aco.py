@@ -225,3 +225,25 @@ class AntColony:
             deposit(tau, choice[ib : ib + 1], np.array([cfg.c1 * r1 * cfg.deposit * ref / max(costs[ib], 1e-9)]))
             deposit(tau, best_choice[None], np.array([cfg.c2 * r2 * cfg.deposit * ref / max(best_cost, 1e-9)]))
         np.clip(tau, cfg.tau_min, cfg.tau_max, out=tau)
+
+
+class ColdColony:
+    """ACO from scratch (the ``aco`` algorithm, the fourth arm of the GKDM bench, paper §3.2 "cold start"):
+    the same colony and Table 7 parameters, on the corridor lattice around the straight S→G line with
+    n_waypoints interior points, pheromone uniform τ0 (no PSO seed). The straight line is only the lattice's
+    axis; it is scored as the colony's first best like any seed route."""
+
+    def __init__(self, cfg: ACOConfig, n_waypoints: int) -> None:
+        from dataclasses import replace
+
+        self.cfg = replace(cfg, init="uniform")
+        self.n_waypoints = n_waypoints
+
+    def run(
+        self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = None,
+        budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
+    ) -> OptimiserResult:
+        s = np.linspace(0.0, 1.0, self.n_waypoints + 2)[:, None]
+        line = problem.start + s * (problem.goal - problem.start)  # (n + 2, 3)
+        ref = float(problem.evaluate(line[None]).total[0])
+        return AntColony(self.cfg).run(problem, rng, line, ref, budget_s=budget_s, progress=progress)

@@ -221,7 +221,7 @@ def cmd_bench(args: argparse.Namespace) -> int:
         raise FuseplanError("--runs and --workers must be >= 1 and --seed-base >= 0")
     settings = BenchSettings(bench, runs, args.seed_base, tuple(args.overrides))
     for v in bench.variants:  # bad input fails here, once, not in every worker
-        load_scenario(bench.scenario, settings.overrides_for(v))
+        load_scenario(settings.scenario_for(v), settings.overrides_for(v))
     try:
         args.output.mkdir(parents=True, exist_ok=True)
     except OSError as e:

@@ -193,7 +193,9 @@ class BPSOConfig:
     v_max: float = 4.0  # velocity clamp of the sigmoid transfer
 
 
-Algorithm = Literal["fusion", "spso", "pso", "qpso", "psogsa", "bpso"]
+# "aco": ant colony from scratch (uniform pheromone on the lattice around the straight S→G line, Table 7
+# parameters; planner.aco.ColdColony), the cold-start arm of the GKDM bench
+Algorithm = Literal["fusion", "spso", "pso", "qpso", "psogsa", "bpso", "aco"]
 ALGORITHM_NAMES: tuple[str, ...] = typing.get_args(Algorithm)
 
 

@@ -102,6 +102,7 @@ class Optimiser(Protocol):
 
 def make_optimiser(settings: PlannerSettings) -> Optimiser:
     """The optimiser named by ``settings.algorithm``, configured from ``settings``."""
+    from planner.aco import ColdColony
     from planner.bpso import BPSO
     from planner.cartesian_pso import CartesianPSO
     from planner.fusion import Fusion
@@ -116,6 +117,7 @@ def make_optimiser(settings: PlannerSettings) -> Optimiser:
         "qpso": lambda: QPSO(settings.pso, settings.qpso),
         "psogsa": lambda: PSOGSA(settings.pso, settings.psogsa),
         "bpso": lambda: BPSO(settings.pso, settings.bpso),
+        "aco": lambda: ColdColony(settings.aco, settings.pso.n_waypoints),  # cold colony, no PSO phase
     }
     if name not in factories:
         raise ValueError(f"unknown algorithm {name!r}")

@@ -32,6 +32,7 @@ class Variant:
     key: str  # "V1" …: the table's row id and the records' "variant"
     label: str  # what it is, e.g. "w/o spherical"
     overrides: tuple[str, ...] = ()  # scenario ``--set`` strings that make this variant
+    scenario: Path | None = None  # this variant's scenario file, when it is not the bench's
 
 
 @dataclass(frozen=True)
@@ -55,6 +56,9 @@ class BenchSettings:
 
     def overrides_for(self, variant: Variant) -> tuple[str, ...]:
         return (*self.bench.base_overrides, *self.user_overrides, *variant.overrides)
+
+    def scenario_for(self, variant: Variant) -> Path:
+        return variant.scenario if variant.scenario is not None else self.bench.scenario
 
 
 @dataclass(frozen=True)
@@ -82,7 +86,7 @@ class BenchOutcome:
 
 def specs_for(settings: BenchSettings) -> list[RunSpec]:
     b = settings.bench
-    return [RunSpec(str(b.scenario), settings.overrides_for(v), v.key, r, settings.seed_base + r)
+    return [RunSpec(str(settings.scenario_for(v)), settings.overrides_for(v), v.key, r, settings.seed_base + r)
             for v in b.variants for r in range(settings.runs)]
 
 
