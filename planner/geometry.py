@@ -22,15 +22,6 @@ def _dot(u: tuple[np.ndarray, ...], v: tuple[np.ndarray, ...]) -> np.ndarray:
     return out
 
 
-def closest_param(a: np.ndarray, b: np.ndarray, p: np.ndarray) -> np.ndarray:
-    """Parameter t ∈ [0, 1] of the point of segment a→b closest to p; arrays broadcast over (..., D)."""
-    dim = np.shape(a)[-1]
-    d = tuple(b[..., i] - a[..., i] for i in range(dim))
-    w = tuple(p[..., i] - a[..., i] for i in range(dim))
-    dd = _dot(d, d)
-    return np.clip(_dot(w, d) / np.where(dd > 0.0, dd, 1.0), 0.0, 1.0)
-
-
 def segment_point_distance(a: np.ndarray, b: np.ndarray, p: np.ndarray) -> np.ndarray:
     """Euclidean distance from point(s) p to segment(s) a→b in any dimension D; shapes broadcast (..., D).
 
