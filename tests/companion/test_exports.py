@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
 from pathlib import Path
@@ -196,3 +197,39 @@ def test_export_from_plan_json_all_formats(tmp_path: Path, plan_doc):
     assert sum(f["geometry"]["type"] == "Polygon" for f in gj["features"]) == len(zones_of(scenario, scenario.home))
     with pytest.raises(ValueError):
         export_from_plan_json(doc, scenario, "kml", tmp_path / "r.kml")  # type: ignore[arg-type]
+
+
+@pytest.mark.asyncio
+async def test_qgc_plan_is_read_back_by_mavsdk_import(tmp_path: Path, plan_doc):
+    """A MAVSDK 4 ground station connected to our simulated autopilot imports the exported .plan with
+    import_qgroundcontrol_mission: same items as we built (after the plannedHomePosition item it puts first),
+    and one geofence item per exported circle."""
+    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
+
+    from companion.builder import is_home_item, mission_from_plan_json
+    from companion.sim import SimAutopilot
+
+    doc, scenario = plan_doc
+    path = export_from_plan_json(doc, scenario, "plan", tmp_path / "r.plan")
+    ours = [it for it in mission_from_plan_json(doc, scenario, "ardupilot") if not is_home_item(it)]
+    n_circles = len(json.loads(path.read_text())["geoFence"]["circles"])
+    async with SimAutopilot(scenario, listen="udpin:127.0.0.1:0", speedup=5.0) as sim:
+        cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+        sdk = Mavsdk(cfg)
+        cfg.destroy()
+        try:
+            await sdk.add_any_connection(f"udpout://127.0.0.1:{sim.port}")
+            system = await sdk.first_autopilot(10.0)
+            assert system is not None
+            data = await MissionRawAsync(system).import_qgroundcontrol_mission(str(path))
+        finally:
+            sdk.destroy()
+            await asyncio.get_running_loop().shutdown_default_executor()
+    items = data.mission_items
+    assert len(items) == len(ours) + 1  # MAVSDK puts the planned home first
+    for got, want in zip(items[1:], ours):
+        assert (got.command, got.x, got.y) == (want.command, want.x, want.y)
+        assert got.z == pytest.approx(want.z, abs=1e-3)
+        assert [got.param1, got.param2, got.param3] == pytest.approx([want.param1, want.param2, want.param3])
+    assert len(data.geofence_items) >= n_circles
