@@ -43,11 +43,16 @@ class Encoding:
         return np.concatenate([s, pts, g], axis=1)
 
     def encode(self, paths: np.ndarray) -> np.ndarray:
-        """Paths (P, n + 2, 3) with this encoding's start → swarm (P, n, 3), clipped into bounds.
+        """Paths (P, M, 3) with this encoding's start → swarm (P, n, 3), clipped into bounds.
 
-        Used to seed a swarm with known routes (warm start); azimuths are unwrapped into the cone.
+        Used to seed a swarm with known routes (warm start); azimuths are unwrapped into the cone. A path
+        with another number of points than n + 2 (a merged plan, an old route) is first resampled to n + 2
+        points evenly spaced along its length, ends kept.
         """
-        inner = np.asarray(paths, dtype=float)[:, 1:-1]
+        paths = np.asarray(paths, dtype=float)
+        if paths.shape[1] != self.n + 2:
+            paths = resample_paths(paths, self.n + 2)
+        inner = paths[:, 1:-1]
         if self.kind == "cartesian":
             return np.clip(inner, self.lo, self.hi)
         r, psi, phi = cartesian_to_spherical(self.start, inner)
@@ -64,6 +69,18 @@ class Encoding:
         spread = self.cartesian_spread * float(np.linalg.norm(self.goal - self.start))
         x = line + rng.normal(0.0, spread, (count, self.n, 3)) * np.array([1.0, 1.0, 0.25])
         return np.clip(x, self.lo, self.hi)
+
+
+def resample_paths(paths: np.ndarray, count: int) -> np.ndarray:
+    """Paths (P, M, 3) → (P, count, 3): points evenly spaced by arc length, first and last kept."""
+    seg = np.linalg.norm(np.diff(paths, axis=1), axis=-1)  # (P, M − 1)
+    s = np.concatenate([np.zeros((len(paths), 1)), np.cumsum(seg, axis=1)], axis=1)
+    target = s[:, -1:] * np.linspace(0.0, 1.0, count)  # (P, count)
+    out = np.empty((len(paths), count, 3))
+    for p in range(len(paths)):  # a handful of seed paths, once per plan: not a hot path
+        for d in range(3):
+            out[p, :, d] = np.interp(target[p], s[p], paths[p, :, d])
+    return out
 
 
 def make_encoding(problem: PlanningProblem, cfg: SPSOConfig) -> Encoding:

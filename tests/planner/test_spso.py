@@ -140,3 +140,20 @@ def test_cost_alone_equals_cost_in_swarm_with_many_obstacles() -> None:
     for i in (0, 5, 36):
         assert prob.evaluate(paths[i : i + 1]).total[0] == batch[i]
         assert prob.evaluate(paths[i : i + 2]).total[0] == batch[i]
+
+
+def test_warm_start_accepts_paths_with_another_point_count(rescue_static) -> None:
+    """A merged plan or an old route with fewer points is resampled along its length before seeding."""
+    from planner.encoding import resample_paths
+
+    sc = load_scenario(rescue_static, ["planner.pso.n_pop=20", "planner.pso.max_iter=1"])
+    prob = problem_from_scenario(sc)
+    enc = make_encoding(prob, sc.planner.pso)
+    short = np.array([[prob.start, [300.0, 600.0, 80.0], prob.goal]])
+    res = resample_paths(short, enc.n + 2)
+    assert res.shape == (1, enc.n + 2, 3)
+    np.testing.assert_allclose(res[0, [0, -1]], short[0, [0, -1]])
+    gaps = np.linalg.norm(np.diff(res[0], axis=0), axis=1)
+    np.testing.assert_allclose(gaps, gaps.mean(), rtol=0.35)  # evenly spread along the length
+    seeded = SphericalPSO(sc.planner.pso).run(prob, np.random.default_rng(0), initial_paths=short)
+    assert seeded.history[0] <= prob.evaluate(enc.decode(enc.encode(short))).total[0] + 1e-9
