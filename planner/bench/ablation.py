@@ -17,7 +17,17 @@ from typing import Any
 
 import numpy as np
 
-from planner.bench.runner import SCENARIO_DIR, Bench, BenchSettings, Variant, summarise
+from planner.bench.runner import (
+    SCENARIO_DIR,
+    Bench,
+    BenchSettings,
+    Variant,
+    add_cost_comparison,
+    claims_table,
+    command_line,
+    settings_list,
+    summarise,
+)
 
 COLUMNS = ("cost", "length_m", "time_s", "convergence_iteration", "penalty")
 RUN_COLUMNS = ("variant", "label", "run", "seed", "status", "feasible", "cost", "penalty", "length_m",
@@ -71,16 +81,7 @@ BENCH = Bench(
 
 def table_rows(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """summarise() plus Δ % of mean cost vs V1 and the Wilcoxon rank-sum p of cost vs V1."""
-    from scipy.stats import ranksums
-
-    rows = summarise(records, VARIANTS, COLUMNS)
-    base = rows[0]
-    v1 = np.array([r["cost"] for r in records if r["variant"] == base["variant"]], dtype=float)
-    for row in rows:
-        x = np.array([r["cost"] for r in records if r["variant"] == row["variant"]], dtype=float)
-        row["delta_cost_pct"] = 100.0 * (row["cost_mean"] - base["cost_mean"]) / base["cost_mean"]
-        row["p_ranksums"] = math.nan if row is base else float(ranksums(x, v1).pvalue)
-    return rows
+    return add_cost_comparison(summarise(records, VARIANTS, COLUMNS), records)
 
 
 def verdicts(rows: Sequence[dict[str, Any]]) -> list[tuple[str, str, str, str, bool]]:
@@ -121,10 +122,9 @@ def markdown(rows: Sequence[dict[str, Any]], settings: BenchSettings) -> str:
     runs = settings.runs
     lines = [
         "# SPSO ablation (paper §6.3, Tables 3/4, Figures 27/28)", "",
-        f"`fuseplan bench ablation --runs {runs} --seed-base {settings.seed_base}"
-        + "".join(f" --set '{o}'" for o in settings.user_overrides) + "`", "",
+        command_line(settings), "",
         f"Scenario `{settings.bench.scenario.name}`; settings: "
-        + ", ".join(f"`{o}`" for o in (*settings.bench.base_overrides, *settings.user_overrides))
+        + settings_list(settings)
         + f" (later ones win). Run r of every variant uses seed {settings.seed_base} + r (r = 0…{runs - 1}). "
         "Mean ± sample std over the runs; Δ % = (mean cost − V1 mean cost) / V1 mean cost; p: Wilcoxon "
         "rank-sum test of the variant's costs against V1's (scipy.stats.ranksums); success: share of runs whose "
@@ -151,9 +151,7 @@ def markdown(rows: Sequence[dict[str, Any]], settings: BenchSettings) -> str:
               f"Rule: a quantified claim is *reproduced* when our number has the paper's sign and lies within a "
               f"factor of {FACTOR:g} of it (and, for a cost difference, the rank-sum test gives p < {ALPHA}); a claim "
               "made in words is reproduced when the stated rule holds.", "",
-              "| claim | paper | ours | rule | verdict |", "|---|---|---|---|---|"]
-    for claim, paper, ours, rule, ok in verdicts(rows):
-        lines.append(f"| {claim} | {paper} | {ours} | {rule} | {'reproduced' if ok else 'not reproduced'} |")
+              *claims_table(verdicts(rows))]
     lines += ["", "Absolute costs are not comparable with the paper's: this scenario uses d_safe 40 m / d_coll 10 m "
               "(the paper's 300 m / 50 m leave no corridor, see the scenario file) and the cost includes the "
               "constraint penalty of SPEC §4, so only relative differences are judged. The paper also states "

@@ -21,7 +21,16 @@ from typing import Any
 
 import numpy as np
 
-from planner.bench.runner import SCENARIO_DIR, Bench, BenchSettings, Variant, summarise
+from planner.bench.runner import (
+    SCENARIO_DIR,
+    Bench,
+    BenchSettings,
+    Variant,
+    claims_table,
+    command_line,
+    settings_list,
+    summarise,
+)
 
 ALGORITHMS = ("fusion", "spso", "qpso", "psogsa", "bpso", "pso")
 LABELS = {"fusion": "fusion (SPSO+GKDM+ACO)", "spso": "SPSO", "qpso": "QPSO", "psogsa": "PSOGSA",
@@ -210,10 +219,9 @@ def markdown(name: str, title: str, rows: Sequence[dict[str, Any]], claims: Sequ
     runs = settings.runs
     lines = [
         f"# {title}", "",
-        f"`fuseplan bench {name} --runs {runs} --seed-base {settings.seed_base}"
-        + "".join(f" --set '{o}'" for o in settings.user_overrides) + "`", "",
+        command_line(settings), "",
         f"Scenario `{settings.bench.scenario.name}`; settings: "
-        + ", ".join(f"`{o}`" for o in (*settings.bench.base_overrides, *settings.user_overrides))
+        + settings_list(settings)
         + f" (later ones win); each variant adds its `planner.algorithm`. Run r of every algorithm uses seed "
         f"{settings.seed_base} + r (r = 0…{runs - 1}). Mean ± sample std over the runs. Smoothness: sum of the "
         "turn angles of the waypoint path (rad, lower = smoother); R: robustness (SPEC, paper eq. 52); "
@@ -244,9 +252,7 @@ def markdown(name: str, title: str, rows: Sequence[dict[str, Any]], claims: Sequ
               f"Rule: a claim with a number reproduces when ours lies within a factor of {FACTOR:g} of it; a claim "
               f"in words reproduces when the stated rule holds (\"comparable\", \"slightly\", \"marginal\": within "
               f"{COMPARABLE_PCT:g} %; \"significant\": rank-sum p < {ALPHA}).", "",
-              "| claim | paper | ours | rule | verdict |", "|---|---|---|---|---|"]
-    for claim, paper, ours, rule, ok in claims:
-        lines.append(f"| {claim} | {paper} | {ours} | {rule} | {'reproduced' if ok else 'not reproduced'} |")
+              *claims_table(claims)]
     n_ok = sum(c[4] for c in claims)
     lines += ["", f"{n_ok} of {len(claims)} claims reproduced.", "", *notes, ""]
     return "\n".join(lines)

@@ -19,7 +19,7 @@ import numpy as np
 
 from planner.bench.comparison import (ALGORITHMS, BUDGET, CATEGORIES, LABELS, RUN_COLUMNS, _plt, _write_csv,
                                       run_rows)
-from planner.bench.runner import SCENARIO_DIR, Bench, BenchSettings, Variant
+from planner.bench.runner import SCENARIO_DIR, Bench, BenchSettings, Variant, claims_table, command_line, settings_list
 
 SCENARIOS = {"static": SCENARIO_DIR / "rescue_static.toml", "dynamic": SCENARIO_DIR / "rescue_dynamic.toml"}
 VARIANTS = tuple(Variant(f"{s}-{a}", f"{s} {LABELS[a]}", (f'planner.algorithm="{a}"',), path)
@@ -80,10 +80,9 @@ def markdown(rows: Sequence[dict[str, Any]], settings: BenchSettings) -> str:
     runs = settings.runs
     lines = [
         "# Constraint checking (paper §6.4, Figure 33)", "",
-        f"`fuseplan bench constraints --runs {runs} --seed-base {settings.seed_base}"
-        + "".join(f" --set '{o}'" for o in settings.user_overrides) + "`", "",
+        command_line(settings), "",
         "Scenarios `rescue_static.toml` and `rescue_dynamic.toml` (a variant per scenario and algorithm); settings: "
-        + ", ".join(f"`{o}`" for o in (*settings.bench.base_overrides, *settings.user_overrides))
+        + settings_list(settings)
         + f" (later ones win). Run r of every variant uses seed {settings.seed_base} + r (r = 0…{runs - 1}). "
         "Counts per category are summed over all runs; a run's count is the post-planning checker's count of "
         "offending stretches of the smoothed trajectory plus the violation terms the cost counted on the waypoint "
@@ -101,9 +100,7 @@ def markdown(rows: Sequence[dict[str, Any]], settings: BenchSettings) -> str:
     lines += ["", "## The paper's claims", "",
               "Rule: the paper reports zero violations for its routes (Fig. 33); a claim reproduces when the "
               "stated rule holds over every run of this bench.", "",
-              "| claim | paper | ours | rule | verdict |", "|---|---|---|---|---|"]
-    for claim, paper, ours, rule, ok in verdicts(rows):
-        lines.append(f"| {claim} | {paper} | {ours} | {rule} | {'reproduced' if ok else 'not reproduced'} |")
+              *claims_table(verdicts(rows))]
     lines += ["", "The paper checks four categories (collision, altitude, turn, climb); `bounds` (leaving the "
               "map) is an extra category here. Its Fig. 33 shows one planned route; here every run of every "
               "algorithm is checked.", ""]

@@ -27,7 +27,16 @@ from typing import Any
 import numpy as np
 
 from planner.bench.ablation import _write_csv
-from planner.bench.runner import SCENARIO_DIR, Bench, BenchSettings, Variant, summarise
+from planner.bench.runner import (
+    SCENARIO_DIR,
+    Bench,
+    BenchSettings,
+    Variant,
+    claims_table,
+    command_line,
+    settings_list,
+    summarise,
+)
 
 TARGET_FACTOR = 1.001  # target cost = median final cost of the G arm × this (0.1 %: inside the ACO phase's gain)
 PAPER_SAVING = (40.0, 60.0)  # % less computation than ACO from scratch (paper §5)
@@ -205,13 +214,11 @@ def _f(x: float, fmt: str = ".1f") -> str:
 
 
 def markdown(rows: Sequence[dict[str, Any]], target: float, settings: BenchSettings) -> str:
-    runs = settings.runs
     lines = [
         "# GKDM ablation and ACO cold start (paper §5, §6.2, Tables 7/8, Figure 29)", "",
-        f"`fuseplan bench gkdm --runs {runs} --seed-base {settings.seed_base}"
-        + "".join(f" --set '{o}'" for o in settings.user_overrides) + "`", "",
+        command_line(settings), "",
         f"Scenario `{settings.bench.scenario.name}`; settings: "
-        + ", ".join(f"`{o}`" for o in (*settings.bench.base_overrides, *settings.user_overrides))
+        + settings_list(settings)
         + " (later ones win; each arm adds its own). The SPSO phase is kept short (nPop 100, MaxIt 50, no "
         "stagnation stop) so the colony has room to improve; the colony uses Table 7 (30 ants, 50 iterations, "
         "α 1, β 2, ρ 0.08, τ0 0.1) and Table 8 (A 12, σ 40 m) for every arm, the same corridor lattice, and "
@@ -243,9 +250,7 @@ def markdown(rows: Sequence[dict[str, Any]], target: float, settings: BenchSetti
     lines += ["", "## The paper's claims", "",
               "The paper gives no table for Figure 29 (curves only) and states the 40–60 % saving without a "
               "measurement protocol; the rules below are ours.", "",
-              "| claim | paper | ours | rule | verdict |", "|---|---|---|---|---|"]
-    for claim, paper, ours, rule, ok in verdicts(rows):
-        lines.append(f"| {claim} | {paper} | {ours} | {rule} | {ok} |")
+              *claims_table(verdicts(rows))]
     by = {r["variant"]: r for r in rows}
     means = [by[k]["cost_mean"] for k in FUSION]
     spread = 100.0 * (max(means) - min(means)) / min(means)

@@ -18,7 +18,17 @@ from typing import Any
 import numpy as np
 
 from planner.bench.ablation import _write_csv
-from planner.bench.runner import SCENARIO_DIR, Bench, BenchSettings, Variant, summarise
+from planner.bench.runner import (
+    SCENARIO_DIR,
+    Bench,
+    BenchSettings,
+    Variant,
+    add_cost_comparison,
+    claims_table,
+    command_line,
+    settings_list,
+    summarise,
+)
 
 NAME = "large-scale"
 COLUMNS = ("cost", "length_m", "smoothness", "time_s", "convergence_iteration", "violations", "penalty")
@@ -72,16 +82,7 @@ BENCH = Bench(
 
 def table_rows(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
     """summarise() plus Δ % mean cost vs SPSO and the rank-sum p of cost vs SPSO."""
-    from scipy.stats import ranksums
-
-    rows = summarise(records, VARIANTS, COLUMNS)
-    base = rows[0]
-    s = np.array([r["cost"] for r in records if r["variant"] == base["variant"]], dtype=float)
-    for row in rows:
-        x = np.array([r["cost"] for r in records if r["variant"] == row["variant"]], dtype=float)
-        row["delta_cost_pct"] = 100.0 * (row["cost_mean"] - base["cost_mean"]) / base["cost_mean"]
-        row["p_ranksums"] = math.nan if row is base else float(ranksums(x, s).pvalue)
-    return rows
+    return add_cost_comparison(summarise(records, VARIANTS, COLUMNS), records)
 
 
 def verdicts(rows: Sequence[dict[str, Any]], straight_m: float) -> list[tuple[str, str, str, str, bool]]:
@@ -106,14 +107,12 @@ def verdicts(rows: Sequence[dict[str, Any]], straight_m: float) -> list[tuple[st
 
 
 def markdown(rows: Sequence[dict[str, Any]], settings: BenchSettings, straight_m: float) -> str:
-    runs = settings.runs
     lines = [
         "# Large obstacle field: SPSO vs PSO (paper §6.3, Table 9, Figures 30–32)", "",
-        f"`fuseplan bench {NAME} --runs {runs} --seed-base {settings.seed_base}"
-        + "".join(f" --set '{o}'" for o in settings.user_overrides) + "`", "",
+        command_line(settings), "",
         f"Scenario `{settings.bench.scenario.name}` (3000 × 3000 m, 100 seeded spheres, cylinders and "
         "hemispheres, start (50, 50, 100), goal (2500, 2700, 150), 16 waypoints); settings: "
-        + ", ".join(f"`{o}`" for o in (*settings.bench.base_overrides, *settings.user_overrides))
+        + settings_list(settings)
         + f" (Table 6 budget; later ones win). Run r uses seed {settings.seed_base} + r for both algorithms. "
         "Mean ± sample std; p: Wilcoxon rank-sum of PSO's costs against SPSO's; success: the smoothed path "
         "passes every check. Times are wall clock (vary between machines); the rest is reproducible.", "",
@@ -134,9 +133,7 @@ def markdown(rows: Sequence[dict[str, Any]], settings: BenchSettings, straight_m
               f"line distance {PAPER_STRAIGHT_M:.0f} m (≈ {PAPER_STRAIGHT_M / PAPER_TIME_S:.1f} m/s); our start is "
               f"(50, 50, 100), straight line {straight_m:.0f} m.", "",
               "## The paper's claims", "",
-              "| claim | paper | ours | rule | verdict |", "|---|---|---|---|---|"]
-    for claim, paper, ours, rule, ok in verdicts(rows, straight_m):
-        lines.append(f"| {claim} | {paper} | {ours} | {rule} | {'reproduced' if ok else 'not reproduced'} |")
+              *claims_table(verdicts(rows, straight_m))]
     lines += ["", "Share of mean cost that is constraint penalty: "
               + ", ".join(f"{r['variant']} {100 * r['penalty_mean'] / r['cost_mean']:.0f} %" for r in rows) + ".",
               ""]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import logging
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
@@ -200,4 +201,42 @@ def summarise(records: Sequence[dict[str, Any]], variants: Sequence[Variant], co
             row[f"{col}_std"] = float(x.std(ddof=1)) if len(x) > 1 else 0.0
         row["success_rate"] = float(np.mean([bool(r["feasible"]) for r in rec]))
         rows.append(row)
+    return rows
+
+
+# --- report pieces every bench uses ----------------------------------------------------------------------
+def command_line(settings: BenchSettings) -> str:
+    """The command that reproduces these results, in Markdown code quotes."""
+    sets = "".join(f" --set '{o}'" for o in settings.user_overrides)
+    return f"`fuseplan bench {settings.bench.name} --runs {settings.runs} --seed-base {settings.seed_base}{sets}`"
+
+
+def settings_list(settings: BenchSettings) -> str:
+    """The bench's own and the user's overrides, in the order they apply (later ones win)."""
+    return ", ".join(f"`{o}`" for o in (*settings.bench.base_overrides, *settings.user_overrides))
+
+
+def claims_table(verdicts: Sequence[tuple[str, str, str, str, bool | str]]) -> list[str]:
+    """Markdown rows for (claim, paper, ours, rule, verdict); a bool verdict reads reproduced / not."""
+    lines = ["| claim | paper | ours | rule | verdict |", "|---|---|---|---|---|"]
+    for claim, paper, ours, rule, ok in verdicts:
+        verdict = ok if isinstance(ok, str) else ("reproduced" if ok else "not reproduced")
+        lines.append(f"| {claim} | {paper} | {ours} | {rule} | {verdict} |")
+    return lines
+
+
+def add_cost_comparison(rows: list[dict[str, Any]], records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Add ``delta_cost_pct`` (mean cost vs the first row's) and ``p_ranksums`` (Wilcoxon rank-sum of the
+    row's costs against the first row's; NaN for the first) to summarise() rows."""
+    from scipy.stats import ranksums
+
+    base = rows[0]
+
+    def costs(variant: str) -> np.ndarray:
+        return np.array([r["cost"] for r in records if r["variant"] == variant], dtype=float)
+
+    ref = costs(base["variant"])
+    for row in rows:
+        row["delta_cost_pct"] = 100.0 * (row["cost_mean"] - base["cost_mean"]) / base["cost_mean"]
+        row["p_ranksums"] = math.nan if row is base else float(ranksums(costs(row["variant"]), ref).pvalue)
     return rows

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from planner.bench.ablation import _write_csv
-from planner.bench.runner import SCENARIO_DIR, Bench, BenchSettings, Variant, summarise
+from planner.bench.runner import SCENARIO_DIR, Bench, BenchSettings, Variant, command_line, settings_list, summarise
 
 BASE = {"n_pop": 250, "max_iter": 100, "n_waypoints": 16, "obstacles": 100}
 LEVELS = {"n_pop": (100, 250, 500, 1000), "max_iter": (50, 100, 200), "n_waypoints": (4, 8, 16),
@@ -112,10 +112,9 @@ def markdown(rows: Sequence[dict[str, Any]], runs: Sequence[dict[str, Any]], set
     a, b, r2 = linear_fit(runs)
     lines = [
         "# Planning time vs work (SPSO, large obstacle field)", "",
-        f"`fuseplan bench speed --runs {settings.runs} --seed-base {settings.seed_base}"
-        + "".join(f" --set '{o}'" for o in settings.user_overrides) + "`", "",
+        command_line(settings), "",
         f"Scenario `{settings.bench.scenario.name}`; base settings "
-        + ", ".join(f"`{o}`" for o in (*settings.bench.base_overrides, *settings.user_overrides))
+        + settings_list(settings)
         + "; each row changes one factor (the others stay at the base: "
         + ", ".join(f"{k} {v}" for k, v in BASE.items()) + "). Stagnation stop off, so every run uses its "
         "whole budget: evaluations = nPop × (MaxIt + 1). Wall-clock times on this machine, with as many runs "
