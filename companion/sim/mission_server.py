@@ -298,22 +298,25 @@ class MissionServer:
             return mavlink.MAV_MISSION_ERROR
         return mavlink.MAV_MISSION_ACCEPTED
 
+    def _download_allowed(self, msg: mavlink.MAVLink_message) -> bool:
+        """A download of a supported list that is not being uploaded right now (else DENIED)."""
+        if not self._supported(msg, msg.mission_type):
+            return False
+        if msg.mission_type in self._uploads:
+            self._ack(msg, mavlink.MAV_MISSION_DENIED, msg.mission_type)
+            return False
+        return True
+
     def _request_list(self, msg: mavlink.MAVLink_message, now: float) -> None:
         mission_type = msg.mission_type
-        if not self._supported(msg, mission_type):
-            return
-        if mission_type in self._uploads:
-            self._ack(msg, mavlink.MAV_MISSION_DENIED, mission_type)
+        if not self._download_allowed(msg):
             return
         self._send(mavlink.MAVLink_mission_count_message(
             msg.get_srcSystem(), msg.get_srcComponent(), len(self.lists[mission_type]), mission_type))
 
     def _request(self, msg: mavlink.MAVLink_message, now: float) -> None:
         mission_type = msg.mission_type
-        if not self._supported(msg, mission_type):
-            return
-        if mission_type in self._uploads:
-            self._ack(msg, mavlink.MAV_MISSION_DENIED, mission_type)
+        if not self._download_allowed(msg):
             return
         items = self.lists[mission_type]
         if not 0 <= msg.seq < len(items):
