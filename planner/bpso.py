@@ -32,6 +32,7 @@ import numpy as np
 
 from planner.config import BPSOConfig, SPSOConfig
 from planner.problem import PlanningProblem
+from planner.spso import pso_velocity
 from planner.swarm import OptimiserResult, SwarmState, initial_swarm, run_swarm
 
 
@@ -132,8 +133,7 @@ def bpso_step(
     v_max: float, r1: np.ndarray, r2: np.ndarray, u: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """One binary PSO update. Shapes: x, v, pbest, r1, r2, u (P, n, B); gbest (n, B). Bits are 0/1 floats."""
-    v = w * v + c1 * r1 * (pbest - x) + c2 * r2 * (gbest - x)
-    v = np.clip(v, -v_max, v_max)
+    v = pso_velocity(x, v, pbest, gbest, w, c1, c2, v_max, r1, r2)
     return (u < sigmoid(v)).astype(float), v
 
 

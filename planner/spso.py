@@ -24,6 +24,14 @@ from planner.swarm import (  # noqa: F401  (re-exported: the result types used t
 )
 
 
+def pso_velocity(
+    x: np.ndarray, v: np.ndarray, pbest: np.ndarray, gbest: np.ndarray, w: float | np.ndarray, c1: float,
+    c2: float, vmax: float | np.ndarray, r1: np.ndarray, r2: np.ndarray,
+) -> np.ndarray:
+    """v ← w v + c1 r1 (pbest − x) + c2 r2 (gbest − x), clipped to ±vmax (SPEC §3); shapes broadcast."""
+    return np.clip(w * v + c1 * r1 * (pbest - x) + c2 * r2 * (gbest - x), -vmax, vmax)
+
+
 def pso_step(
     x: np.ndarray, v: np.ndarray, pbest: np.ndarray, gbest: np.ndarray, w: float | np.ndarray,
     c1: float, c2: float, lo: np.ndarray, hi: np.ndarray, vmax: np.ndarray, reflection: bool,
@@ -35,8 +43,7 @@ def pso_step(
     leaves [lo, hi] is put on the bound; with ``reflection`` its velocity is negated, else kept (V4).
     Shapes: x, v, pbest, r1, r2 (P, n, 3); gbest, lo, hi, vmax (n, 3); w scalar or (P, 1, 1).
     """
-    v = w * v + c1 * r1 * (pbest - x) + c2 * r2 * (gbest - x)
-    v = np.clip(v, -vmax, vmax)
+    v = pso_velocity(x, v, pbest, gbest, w, c1, c2, vmax, r1, r2)
     x = x + v
     outside = (x < lo) | (x > hi)
     x = np.clip(x, lo, hi)
