@@ -31,18 +31,14 @@ class RunSpec:
 
 
 def run_one(spec: RunSpec) -> dict[str, Any]:
-    """Plan once (in a worker process) and return a flat record."""
-    from planner.plan import plan, problem_from_scenario
-    from planner.scenario import load_scenario
+    """Plan once (in a worker process): the bench runner's record, keyed by algorithm."""
+    from planner.bench import runner
 
-    sc = load_scenario(spec.scenario, [*spec.overrides, f'planner.algorithm="{spec.algorithm}"'])
-    res = plan(problem_from_scenario(sc), sc.planner, np.random.default_rng(spec.seed), seed=spec.seed)
-    m = res.metrics(sc.hazard.d_safe)
-    n_viol = sum(res.violations.values()) + sum(res.cost_violations.values())
-    return {"algorithm": spec.algorithm, "run": spec.run, "seed": spec.seed, "status": res.status.value,
-            "feasible": res.feasible, "cost": res.cost, "length_m": m["length_m"],
-            "smoothness": m["smoothness"], "time_s": m["plan_time_s"], "robustness": m["robustness"],
-            "violations": n_viol, "history": list(res.optimiser.history)}
+    rec = runner.run_one(runner.RunSpec(spec.scenario, (*spec.overrides, f'planner.algorithm="{spec.algorithm}"'),
+                                        spec.algorithm, spec.run, spec.seed))
+    keys = ("run", "seed", "status", "feasible", "cost", "length_m", "smoothness", "time_s", "robustness",
+            "violations", "history")
+    return {"algorithm": spec.algorithm, **{k: rec[k] for k in keys}}
 
 
 def run_all(specs: Sequence[RunSpec], workers: int, show_progress: bool = True) -> list[dict[str, Any]]:
