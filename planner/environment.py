@@ -170,28 +170,34 @@ class Threats:
         return float(np.max(np.where(self.kind == TRACK, track, self.speed)))
 
     def positions(self, t: np.ndarray) -> np.ndarray:
-        """Threat centres at times ``t`` (any shape S, seconds) → (k, *S, 3) metres ENU."""
+        """Threat centres at times ``t`` (any shape S, seconds) → (k, *S, 3) metres ENU.
+
+        Each law is computed only for the threats that follow it (one broadcast per kind, not per threat).
+        """
         t = np.asarray(t, dtype=float)
-        k = len(self)
+        out = np.empty((len(self), *t.shape, 3))
         ex = (slice(None),) + (None,) * t.ndim  # broadcast threat axis over t's axes
-        # loiter
-        omega = self.direction * self.speed / np.where(self.circle_radius > 0, self.circle_radius, 1.0)
-        ang = self.phase[ex] + omega[ex] * t
-        loiter = self.p0[ex] + np.stack(
-            [self.circle_radius[ex] * np.cos(ang), self.circle_radius[ex] * np.sin(ang),
-             np.zeros_like(ang)], axis=-1)
-        # patrol: triangle wave along A→B
-        ab = self.p1 - self.p0
-        length = np.linalg.norm(ab, axis=-1)
-        safe_len = np.where(length > 0, length, 1.0)
-        s = np.mod(self.speed[ex] * t, 2 * safe_len[ex])
-        u = np.where(s <= safe_len[ex], s, 2 * safe_len[ex] - s)
-        patrol = self.p0[ex] + (ab / safe_len[:, None])[ex] * u[..., None]
-        # track: constant velocity from t_ref
-        track = self.p0[ex] + self.p1[ex] * (t - self.t_ref[ex])[..., None]
-        kind = self.kind[ex][..., None]
-        out = np.where(kind == LOITER, loiter, np.where(kind == PATROL, patrol, track))
-        return out.reshape((k, *t.shape, 3))
+        kind = self.kind
+        i = np.flatnonzero(kind == LOITER)
+        if i.size:
+            r = self.circle_radius[i]
+            omega = self.direction[i] * self.speed[i] / np.where(r > 0, r, 1.0)
+            ang = self.phase[i][ex] + omega[ex] * t
+            out[i, ..., 0] = self.p0[i, 0][ex] + r[ex] * np.cos(ang)
+            out[i, ..., 1] = self.p0[i, 1][ex] + r[ex] * np.sin(ang)
+            out[i, ..., 2] = self.p0[i, 2][ex]
+        i = np.flatnonzero(kind == PATROL)
+        if i.size:  # triangle wave along A→B
+            ab = self.p1[i] - self.p0[i]
+            length = np.linalg.norm(ab, axis=-1)
+            safe_len = np.where(length > 0, length, 1.0)
+            s = np.mod(self.speed[i][ex] * t, 2 * safe_len[ex])
+            u = np.where(s <= safe_len[ex], s, 2 * safe_len[ex] - s)
+            out[i] = self.p0[i][ex] + (ab / safe_len[:, None])[ex] * u[..., None]
+        i = np.flatnonzero(kind == TRACK)
+        if i.size:  # constant velocity from t_ref
+            out[i] = self.p0[i][ex] + self.p1[i][ex] * (t - self.t_ref[i][ex])[..., None]
+        return out
 
     def radii(self, t: np.ndarray) -> np.ndarray:
         """Threat radii at times ``t`` → (k, *S); track uncertainty grows with prediction time."""
