@@ -110,7 +110,6 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
     if not np.isfinite(wps).all():
         raise ValueError("waypoints contain non-finite coordinates")
     vehicle, home = spec.vehicle, spec.home
-    radius = vehicle.acceptance_radius
     route = _route_points(wps, spec, trajectory)
     lat, lon, _ = enu_to_geodetic(np.vstack([wps[:1], route]), home)
     x = [to_int_e7(v) for v in lat]
@@ -128,10 +127,7 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
     items.append(MissionItem(0, FRAME_MISSION, CMD_CHANGE_SPEED,
                              param1=SPEED_TYPE_AIRSPEED if plane else SPEED_TYPE_GROUNDSPEED,
                              param2=float(vehicle.cruise_speed), param3=NO_CHANGE))
-    accept = _acceptance_param(radius, spec.autopilot, vehicle.type)
-    for i, p in enumerate(route, start=1):
-        items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_WAYPOINT, param1=0.0, param2=accept, param4=yaw,
-                                 x=x[i], y=y[i], z=float(p[2])))
+    items.extend(waypoint_items(route, spec))
     gx, gy, gz = x[-1], y[-1], float(route[-1, 2])
     if vehicle.end_action == "loiter":
         items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_LOITER_UNLIM, param4=yaw, x=gx, y=gy, z=gz))
@@ -142,6 +138,18 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
     else:  # VehicleLimits is validated at the scenario boundary; this guards hand-made ones
         raise ValueError(f"unknown end action {vehicle.end_action!r}")
     return [item.with_seq(seq) for seq, item in enumerate(items)]
+
+
+def waypoint_items(points_enu: np.ndarray, spec: MissionSpec) -> list[MissionItem]:
+    """NAV_WAYPOINT items (seq 0, renumber when placing them) for ENU points (K, 3), z = metres above home.
+
+    The one place a route point becomes an item: the mission builder and the live replanner's splice use it.
+    """
+    pts = np.asarray(points_enu, dtype=float).reshape(-1, 3)
+    lat, lon, _ = enu_to_geodetic(pts, spec.home)
+    accept = _acceptance_param(spec.vehicle.acceptance_radius, spec.autopilot, spec.vehicle.type)
+    return [MissionItem(0, FRAME_REL_ALT_INT, CMD_WAYPOINT, param1=0.0, param2=accept, param4=spec.yaw_param,
+                        x=to_int_e7(a), y=to_int_e7(o), z=float(p[2])) for a, o, p in zip(lat, lon, pts)]
 
 
 def _acceptance_param(radius: float, autopilot: Autopilot, vehicle_type: str) -> float:
@@ -279,5 +287,5 @@ def spec_from_plan_json(doc: Mapping[str, Any], vehicle: VehicleLimits | Scenari
 
 __all__ = [
     "Autopilot", "MissionSpec", "build_fence", "build_mission", "is_home_item", "mission_from_plan_json",
-    "mission_waypoint_index", "spec_from_plan_json",
+    "mission_waypoint_index", "spec_from_plan_json", "waypoint_items",
 ]

@@ -51,3 +51,7 @@ class CommandError(CompanionError):
         self.command, self.result = command, result
         what = "no COMMAND_ACK" if result is None else f"result {result}"
         super().__init__(f"command {command} failed: {what}{': ' + text if text else ''}")
+
+
+class VehicleHolding(CompanionError):
+    """The companion stopped with the vehicle holding (loitering): no verified mission could be made live."""

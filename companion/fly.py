@@ -3,6 +3,7 @@ monitor → report directory. With ``sim=True`` the built-in simulated autopilot
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
 from dataclasses import dataclass
@@ -18,7 +19,10 @@ from companion.exports import write_geojson, write_qgc_plan, write_waypoints, zo
 from companion.geo import geodetic_to_enu, lonlatalt
 from companion.link import Link
 from companion.protocol import MissionClient
+from companion.replan import ReplanConfig
+from companion.replanner import LiveReplanner
 from companion.report import plot_track, write_json
+from companion.separation import min_separations
 from companion.supervisor import FlightOutcome, FlightSupervisor
 from planner.checks import obstacle_clearance
 from planner.scenario import Scenario
@@ -37,6 +41,8 @@ class FlyOptions:
     densify: bool = False
     report: Path = Path("fuseplan-report")
     source_system: int = 1
+    replan: bool = True  # live replanning around dynamic threats (when the scenario has any)
+    replan_config: ReplanConfig | None = None  # None: ReplanConfig() defaults
 
 
 async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, events: EventLog) -> dict[str, Any]:
@@ -66,12 +72,18 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             sup = FlightSupervisor(link, client, events, arm=opts.arm or opts.sim)
             length = float(plan_doc["metrics"]["length_m"])
             timeout = 120.0 + 4.0 * length / scenario.vehicle.cruise_speed / max(opts.speedup, 1e-3)
-            outcome = await sup.fly(items, fence, ready_timeout=60.0 if sim is None else 30.0,
-                                    flight_timeout=timeout)
+            replanner = None
+            async with contextlib.AsyncExitStack() as stack:
+                if opts.replan and (len(scenario.environment.threats) or scenario.intruders or opts.connect):
+                    replanner = await stack.enter_async_context(LiveReplanner(
+                        link, client, events, scenario, spec, items, opts.replan_config,
+                        rate=opts.speedup if sim is not None else None, seed=int(plan_doc.get("seed") or 0)))
+                outcome = await sup.fly(items, fence, ready_timeout=60.0 if sim is None else 30.0,
+                                        flight_timeout=timeout, replanner=replanner)
     finally:
         if sim is not None:
             await sim.stop()
-    return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, len(items))
+    return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, len(items), replanner)
 
 
 def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,
@@ -84,7 +96,8 @@ def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scena
 
 
 def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: Scenario, out: FlightOutcome,
-                         sim: Any, autopilot: str, n_items: int) -> dict[str, Any]:
+                         sim: Any, autopilot: str, n_items: int,
+                         replanner: LiveReplanner | None = None) -> dict[str, Any]:
     """flight.json and track.png; the flown track is the simulator's truth when we ran it, else telemetry."""
     if sim is not None and sim.truth:
         flown = np.array([(x, y, z) for _t, _lat, _lon, _alt, x, y, z in sim.truth])
@@ -98,14 +111,27 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     airborne = flown[:, 2] > 1.0 if len(flown) else np.zeros(0, dtype=bool)
     clearance = obstacle_clearance(flown[airborne], None, scenario.environment) if airborne.any() else np.zeros(0)
     min_clear = float(clearance.min()) if clearance.size else math.inf
+    seps = _separations(sim, scenario)
+    records = replanner.records if replanner is not None else []
+    done = [r for r in records if r.latency_s is not None]
     doc = {
         "completed": out.completed,
         "reason": out.reason,
+        "holding": out.holding,
         "items_reached": sorted(out.items_reached),
         "mission_items": n_items,
         "fence_items": out.fence_count,
         "min_clearance_m": min_clear,
         "d_coll_m": scenario.hazard.d_coll,
+        "replanning": bool(opts.replan),
+        "replans": len(done),
+        "replan_attempts": len(records),
+        "min_separation_m": {k: round(v.separation, 2) for k, v in seps.items()},
+        "min_separation_t_s": {k: round(v.t, 2) for k, v in seps.items()},
+        "separation_source": "simulator truth" if sim is not None else None,
+        "replan_latency_s": _stats([r.latency_s for r in done]),
+        "replan_plan_s": _stats([r.plan_s for r in records]),
+        "replan_log": [r.summary() for r in records],
         "upload_s": round(out.upload_s, 3),
         "flight_wall_s": round(out.flight_s, 3),
         "autopilot": autopilot,
@@ -117,7 +143,26 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     }
     write_json(opts.report / "flight.json", doc)
     intr = {k: np.array([(x, y, z) for _t, x, y, z in v]) for k, v in (sim.intruder_truth.items() if sim else [])}
+    replans = [(np.array(r.old_route), np.array(r.new_route)) for r in records if r.new_route]
     plot_track(opts.report / "track.png", scenario.environment, np.asarray(plan_doc["trajectory"]["points"]),
-               flown, f"{scenario.name}: planned vs flown ({'completed' if out.completed else 'not completed'})",
-               intr)
+               flown, f"{scenario.name}: planned vs flown ({'completed' if out.completed else 'not completed'}"
+               f", {len(done)} replans)", intr, replans)
     return doc
+
+
+def _separations(sim: Any, scenario: Scenario) -> dict:
+    """Truth-track minimum separation to every intruder and scripted threat (simulator runs only)."""
+    if sim is None or not sim.truth:
+        return {}
+    vehicle = np.array([(t, x, y, z) for t, _lat, _lon, _alt, x, y, z in sim.truth])
+    radius = {i.id: i.radius for i in scenario.intruders}
+    tracks = {k: (np.array(v).reshape(-1, 4), radius[k]) for k, v in sim.intruder_truth.items()}
+    return min_separations(vehicle, tracks, scenario.environment.threats, sim.mission_start_time)
+
+
+def _stats(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    v = np.asarray(values, dtype=float)
+    return {"n": int(v.size), "min": round(float(v.min()), 3), "median": round(float(np.median(v)), 3),
+            "max": round(float(v.max()), 3)}

@@ -97,6 +97,17 @@ class Subscription:
             raise LinkError("subscription closed")
         return msg
 
+    def drain(self) -> list[Message]:
+        """Every message queued now, without waiting (none after :meth:`close`)."""
+        out = []
+        while not self._queue.empty():
+            msg = self._queue.get_nowait()
+            if msg is None:  # close() sentinel: keep it for a pending get()
+                self._queue.put_nowait(None)
+                break
+            out.append(msg)
+        return out
+
     def close(self) -> None:
         if not self.closed:
             self.closed = True

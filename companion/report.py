@@ -17,8 +17,10 @@ def write_json(path: Path, doc: dict[str, Any]) -> None:
 
 
 def plot_track(path: Path, env: Environment, planned: np.ndarray, flown: np.ndarray, title: str,
-               intruders: dict[str, np.ndarray] | None = None) -> None:
-    """Planned trajectory vs flown track: plan view with obstacles, and altitude along the way."""
+               intruders: dict[str, np.ndarray] | None = None,
+               replans: list[tuple[np.ndarray, np.ndarray]] | None = None) -> None:
+    """Planned trajectory vs flown track: plan view with obstacles, intruder tracks, each replan's old
+    (abandoned) and new route from its commit point, and altitude along the way."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -31,9 +33,18 @@ def plot_track(path: Path, env: Environment, planned: np.ndarray, flown: np.ndar
     ax.plot(planned[:, 0], planned[:, 1], "--", color="tab:blue", lw=1.5, label="planned")
     if len(flown):
         ax.plot(flown[:, 0], flown[:, 1], color="tab:green", lw=1.5, label="flown")
+    for i, (old, new) in enumerate(replans or []):
+        ax.plot(old[:, 0], old[:, 1], "-", color="tab:gray", lw=1.0, alpha=0.7,
+                label="abandoned route" if i == 0 else None)
+        ax.plot(new[:, 0], new[:, 1], "-o", color="tab:orange", lw=1.2, ms=3,
+                label="replanned route" if i == 0 else None)
+        ax.plot(*new[0, :2], "s", color="tab:orange", ms=6)
+        ax.annotate(f"R{i + 1}", new[0, :2], textcoords="offset points", xytext=(5, 5), fontsize=8)
     for name, trk in (intruders or {}).items():
         if len(trk):
             ax.plot(trk[:, 0], trk[:, 1], ":", color="tab:red", lw=1.2, label=f"intruder {name}")
+            ax.annotate("", trk[-1, :2], trk[max(len(trk) - 20, 0), :2],
+                        arrowprops={"arrowstyle": "->", "color": "tab:red"})
     ax.plot(*planned[0, :2], "o", color="green")
     ax.plot(*planned[-1, :2], "*", color="black", ms=10)
     ax.legend(loc="upper left", fontsize=8)

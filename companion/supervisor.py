@@ -7,6 +7,7 @@ to the :class:`EventLog`; the CLI decides what the user sees.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import time
 from collections.abc import Sequence
@@ -14,12 +15,13 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.errors import CommandError, CompanionError
+from companion.errors import CommandError, CompanionError, VehicleHolding
 from companion.events import EventLog
 from companion.items import FENCE, MISSION, MissionItem
 from companion.link import Link, Subscription
 from companion.modes import mode_name, mode_number
 from companion.protocol import MissionClient
+from companion.replanner import LiveReplanner
 
 log = logging.getLogger(__name__)
 PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
@@ -38,6 +40,7 @@ class FlightOutcome:
     fence_count: int = 0
     track: list[tuple[float, float, float, float]] = field(default_factory=list)  # (t, lat, lon, alt_rel)
     statustexts: list[str] = field(default_factory=list)
+    holding: bool = False  # ended with the vehicle held (loitering) by the companion
 
 
 class FlightSupervisor:
@@ -151,60 +154,83 @@ class FlightSupervisor:
     MONITORED = ("MISSION_ITEM_REACHED", "MISSION_CURRENT", "GLOBAL_POSITION_INT", "STATUSTEXT", "HEARTBEAT")
 
     async def monitor(self, items: Sequence[MissionItem], timeout: float, outcome: FlightOutcome,
-                      sub: Subscription | None = None) -> None:
+                      sub: Subscription | None = None, replanner: LiveReplanner | None = None) -> None:
         """Follow progress until the goal waypoint is reached (or the autopilot says the mission is
         complete); fills ``outcome``. ``timeout`` in wall seconds. Pass a subscription opened before the
-        start so nothing sent right after MISSION_START is missed."""
-        goal_seq = max(it.seq for it in items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
+        start so nothing sent right after MISSION_START is missed. With a ``replanner`` (run here as its own
+        task) the goal is that of the mission it made live, and its failure (vehicle held) ends the flight."""
         t0 = time.monotonic()
-        last_current = None
-        with sub if sub is not None else self.link.subscribe(*self.MONITORED) as sub:
-            while True:
-                left = timeout - (time.monotonic() - t0)
-                if left <= 0:
-                    outcome.reason = f"timeout after {timeout:.0f} s"
-                    self.events.log("timeout", seconds=timeout)
-                    break
-                try:
-                    msg = await sub.get(min(left, 1.0))
-                except TimeoutError:
-                    if self.link.heartbeat_age > self.link.heartbeat_timeout:
-                        self.events.log("heartbeat_lost", age_s=round(self.link.heartbeat_age, 1))
-                    continue
-                kind = msg.get_type()
-                t = time.monotonic() - t0
-                if kind == "GLOBAL_POSITION_INT":
-                    outcome.track.append((t, msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0))
-                elif kind == "MISSION_ITEM_REACHED":
-                    if msg.seq not in outcome.items_reached:
-                        outcome.items_reached.append(msg.seq)
-                        self.events.log("reached", seq=msg.seq, of=len(items) - 1)
-                    if msg.seq == goal_seq:
-                        outcome.completed, outcome.reason = True, "goal waypoint reached"
-                        break
-                elif kind == "MISSION_CURRENT" and msg.seq != last_current:
-                    last_current = msg.seq
-                    self.events.log("current", seq=msg.seq)
-                    if msg.seq > goal_seq:  # past the goal (its REACHED may have been lost on the link)
-                        outcome.completed, outcome.reason = True, f"mission current item {msg.seq} is past the goal"
-                        break
-                elif kind == "STATUSTEXT":
-                    text = msg.text.rstrip("\x00")
-                    outcome.statustexts.append(text)
-                    self.events.log("statustext", severity=msg.severity, text=text)
-                    if "mission complete" in text.lower():
-                        outcome.completed, outcome.reason = True, text
-                        break
-                elif kind == "HEARTBEAT" and not msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED \
-                        and outcome.items_reached:
-                    outcome.reason = "vehicle disarmed before the goal"
-                    self.events.log("disarmed")
-                    break
+        task = asyncio.create_task(replanner.run(), name="replanner") if replanner is not None else None
+        try:
+            with sub if sub is not None else self.link.subscribe(*self.MONITORED) as sub:
+                await self._follow(sub, items, timeout, outcome, replanner, task)
+        finally:
+            if task is not None and not task.done():
+                task.cancel()
+                with contextlib.suppress(asyncio.CancelledError):
+                    await task
         outcome.flight_s = time.monotonic() - t0
 
+    async def _follow(self, sub: Subscription, items: Sequence[MissionItem], timeout: float,
+                      outcome: FlightOutcome, replanner: LiveReplanner | None, task: asyncio.Task | None) -> None:
+        fixed_goal = max(it.seq for it in items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
+        t0 = time.monotonic()
+        last_current = None
+        while True:
+            if task is not None and task.done():
+                exc = task.exception()
+                outcome.reason = str(exc) if exc is not None else "replanner stopped"
+                outcome.holding = isinstance(exc, VehicleHolding)
+                self.events.log("replanner_failed", error=outcome.reason)
+                return
+            goal_seq = replanner.goal_seq if replanner is not None else fixed_goal
+            left = timeout - (time.monotonic() - t0)
+            if left <= 0:
+                outcome.reason = f"timeout after {timeout:.0f} s"
+                self.events.log("timeout", seconds=timeout)
+                return
+            try:
+                msg = await sub.get(min(left, 0.2 if task is not None else 1.0))
+            except TimeoutError:
+                if self.link.heartbeat_age > self.link.heartbeat_timeout:
+                    self.events.log("heartbeat_lost", age_s=round(self.link.heartbeat_age, 1))
+                continue
+            kind = msg.get_type()
+            t = time.monotonic() - t0
+            if kind == "GLOBAL_POSITION_INT":
+                outcome.track.append((t, msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0))
+            elif kind == "MISSION_ITEM_REACHED":
+                if msg.seq not in outcome.items_reached:
+                    outcome.items_reached.append(msg.seq)
+                    self.events.log("reached", seq=msg.seq, of=goal_seq)
+                if msg.seq == goal_seq and (replanner is None or replanner.near_goal()):
+                    outcome.completed, outcome.reason = True, "goal waypoint reached"
+                    return
+            elif kind == "MISSION_CURRENT" and msg.seq != last_current:
+                last_current = msg.seq
+                self.events.log("current", seq=msg.seq)
+                if msg.seq > goal_seq and (replanner is None or replanner.near_goal()):
+                    # past the goal (its REACHED may have been lost on the link)
+                    outcome.completed, outcome.reason = True, f"mission current item {msg.seq} is past the goal"
+                    return
+            elif kind == "STATUSTEXT":
+                text = msg.text.rstrip("\x00")
+                outcome.statustexts.append(text)
+                self.events.log("statustext", severity=msg.severity, text=text)
+                if "mission complete" in text.lower():
+                    outcome.completed, outcome.reason = True, text
+                    return
+            elif kind == "HEARTBEAT" and not msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED \
+                    and outcome.items_reached:
+                outcome.reason = "vehicle disarmed before the goal"
+                self.events.log("disarmed")
+                return
+
     async def fly(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (), *,
-                  ready_timeout: float = 60.0, flight_timeout: float = 600.0) -> FlightOutcome:
-        """Ready → upload + verify → start → monitor. Raises on link/upload failures (the CLI maps them)."""
+                  ready_timeout: float = 60.0, flight_timeout: float = 600.0,
+                  replanner: LiveReplanner | None = None) -> FlightOutcome:
+        """Ready → upload + verify → start → monitor (and replan, with a ``replanner``). Raises on link/upload
+        failures (the CLI maps them)."""
         out = FlightOutcome(False, "", mission_count=len(items), fence_count=len(fence))
         hb = await self.link.wait_heartbeat(timeout=10.0)
         self.events.log("connected", system=self.link.target_system, autopilot=hb.autopilot,
@@ -214,6 +240,8 @@ class FlightSupervisor:
         first = next(it.seq for it in items if it.command != mavlink.MAV_CMD_NAV_WAYPOINT or it.seq > 0)
         with self.link.subscribe(*self.MONITORED) as sub:
             await self.start(first)
-            await self.monitor(items, flight_timeout, out, sub)
+            if replanner is not None:
+                replanner.mission_started(time.monotonic())
+            await self.monitor(items, flight_timeout, out, sub, replanner)
         self.events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
         return out

@@ -206,20 +206,20 @@ def route_points(route: np.ndarray, s: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return route[seg] + (route[seg + 1] - route[seg]) * frac[:, None], seg
 
 
-def predict_conflicts(route: np.ndarray, speed: float, s_now: float, t_now: float, threats: Threats,
-                      horizon_s: float, d_coll: float, margin: float, dt: float) -> list[Conflict]:
-    """Conflicts of the remaining route with every threat within ``horizon_s``, sorted by time.
+def route_separations(route: np.ndarray, speed: float, s_now: float, t_now: float, threats: Threats,
+                      horizon_s: float, dt: float) -> list[Conflict]:
+    """Closest predicted approach of the remaining route to every threat within ``horizon_s`` (one entry per
+    threat, in ``threats`` order; separation inf when the route has ended or there is nothing to compare).
 
     The vehicle is at along-route distance ``s_now`` (m; for waypoint ``i`` use ``route_distances(route)[i]``)
     at ``t_now`` and flies ``route`` (N, 3) ENU m at ``speed`` m/s. Its positions are sampled every ``dt`` s
     from now until the horizon or the route's end (which is always sampled); each threat's centre (k, M, 3)
-    and radius (k, M) come from ``threats`` at the same M times. Separation = distance − radius (k, M); a
-    threat is in conflict when its minimum separation over the samples is below ``d_coll + margin``, and the
-    conflict reports that sample. Sampling can miss an encounter shorter than a sample: keep
-    ``dt · (speed + threats.max_speed) / 2`` well below ``d_coll + margin``.
+    and radius (k, M) come from ``threats`` at the same M times, in one broadcast. Separation = distance −
+    radius (k, M). Sampling can miss an encounter shorter than a sample: keep
+    ``dt · (speed + threats.max_speed) / 2`` well below the separation you test for.
     """
     if len(threats) == 0 or len(route) < 2:
-        return []
+        return [Conflict(t.id, t_now, float("inf"), (0.0, 0.0, 0.0), 0, s_now) for t in threats.items]
     route = np.asarray(route, dtype=float)
     remaining = max(route_distances(route)[-1] - s_now, 0.0)
     t_end = min(horizon_s, remaining / speed) if speed > 0 else horizon_s
@@ -232,11 +232,18 @@ def predict_conflicts(route: np.ndarray, speed: float, s_now: float, t_now: floa
     sep = np.linalg.norm(centres - pos[None], axis=-1) - threats.radii(times)  # (k, M)
     j = np.argmin(sep, axis=1)  # (k,) sample of closest approach
     min_sep = sep[np.arange(len(threats)), j]
-    hits = np.flatnonzero(min_sep < d_coll + margin)
-    conflicts = [Conflict(threats.items[i].id, float(times[j[i]]), float(min_sep[i]),
-                          tuple(float(c) for c in pos[j[i]]), int(seg[j[i]]),
-                          float(min(s_now + speed * tau[j[i]], s_now + remaining)))
-                 for i in hits]
+    return [Conflict(threats.items[i].id, float(times[j[i]]), float(min_sep[i]),
+                     tuple(float(c) for c in pos[j[i]]), int(seg[j[i]]),
+                     float(min(s_now + speed * tau[j[i]], s_now + remaining)))
+            for i in range(len(threats))]
+
+
+def predict_conflicts(route: np.ndarray, speed: float, s_now: float, t_now: float, threats: Threats,
+                      horizon_s: float, d_coll: float, margin: float, dt: float) -> list[Conflict]:
+    """Conflicts of the remaining route with every threat within ``horizon_s``, sorted by time: the threats
+    whose closest approach (:func:`route_separations`, same arguments) is below ``d_coll + margin``."""
+    conflicts = [c for c in route_separations(route, speed, s_now, t_now, threats, horizon_s, dt)
+                 if c.separation < d_coll + margin]
     conflicts.sort(key=lambda c: c.t)
     for c in conflicts:
         log.info("conflict with %s at t=%.1f s: separation %.1f m", c.threat_id, c.t, c.separation)

@@ -70,6 +70,10 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--arm", action="store_true", help="let the companion arm the vehicle (never without this)")
     fl.add_argument("--no-fence", action="store_true", help="do not upload the no-fly cylinders as a fence")
     fl.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory as waypoints")
+    fl.add_argument("--no-replan", action="store_true",
+                    help="fly the first plan whatever the threats do (no live replanning)")
+    fl.add_argument("--replan-budget", type=float, default=None, metavar="S",
+                    help="wall seconds the planner may use for one live replan (default 0.15)")
     fl.add_argument("--report", type=Path, default=Path("fuseplan-report"), help="report directory")
     fl.add_argument("--scenario-file", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
     fl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
@@ -94,7 +98,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="directory for NAME.jsonl (records, resumable), NAME.md, NAME.csv, PNGs "
                     "(default ./bench-results)")
     bn.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
-    sub.add_parser("demo", help="plan the rescue scenario and fly it on the built-in simulated autopilot at 20x")
+    sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated autopilot "
+                   "at 20x, replanning around an intruder")
     return p
 
 
@@ -309,6 +314,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from companion.errors import CompanionError
     from companion.events import EventLog
     from companion.fly import FlyOptions, fly
+    from companion.replan import ReplanConfig
 
     if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.sim_loss < 1:
         raise FuseplanError("--speedup must be a finite number > 0 and --sim-loss in [0, 1)")
@@ -329,8 +335,14 @@ def cmd_fly(args: argparse.Namespace) -> int:
         print(f"fuseplan: no feasible plan ({doc['status']}); not flying. See {args.report / 'PLAN.json'}",
               file=sys.stderr)
         return EXIT_INFEASIBLE
+    replan_cfg = None
+    if getattr(args, "replan_budget", None) is not None:
+        if not (math.isfinite(args.replan_budget) and args.replan_budget > 0):
+            raise FuseplanError("--replan-budget must be a finite number of seconds > 0")
+        replan_cfg = ReplanConfig(budget_s=args.replan_budget)
     opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
-                      arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report)
+                      arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report,
+                      replan=not getattr(args, "no_replan", False), replan_config=replan_cfg)
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
     try:
         flight = asyncio.run(fly(doc, sc, opts, events))
@@ -349,17 +361,40 @@ def cmd_fly(args: argparse.Namespace) -> int:
     say(f"{'completed' if flight['completed'] else 'NOT completed'}: {flight['reason']}; "
         f"{len(flight['items_reached'])} items reached, upload {flight['upload_s']:.2f} s, "
         f"min clearance {flight['min_clearance_m']:.1f} m; report in {args.report}/")
+    if flight.get("min_separation_m"):
+        seps = ", ".join(f"{k} {v:.1f} m" for k, v in flight["min_separation_m"].items())
+        lat = flight.get("replan_latency_s") or {}
+        say(f"replans {flight['replans']}" + (f" (latency median {lat['median']:.2f} s, max {lat['max']:.2f} s)"
+                                               if lat else "")
+            + f"; min separation (truth): {seps}; d_coll {flight['d_coll_m']:g} m")
     return EXIT_OK if flight["completed"] else EXIT_ABORTED
 
 
+_ECHOED = ("reached", "statustext", "mode", "armed", "upload_verified", "mission_start", "ready", "connected",
+           "finished", "timeout", "heartbeat_lost", "arm_refused", "waiting_for_pilot_arm", "failed", "track",
+           "track_expired", "conflict_predicted", "hold", "resume", "threat_cleared", "replan_upload_failed",
+           "set_current", "replanner_failed")
+
+
 def _echo_event(rec: dict) -> None:
-    """Progress lines for the events a person watching the flight cares about."""
+    """Progress lines for the events a person watching the flight cares about; replans spelled out."""
     e = rec["event"]
     detail = {k: v for k, v in rec.items() if k not in ("t", "event")}
-    if e in ("reached", "statustext", "mode", "armed", "upload_verified", "mission_start", "ready", "connected",
-             "finished", "timeout", "heartbeat_lost", "arm_refused", "waiting_for_pilot_arm", "failed"):
-        text = " ".join(f"{k}={v}" for k, v in detail.items())
-        print(f"  [{rec['t']:6.1f} s] {e} {text}".rstrip(), flush=True)
+    if e == "conflict":
+        text = (f"CONFLICT with {rec['threat']} in {rec['in_s']:.1f} s: predicted separation "
+                f"{rec['separation_m']:.1f} m (d_coll {rec['d_coll_m']:g} m) -> replan {rec['n']}")
+    elif e == "replan_planned":
+        text = (f"replan {rec['n']}: {rec['status']} in {rec['plan_s']:.3f} s from {rec['commit']}, "
+                f"{rec['waypoints']} waypoints, predicted separation {rec['separation_after_m']:.1f} m")
+    elif e == "replanned":
+        text = (f"replan {rec['n']}: new mission current {rec['latency_s']:.3f} s after the conflict was seen "
+                f"(plan {rec['plan_s']:.3f} s, upload+verify+set-current {rec['upload_s']:.3f} s"
+                f"{', vehicle held meanwhile' if rec['held'] else ''})")
+    elif e in _ECHOED:
+        text = f"{e} " + " ".join(f"{k}={v}" for k, v in detail.items())
+    else:
+        return
+    print(f"  [{rec['t']:6.1f} s] {text}".rstrip(), flush=True)
 
 
 def cmd_sim(args: argparse.Namespace) -> int:
@@ -384,12 +419,14 @@ def cmd_sim(args: argparse.Namespace) -> int:
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
-    """fly sitl_scenarios/rescue_static.toml --sim --speedup 20 --report fuseplan-demo/"""
-    here = Path(__file__).resolve().parent.parent / "sitl_scenarios" / "rescue_static.toml"
-    print("fuseplan demo: planning the rescue scenario and flying it on the built-in simulated autopilot")
+    """fly sitl_scenarios/rescue_dynamic.toml --sim --speedup 20 --report fuseplan-demo/"""
+    here = Path(__file__).resolve().parent.parent / "sitl_scenarios" / "rescue_dynamic.toml"
+    print("fuseplan demo: planning the dynamic rescue scenario and flying it on the built-in simulated autopilot "
+          "(20x); an intruder reported over ADS-B will cross the route and the companion replans around it")
     ns = argparse.Namespace(scenario=here, connect=None, sim=True, speedup=20.0, sim_loss=0.0, arm=False,
                             no_fence=False, densify=False, report=Path("fuseplan-demo"), scenario_file=None,
-                            overrides=[], seed=None, algorithm=None, quiet=False)
+                            overrides=[], seed=None, algorithm=None, quiet=False, no_replan=False,
+                            replan_budget=None)
     return cmd_fly(ns)
 
 

@@ -215,6 +215,11 @@ class SimAutopilot:
         return s.x, s.y, s.z
 
     @property
+    def mission_start_time(self) -> float | None:
+        """Simulated time at which the mission first started (the intruders' and scripted threats' t = 0)."""
+        return self._mission_t0
+
+    @property
     def mission_time(self) -> float | None:
         """Simulated seconds since the mission started (intruders are scheduled on this), or None."""
         return None if self._mission_t0 is None else self._sim_time - self._mission_t0

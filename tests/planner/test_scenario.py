@@ -75,8 +75,9 @@ def expect_error(path: Path, field: str, word: str, overrides: tuple[str, ...] =
     return err
 
 
-def test_four_scenarios_are_shipped() -> None:
-    assert {p.stem for p in SHIPPED} == {"rescue_static", "rescue_dynamic", "large_obstacle_field", "mountain_rescue"}
+def test_shipped_scenarios() -> None:
+    assert {p.stem for p in SHIPPED} == {"rescue_static", "rescue_dynamic", "large_obstacle_field", "mountain_rescue",
+                                         "crossing_traffic"}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)

@@ -1,0 +1,454 @@
+"""Live replanning around dynamic threats, the MAVLink part (SPEC §9): watch, predict, plan, swap missions.
+
+Runs beside the supervisor's monitor as its own task with its own subscription. On a predicted conflict:
+
+1. commit point ahead of the vehicle (where it will be when the new mission can be live), planned from there
+   to the goal with the threat picture, warm-started from the old remaining route, within a wall budget;
+2. the new mission keeps every item before the commit point unchanged and is uploaded while the vehicle
+   flies (ArduPilot keeps flying its active item); a guard holds the vehicle (LOITER) if it could finish its
+   active item before the upload is verified, because uploads are not atomic and the next item may be
+   half-written;
+3. verified by readback, then MAV_CMD_DO_SET_MISSION_CURRENT to the commit point if the vehicle's active item
+   was replaced (and MISSION_CURRENT must confirm it), AUTO again if it was held.
+
+A failed upload holds the vehicle and re-uploads; no safe plan holds it and retries until a plan is found or
+the old route is clear again. Every decision goes to the event log.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import multiprocessing
+import time
+from concurrent.futures import ProcessPoolExecutor
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from companion.builder import MissionSpec
+from companion.errors import CommandError, CompanionError, VehicleHolding
+from companion.events import EventLog
+from companion.geo import geodetic_to_enu
+from companion.items import MissionItem
+from companion.link import Link, Message
+from companion.modes import mode_number
+from companion.protocol import MissionClient
+from companion.replan import (
+    MissionRoute,
+    ReplanConfig,
+    VehicleClock,
+    commit_point,
+    replan_problem,
+    replan_settings,
+    splice,
+    warm_starts,
+)
+from companion.threats import TrackPicture, predict_conflicts, route_separations
+from planner.environment import Threats
+from planner.plan import PlanStatus, plan
+from planner.scenario import Scenario
+
+log = logging.getLogger(__name__)
+WATCHED = ("GLOBAL_POSITION_INT", "ADSB_VEHICLE", "MISSION_CURRENT", "MISSION_ITEM_REACHED")
+BAND_INSET_M = 0.5  # a commit point is moved at least this far inside the altitude band
+GOOD = (PlanStatus.EXACT.value, PlanStatus.APPROXIMATE.value)
+
+
+@dataclass(frozen=True)
+class WorkerPlan:
+    """What a replan sends back from the worker process (small: no swarm, no trajectory)."""
+
+    status: str
+    waypoints: np.ndarray
+    violations: dict[str, int]
+    optimiser_s: float
+
+
+def _plan_job(problem: Any, settings: Any, seed: list[int], initial: np.ndarray, budget_s: float) -> WorkerPlan:
+    """One replan in the worker process."""
+    result = plan(problem, settings, np.random.default_rng(seed), initial, budget_s)
+    violations = {k: int(v[0]) for k, v in result.evaluation.violations.items() if int(v[0])}
+    return WorkerPlan(result.status.value, np.asarray(result.waypoints), violations, result.optimiser.time_s)
+
+
+def _warm_up() -> None:
+    """Import and allocate in the worker before the first real replan needs it."""
+    from planner.alloc import tune_allocator
+
+    tune_allocator()
+
+
+class PlanWorker:
+    """A planner in its own process: the companion's event loop (and an in-process simulator) keep running at
+    full speed while it plans, and the planner gets a whole core for its budget."""
+
+    def __init__(self) -> None:
+        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        self._warm = asyncio.get_running_loop().run_in_executor(self._pool, _warm_up)
+        self._overhead_s = 0.03  # running estimate: wall time of a job beyond its optimiser's search
+
+    async def plan(self, problem: Any, settings: Any, seed: list[int], initial: np.ndarray,
+                   budget_s: float) -> WorkerPlan:
+        """Plan within ``budget_s`` of wall time in all: the search gets what the smoothing, the checks and
+        the hand-over to and from the process (measured on earlier jobs) leave of it."""
+        await self._warm
+        loop = asyncio.get_running_loop()
+        t0 = time.monotonic()
+        search = max(budget_s - self._overhead_s, 0.2 * budget_s)
+        out = await loop.run_in_executor(self._pool, _plan_job, problem, settings, seed, initial, search)
+        self._overhead_s = 0.5 * self._overhead_s + 0.5 * max(time.monotonic() - t0 - out.optimiser_s, 0.0)
+        return out
+
+    def close(self) -> None:
+        self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+@dataclass
+class ReplanRecord:
+    """One replan, as written to flight.json and drawn on the report."""
+
+    n: int
+    reason: str
+    threat: str
+    t_mission: float
+    conflict_in_s: float
+    sep_before_m: float
+    sep_after_m: float | None = None
+    plan_status: str = ""
+    plan_s: float = 0.0
+    upload_s: float = 0.0
+    latency_s: float | None = None  # conflict detected → new mission current (wall)
+    held: bool = False
+    outcome: str = ""
+    commit: list[float] = field(default_factory=list)
+    old_route: list[list[float]] = field(default_factory=list)
+    new_route: list[list[float]] = field(default_factory=list)
+
+    def summary(self) -> dict[str, Any]:
+        """The event-log view (routes left out)."""
+        d = {k: v for k, v in self.__dict__.items() if k not in ("old_route", "new_route")}
+        return {k: round(v, 3) if isinstance(v, float) else v for k, v in d.items()}
+
+
+class LiveReplanner:
+    """Watches the flight and replaces the mission when a threat will come too close.
+
+    ``items`` is the verified mission being flown; ``rate`` the vehicle's seconds per wall second if known
+    (our simulator's speed-up), else measured; ``seed`` makes the replans reproducible for a given picture.
+    """
+
+    def __init__(self, link: Link, client: MissionClient, events: EventLog, scenario: Scenario,
+                 spec: MissionSpec, items: Sequence[MissionItem], cfg: ReplanConfig | None = None, *,
+                 rate: float | None = None, seed: int = 0) -> None:
+        self.link, self.client, self.events = link, client, events
+        self.scenario, self.spec = scenario, spec
+        self.cfg = cfg or ReplanConfig()
+        self.clock = VehicleClock(rate)
+        self.tracks = TrackPicture(scenario.home)
+        self.route = MissionRoute.of(items, scenario.home)
+        self.verified: list[list[MissionItem]] = [list(items)]
+        self.records: list[ReplanRecord] = []
+        self.seed = seed
+        self.position: np.ndarray | None = None
+        self.current_seq = 0
+        self._mission_wall: float | None = None  # wall time of the mission start
+        self._mission_t0: float | None = None  # vehicle time of the mission start, once the clock is synced
+        self.holding: str | None = None  # why the vehicle is held, or None
+        self._last_replan = -math.inf  # mission time
+        self._last_check = -math.inf  # wall
+        self._upload_wall_s = 0.05  # running estimate of one verified upload (wall s)
+        self._noted_takeoff_conflict = False
+        self._announced: set[int] = set()
+        self._sub: Any = None
+        self._worker = PlanWorker()  # started now: its imports are done before the first conflict
+
+    # -- picture ------------------------------------------------------------------------------------
+    @property
+    def goal_seq(self) -> int:
+        return self.route.goal_seq
+
+    def mission_started(self, wall: float) -> None:
+        """Call when MISSION_START was accepted (at ``wall``, monotonic s): mission time (the scripted
+        threats' clock) starts there."""
+        self._mission_wall = wall
+
+    @property
+    def mission_t0(self) -> float | None:
+        """Vehicle time of the mission start (None before it, or before any telemetry)."""
+        if self._mission_t0 is None and self._mission_wall is not None and self.clock.synced:
+            self._mission_t0 = self.clock.now(self._mission_wall)
+        return self._mission_t0
+
+    def now(self) -> float:
+        """Mission time (vehicle s since the mission start; vehicle time before it)."""
+        return self.clock.now(time.monotonic()) - (self.mission_t0 or 0.0)
+
+    def near_goal(self) -> bool:
+        """Whether the last position is near the goal: a completion report from before a swap (different
+        numbering) must not end the flight."""
+        if self.position is None:
+            return True
+        return float(np.linalg.norm(self.position - self.route.goal)) < max(
+            5 * self.scenario.vehicle.acceptance_radius, 150.0)
+
+    def observe(self, msg: Message) -> None:
+        kind = msg.get_type()
+        if kind == "GLOBAL_POSITION_INT":
+            self.clock.observe(msg.time_boot_ms, time.monotonic())
+            p = geodetic_to_enu(msg.lat / 1e7, msg.lon / 1e7, self.scenario.home.alt + msg.relative_alt / 1000,
+                                self.scenario.home)
+            self.position = np.array([p[0], p[1], msg.relative_alt / 1000.0])
+        elif kind == "ADSB_VEHICLE" and self.mission_t0 is not None:
+            if self.tracks.update(msg, self.now()) is not None and msg.ICAO_address not in self._announced:
+                self._announced.add(msg.ICAO_address)
+                self.events.log("track", id=f"adsb-{msg.ICAO_address:06x}", callsign=str(msg.callsign))
+        elif kind == "MISSION_CURRENT":
+            self.current_seq = int(msg.seq)
+        elif kind == "MISSION_ITEM_REACHED":
+            self.current_seq = max(self.current_seq, int(msg.seq) + 1)
+
+    def threats(self, now: float) -> Threats:
+        """Scripted threats (mission-time laws) and live ADS-B tracks."""
+        for tid in self.tracks.expire(now, self.cfg.track_max_age_s):
+            self.events.log("track_expired", id=tid)
+        return self.tracks.threats(now, self.cfg.track_radius_m, self.cfg.track_growth_m_s,
+                                   self.scenario.environment.threats)
+
+    @property
+    def speed(self) -> float:
+        return self.scenario.vehicle.cruise_speed
+
+    def remaining(self) -> tuple[np.ndarray, np.ndarray]:
+        assert self.position is not None
+        return self.route.remaining(self.position, max(self.current_seq, int(self.route.seqs[0])))
+
+    def predict(self, now: float, threats: Threats) -> list:
+        route, _ = self.remaining()
+        c = self.cfg
+        return predict_conflicts(route, self.speed, 0.0, now, threats, c.horizon_s, self.scenario.hazard.d_coll,
+                                 c.margin_m, c.sample_dt_s)
+
+    def on_route(self) -> bool:
+        """Flying the route (past the takeoff and the speed item), not holding."""
+        return self.current_seq >= int(self.route.seqs[0]) and self.current_seq <= self.goal_seq
+
+    # -- task ---------------------------------------------------------------------------------------
+    async def run(self) -> None:
+        """Watch until cancelled; raises :class:`VehicleHolding` when no verified mission can be made live."""
+        with self.link.subscribe(*WATCHED) as sub:
+            self._sub = sub
+            while True:
+                try:
+                    self.observe(await sub.get(self.cfg.check_interval_wall_s))
+                except TimeoutError:
+                    pass
+                for msg in sub.drain():
+                    self.observe(msg)
+                wall = time.monotonic()
+                if wall - self._last_check < self.cfg.check_interval_wall_s or self.position is None \
+                        or self.mission_t0 is None:
+                    continue
+                self._last_check = wall
+                await self.step()
+
+    async def aclose(self) -> None:
+        """Stop the planner process (waits for a plan in progress to end, at most its budget)."""
+        await asyncio.to_thread(self._worker.close)
+
+    async def __aenter__(self) -> LiveReplanner:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    def _pump(self) -> None:
+        for msg in self._sub.drain() if self._sub is not None else ():
+            self.observe(msg)
+
+    async def step(self) -> None:
+        """One look at the picture: replan on a conflict, or, while holding, retry or resume."""
+        now = self.now()
+        threats = self.threats(now)
+        if self.holding is not None:
+            if now - self._last_replan >= self.cfg.hold_retry_s:
+                await self._retry_from_hold(now, threats)
+            return
+        if not len(threats) or self.current_seq > self.goal_seq:
+            return
+        conflicts = self.predict(now, threats)
+        if not conflicts:
+            return
+        if not self.on_route():
+            if not self._noted_takeoff_conflict:
+                self._noted_takeoff_conflict = True
+                c = conflicts[0]
+                self.events.log("conflict_predicted", threat=c.threat_id, in_s=round(c.t - now, 1),
+                                separation_m=round(c.separation, 1), note="replanning starts after the takeoff")
+            return
+        if now - self._last_replan < self.cfg.min_interval_s:
+            return
+        await self.replan(conflicts[0], now, threats)
+
+    # -- replanning ---------------------------------------------------------------------------------
+    async def replan(self, conflict: Any, now: float, threats: Threats, lead_m: float | None = None) -> bool:
+        """Plan from a commit point and make the result the live mission; True when it is."""
+        t_detect = time.monotonic()
+        self._last_replan = now
+        cfg = self.cfg
+        rec = ReplanRecord(len(self.records) + 1, "conflict" if conflict is not None else "hold retry",
+                           conflict.threat_id if conflict is not None else "",
+                           round(now, 2), round(conflict.t - now, 2) if conflict is not None else 0.0,
+                           round(conflict.separation, 2) if conflict is not None else math.nan,
+                           held=self.holding is not None)
+        self.records.append(rec)
+        self.events.log("conflict", n=rec.n, threat=rec.threat, in_s=rec.conflict_in_s,
+                        separation_m=rec.sep_before_m, d_coll_m=self.scenario.hazard.d_coll)
+        route, seqs = self.remaining()
+        if lead_m is None:
+            lead_s = (cfg.budget_s + self._upload_wall_s + cfg.check_interval_wall_s) * self.clock.rate \
+                + cfg.lead_margin_s
+            lead_m = lead_s * self.speed
+        current = max(self.current_seq, int(self.route.seqs[0]))
+        cp = commit_point(route, seqs, current, lead_m, self.speed, now)
+        env = self.scenario.environment  # the vehicle's own height may sit a hair outside the band
+        ground = float(env.ground(cp.point[0], cp.point[1]))
+        cp.point[2] = cp.old_tail[0, 2] = np.clip(cp.point[2], ground + env.z_min + BAND_INSET_M,
+                                                  ground + env.z_max - BAND_INSET_M)
+        rec.commit = [round(float(v), 1) for v in cp.point]
+        rec.old_route = cp.old_tail.round(1).tolist()
+        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t)
+        settings = replan_settings(self.scenario.planner, cfg)
+        t0 = time.monotonic()
+        seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
+        job = await self._worker.plan(problem, settings, [self.seed, rec.n], seeds, cfg.budget_s)
+        rec.plan_s = round(time.monotonic() - t0, 3)
+        rec.plan_status = status = job.status
+        new_route = job.waypoints.astype(float)
+        after = route_separations(new_route, self.speed, 0.0, cp.t, threats, cfg.horizon_s, cfg.sample_dt_s)
+        rec.sep_after_m = round(min((c.separation for c in after), default=math.inf), 2)
+        rec.new_route = new_route.round(1).tolist()
+        safe = status in GOOD and rec.sep_after_m >= self.scenario.hazard.d_coll
+        self.events.log("replan_planned", n=rec.n, status=rec.plan_status, plan_s=rec.plan_s,
+                        separation_after_m=rec.sep_after_m, commit=rec.commit, waypoints=len(new_route),
+                        violations=job.violations)
+        if not safe:
+            rec.outcome = "no safe plan: holding"
+            await self.hold(f"no safe plan within {cfg.budget_s:g} s ({rec.plan_status}, predicted separation "
+                            f"{rec.sep_after_m:.0f} m)")
+            rec.held = True
+            return False
+        items = splice(self.route.items, cp.first_new_seq, new_route, self.goal_seq, self.spec)
+        t_up = time.monotonic()
+        await self.swap(items, cp.first_new_seq, rec)
+        rec.upload_s = round(time.monotonic() - t_up, 3)
+        rec.latency_s = round(time.monotonic() - t_detect, 3)
+        rec.outcome = "new mission current"
+        self.events.log("replanned", **rec.summary())
+        return True
+
+    async def swap(self, items: list[MissionItem], first_new_seq: int, rec: ReplanRecord) -> None:
+        """Upload ``items`` while flying and make them the live mission (see the module docstring)."""
+        cfg = self.cfg
+        if self.holding is None and \
+                self._eta_leave_prefix(first_new_seq) < cfg.guard_s + self._upload_wall_s * self.clock.rate:
+            await self.hold("the vehicle would finish its active item before the new mission is verified")
+            rec.held = True
+        for attempt in range(1, cfg.upload_attempts + 1):
+            t0 = time.monotonic()
+            upload = asyncio.create_task(self.client.upload_verified(items), name="replan-upload")
+            try:
+                while not upload.done():
+                    await asyncio.wait({upload}, timeout=0.01)
+                    self._pump()
+                    if self.holding is None and not upload.done() and \
+                            self._eta_leave_prefix(first_new_seq) < cfg.guard_s:
+                        await self.hold("upload not verified yet and the vehicle is about to leave its item")
+                        rec.held = True
+                upload.result()
+            except (CompanionError, TimeoutError) as e:
+                self.events.log("replan_upload_failed", n=rec.n, attempt=attempt, error=str(e))
+                if self.holding is None:  # the stored mission may now be part old, part new
+                    await self.hold("upload failed: the stored mission may be mixed")
+                    rec.held = True
+                if attempt == cfg.upload_attempts:
+                    raise VehicleHolding(f"replan {rec.n}: no verified upload after {attempt} attempts ({e}); "
+                                         "the vehicle is holding") from e
+                continue
+            finally:
+                if not upload.done():
+                    upload.cancel()
+                    with contextlib.suppress(BaseException):
+                        await upload
+            self._upload_wall_s = 0.7 * self._upload_wall_s + 0.3 * (time.monotonic() - t0)
+            break
+        self.route = MissionRoute.of(items, self.scenario.home)
+        self.verified.append(list(items))
+        self.events.log("replan_verified", n=rec.n, items=len(items), first_new=first_new_seq)
+        if self.current_seq >= first_new_seq or self.holding is not None:
+            target = first_new_seq if self.current_seq >= first_new_seq else self.current_seq
+            await self.set_current(target)
+        if self.holding is not None:
+            await self.resume()
+
+    async def set_current(self, seq: int) -> None:
+        """DO_SET_MISSION_CURRENT and wait until MISSION_CURRENT shows it (the vehicle took it)."""
+        with self.link.subscribe("MISSION_CURRENT", predicate=lambda m: m.seq == seq) as sub:
+            await self.client.set_current(seq)
+            try:
+                await sub.get(2.0)
+            except TimeoutError:
+                raise CommandError(0, None, f"MISSION_CURRENT did not confirm item {seq}") from None
+        self.current_seq = seq
+        self.events.log("set_current", seq=seq)
+
+    def _eta_leave_prefix(self, first_new_seq: int) -> float:
+        """Vehicle seconds until it could step into an item at or after ``first_new_seq`` (being rewritten):
+        when it completes item ``first_new_seq − 1``, or its active item if that is already being replaced."""
+        if self.position is None:
+            return math.inf
+        route, seqs = self.remaining()
+        target = max(self.current_seq, first_new_seq - 1)
+        hit = np.flatnonzero(seqs >= target)
+        if not hit.size:
+            return math.inf
+        legs = np.linalg.norm(np.diff(route[:hit[0] + 1], axis=0), axis=1)
+        return max(float(legs.sum()) - self.scenario.vehicle.acceptance_radius, 0.0) / self.speed
+
+    # -- holding ------------------------------------------------------------------------------------
+    async def _mode(self, name: str) -> None:
+        from pymavlink.dialects.v20 import common as mavlink
+
+        custom = mode_number(self.link.autopilot or 0, self.link.vehicle_type or 0, name)
+        params = ((custom >> 16) & 0xFF, (custom >> 24) & 0xFF) \
+            if self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4 else (custom,)
+        await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
+                                       *params)
+
+    async def hold(self, reason: str) -> None:
+        """LOITER where the vehicle is: it stops advancing through the mission."""
+        if self.holding is not None:
+            return
+        await self._mode("LOITER")
+        self.holding = reason
+        self.events.log("hold", reason=reason)
+
+    async def resume(self) -> None:
+        """Back to AUTO: the vehicle continues at the current item."""
+        await self._mode("AUTO")
+        self.events.log("resume", reason=self.holding, seq=self.current_seq)
+        self.holding = None
+
+    async def _retry_from_hold(self, now: float, threats: Threats) -> None:
+        """While holding: resume if the old route is clear again, else plan from here."""
+        self._last_replan = now
+        conflicts = self.predict(now, threats) if len(threats) else []
+        if not conflicts:
+            self.events.log("threat_cleared")
+            await self.resume()
+            return
+        await self.replan(conflicts[0], now, threats, lead_m=0.0)
