@@ -90,6 +90,26 @@ class MissionSpec:
         return math.nan if self.autopilot == "px4" else 0.0
 
 
+COPTER_CLIMB_RATE_M_S = 2.5  # ArduCopter WPNAV_SPEED_UP default (250 cm/s)
+
+
+def time_to_start(scenario: Scenario) -> float:
+    """Estimated mission seconds from MISSION_START to the route's start: the takeoff (a plane climbs
+    straight ahead at its climb limit and cruise speed, a copter straight up) and the leg to the start.
+    Dynamic threats run on mission time, so a flight plan is timed from here (the estimate is within a
+    second of the simulator on rescue_dynamic; replanning absorbs the rest)."""
+    v = scenario.vehicle
+    start = np.asarray(scenario.start, dtype=float)
+    alt = max(v.takeoff_alt, float(start[2]))
+    horizontal = float(np.hypot(start[0], start[1]))
+    if v.type == "plane":
+        climb = alt / (v.cruise_speed * math.sin(v.max_climb))
+        covered = alt / math.tan(v.max_climb)
+    else:
+        climb, covered = alt / COPTER_CLIMB_RATE_M_S, 0.0
+    return climb + max(horizontal - covered, 0.0) / v.cruise_speed
+
+
 def is_home_item(item: MissionItem) -> bool:
     """True for ArduPilot's item 0 (home: NAV_WAYPOINT at seq 0 in an absolute GLOBAL frame)."""
     return item.seq == 0 and item.command == CMD_WAYPOINT and normalise_frame(item.frame) == FRAME_GLOBAL
@@ -287,5 +307,5 @@ def spec_from_plan_json(doc: Mapping[str, Any], vehicle: VehicleLimits | Scenari
 
 __all__ = [
     "Autopilot", "MissionSpec", "build_fence", "build_mission", "is_home_item", "mission_from_plan_json",
-    "mission_waypoint_index", "spec_from_plan_json", "waypoint_items",
+    "mission_waypoint_index", "spec_from_plan_json", "time_to_start", "waypoint_items",
 ]

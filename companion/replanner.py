@@ -48,7 +48,7 @@ from companion.replan import (
     splice,
     warm_starts,
 )
-from companion.threats import TrackPicture, predict_conflicts, route_separations
+from companion.threats import Conflict, TrackPicture, predict_conflicts, route_separations
 from planner.environment import Threats
 from planner.plan import PlanStatus, plan
 from planner.scenario import Scenario
@@ -76,21 +76,24 @@ def _plan_job(problem: Any, settings: Any, seed: list[int], initial: np.ndarray,
     return WorkerPlan(result.status.value, np.asarray(result.waypoints), violations, result.optimiser.time_s)
 
 
-def _warm_up() -> None:
-    """Import and allocate in the worker before the first real replan needs it."""
+def _warm_up(problem: Any, settings: Any) -> None:
+    """Import, allocate and run every code path once in the worker, before the first real replan."""
     from planner.alloc import tune_allocator
 
     tune_allocator()
+    if problem is not None:
+        _plan_job(problem, settings, [0], None, 0.03)
 
 
 class PlanWorker:
     """A planner in its own process: the companion's event loop (and an in-process simulator) keep running at
-    full speed while it plans, and the planner gets a whole core for its budget."""
+    full speed while it plans, and the planner gets a whole core for its budget. ``problem`` and
+    ``settings`` (optional) are planned once, briefly, to warm the worker up."""
 
-    def __init__(self) -> None:
+    def __init__(self, problem: Any = None, settings: Any = None) -> None:
         self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
-        self._warm = asyncio.get_running_loop().run_in_executor(self._pool, _warm_up)
-        self._overhead_s = 0.03  # running estimate: wall time of a job beyond its optimiser's search
+        self._warm = asyncio.get_running_loop().run_in_executor(self._pool, _warm_up, problem, settings)
+        self._overhead_s = 0.035  # running estimate: wall time of a job beyond its optimiser's search
 
     async def plan(self, problem: Any, settings: Any, seed: list[int], initial: np.ndarray,
                    budget_s: float) -> WorkerPlan:
@@ -151,7 +154,8 @@ class LiveReplanner:
         self.clock = VehicleClock(rate)
         self.tracks = TrackPicture(scenario.home)
         self.route = MissionRoute.of(items, scenario.home)
-        self.verified: list[list[MissionItem]] = [list(items)]
+        # every mission known verified on the vehicle, with the (monotonic) time its readback matched
+        self.verified: list[tuple[float, list[MissionItem]]] = [(time.monotonic(), list(items))]
         self.records: list[ReplanRecord] = []
         self.seed = seed
         self.position: np.ndarray | None = None
@@ -165,7 +169,10 @@ class LiveReplanner:
         self._noted_takeoff_conflict = False
         self._announced: set[int] = set()
         self._sub: Any = None
-        self._worker = PlanWorker()  # started now: its imports are done before the first conflict
+        # started now, and warmed up on the whole route, so the first conflict finds it ready
+        self._worker = PlanWorker(
+            replan_problem(scenario, self.route.points[0], self.route.goal, scenario.environment.threats, 0.0),
+            replan_settings(scenario.planner, self.cfg))
 
     # -- picture ------------------------------------------------------------------------------------
     @property
@@ -227,7 +234,7 @@ class LiveReplanner:
         assert self.position is not None
         return self.route.remaining(self.position, max(self.current_seq, int(self.route.seqs[0])))
 
-    def predict(self, now: float, threats: Threats) -> list:
+    def predict(self, now: float, threats: Threats) -> list[Conflict]:
         route, _ = self.remaining()
         c = self.cfg
         return predict_conflicts(route, self.speed, 0.0, now, threats, c.horizon_s, self.scenario.hazard.d_coll,
@@ -295,16 +302,14 @@ class LiveReplanner:
         await self.replan(conflicts[0], now, threats)
 
     # -- replanning ---------------------------------------------------------------------------------
-    async def replan(self, conflict: Any, now: float, threats: Threats, lead_m: float | None = None) -> bool:
+    async def replan(self, conflict: Conflict, now: float, threats: Threats, lead_m: float | None = None) -> bool:
         """Plan from a commit point and make the result the live mission; True when it is."""
         t_detect = time.monotonic()
         self._last_replan = now
         cfg = self.cfg
-        rec = ReplanRecord(len(self.records) + 1, "conflict" if conflict is not None else "hold retry",
-                           conflict.threat_id if conflict is not None else "",
-                           round(now, 2), round(conflict.t - now, 2) if conflict is not None else 0.0,
-                           round(conflict.separation, 2) if conflict is not None else math.nan,
-                           held=self.holding is not None)
+        rec = ReplanRecord(len(self.records) + 1, "conflict" if self.holding is None else "retry while holding",
+                           conflict.threat_id, round(now, 2), round(conflict.t - now, 2),
+                           round(conflict.separation, 2), held=self.holding is not None)
         self.records.append(rec)
         self.events.log("conflict", n=rec.n, threat=rec.threat, in_s=rec.conflict_in_s,
                         separation_m=rec.sep_before_m, d_coll_m=self.scenario.hazard.d_coll)
@@ -387,7 +392,7 @@ class LiveReplanner:
             self._upload_wall_s = 0.7 * self._upload_wall_s + 0.3 * (time.monotonic() - t0)
             break
         self.route = MissionRoute.of(items, self.scenario.home)
-        self.verified.append(list(items))
+        self.verified.append((time.monotonic(), list(items)))
         self.events.log("replan_verified", n=rec.n, items=len(items), first_new=first_new_seq)
         if self.current_seq >= first_new_seq or self.holding is not None:
             target = first_new_seq if self.current_seq >= first_new_seq else self.current_seq

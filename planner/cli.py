@@ -97,6 +97,8 @@ def _parser() -> argparse.ArgumentParser:
     bn.add_argument("-o", "--output", type=Path, default=Path("bench-results"),
                     help="directory for NAME.jsonl (records, resumable), NAME.md, NAME.csv, PNGs "
                     "(default ./bench-results)")
+    bn.add_argument("--speedup", type=float, default=1.0,
+                    help="bench replan only: simulator speed-up (1 = the latency target's condition)")
     bn.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated autopilot "
                    "at 20x, replanning around an intruder")
@@ -218,9 +220,12 @@ def cmd_bench(args: argparse.Namespace) -> int:
     from planner.compare import default_workers
     from planner.scenario import load_scenario
 
+    if args.name == "replan":
+        return cmd_bench_replan(args)
     bench = BENCHES.get(args.name)
     if bench is None:
-        raise FuseplanError(f"unknown bench {args.name!r}; choose from {', '.join(sorted(BENCHES))}")
+        raise FuseplanError(f"unknown bench {args.name!r}; choose from "
+                            f"{', '.join(sorted([*BENCHES, 'replan']))}")
     runs = bench.default_runs if args.runs is None else args.runs
     if runs < 1 or (args.workers is not None and args.workers < 1) or args.seed_base < 0:
         raise FuseplanError("--runs and --workers must be >= 1 and --seed-base >= 0")
@@ -253,9 +258,34 @@ def cmd_bench(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+REPLAN_BENCH_SCENARIOS = ("rescue_dynamic.toml", "crossing_traffic.toml")
+
+
+def cmd_bench_replan(args: argparse.Namespace) -> int:
+    """Replan latency on the simulated autopilot (companion.latency_bench)."""
+    from companion.latency_bench import run_latency_bench
+
+    runs = 5 if args.runs is None else args.runs
+    if runs < 1 or not (math.isfinite(args.speedup) and args.speedup > 0):
+        raise FuseplanError("--runs must be >= 1 and --speedup a finite number > 0")
+    here = Path(__file__).resolve().parent.parent / "sitl_scenarios"
+    plans = [_plan_doc_for(here / name, None, list(args.overrides), None, for_flight=True)
+             for name in REPLAN_BENCH_SCENARIOS]
+    say = (lambda _t: None) if args.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
+    say(f"bench replan: {len(plans)} scenarios × {runs} flights at {args.speedup:g}× until the first replan")
+    try:
+        run_latency_bench(plans, runs, args.speedup, args.output, progress=say)
+    except OSError as e:
+        raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
+    print((args.output / "replan.md").read_text())
+    return EXIT_OK
+
+
 def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str], seed: int | None,
-                  feasible_only: bool = True) -> tuple[dict, object]:
-    """(PLAN.json document, scenario) from a PLAN.json or by planning a scenario TOML now."""
+                  feasible_only: bool = True, for_flight: bool = False) -> tuple[dict, object]:
+    """(PLAN.json document, scenario) from a PLAN.json or by planning a scenario TOML now. ``for_flight``:
+    dynamic threats are timed from the mission start (the vehicle reaches the route's start only after its
+    takeoff), as the companion sees them in flight."""
     from planner.plan import plan, plan_to_json, problem_from_scenario
     from planner.scenario import load_scenario
 
@@ -273,10 +303,16 @@ def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str]
         _check_plan_matches(source, doc, sc)
         return doc, sc
     sc = load_scenario(source, overrides + ([f"planner.seed={seed}"] if seed is not None else []))
-    res = plan(problem_from_scenario(sc), sc.planner, np.random.default_rng(sc.planner.seed), seed=sc.planner.seed)
+    start_time = None
+    if len(sc.environment.threats):
+        from companion.builder import time_to_start
+
+        start_time = time_to_start(sc) if for_flight else 0.0
+    res = plan(problem_from_scenario(sc, start_time), sc.planner, np.random.default_rng(sc.planner.seed),
+               seed=sc.planner.seed)
     if feasible_only and not res.feasible:
         raise FuseplanError(f"{source}: no feasible plan ({res.status.value}); nothing exported")
-    return plan_to_json(res, sc), sc
+    return plan_to_json(res, sc, start_time), sc
 
 
 def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
@@ -327,7 +363,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
         raise FuseplanError(f"{args.report}: cannot create the report directory: {e.strerror or e}") from e
     say = (lambda *_: None) if args.quiet else (lambda text: print(text, flush=True))
     say(f"planning {args.scenario.name} ...")
-    doc, sc = _plan_doc_for(args.scenario, args.scenario_file, overrides, args.seed, feasible_only=False)
+    doc, sc = _plan_doc_for(args.scenario, args.scenario_file, overrides, args.seed, feasible_only=False,
+                            for_flight=True)
     _write(args.report / "PLAN.json", json.dumps(doc, indent=1, allow_nan=False) + "\n")
     say(f"  {doc['status']}: cost {doc['cost']:.1f}, {doc['metrics']['length_m']:.0f} m, "
         f"{doc['metrics']['plan_time_s']:.2f} s")

@@ -187,8 +187,9 @@ def _phases(opt: OptimiserResult) -> dict[str, Any]:
     return {"phases": doc}
 
 
-def plan_to_json(result: PlanResult, scenario: Scenario) -> dict[str, Any]:
-    """The PLAN.json document (see README, "PLAN.json"); strict JSON (non-finite numbers become null)."""
+def plan_to_json(result: PlanResult, scenario: Scenario, start_time: float | None = None) -> dict[str, Any]:
+    """The PLAN.json document (see README, "PLAN.json"); strict JSON (non-finite numbers become null).
+    ``start_time``: the mission time at the start the plan was made for (time-aware threats), if any."""
     ev = result.evaluation
     weights = scenario.planner.weights.by_term()
     traj = result.trajectory
@@ -199,6 +200,7 @@ def plan_to_json(result: PlanResult, scenario: Scenario) -> dict[str, Any]:
         "status": result.status.value,
         "algorithm": result.algorithm,
         "seed": result.seed,
+        "start_time_s": start_time,
         "cost": float(result.cost),
         "cost_terms": {
             **{k: {"value": float(v[0]), "weight": weights[k], "weighted": float(v[0]) * weights[k]}

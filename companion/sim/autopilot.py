@@ -16,6 +16,7 @@ import contextlib
 import dataclasses
 import logging
 import math
+import time
 from typing import Literal
 
 import numpy as np
@@ -92,7 +93,10 @@ class _Events:
         self._ap._text(severity, text)
 
     def current_changed(self, seq: int) -> None:
-        self._ap._send_mission_current()
+        ap = self._ap
+        if ap._nav.active is not None:
+            ap._flown.append((time.monotonic(), ap._sim_time, ap._nav.active))
+        ap._send_mission_current()
 
     def mission_complete(self) -> None:
         self._ap._on_mission_complete()
@@ -148,6 +152,10 @@ class SimAutopilot:
         self._intruder_truth: dict[str, list[tuple[float, float, float, float]]] = {
             i.id: [] for i in scenario.intruders}
         self._reached: list[int] = []
+        self._flown: list[tuple[float, float, MissionItem]] = []
+        self._stall: tuple[int, int] | None = None  # (upload number, first item lost) for inject_upload_stall
+        self._uploads_started = 0
+        self._stall_count = 0
         self._streams = _default_streams()
         self._tasks: list[asyncio.Task[None]] = []
 
@@ -213,6 +221,24 @@ class SimAutopilot:
     def position(self) -> tuple[float, float, float]:
         s = self._model.state
         return s.x, s.y, s.z
+
+    @property
+    def flown_items(self) -> list[tuple[float, float, MissionItem]]:
+        """Every NAV item the vehicle began to fly: (monotonic wall time, sim time, the item as stored)."""
+        return list(self._flown)
+
+    @property
+    def abandoned_uploads(self) -> list[list[MissionItem]]:
+        """The stored mission each time an upload was abandoned part-way (what the vehicle was left with)."""
+        return [list(m) for m in self._server.abandoned]
+
+    def inject_upload_stall(self, upload: int, first_lost: int) -> None:
+        """Fault injection: the ``upload``-th mission upload from now (1 = the next) loses every item from
+        ``first_lost`` on (negative: counted back from its item count), so it stalls part-way and is abandoned
+        after the autopilot's timeout, leaving the items written so far mixed with the old ones (ArduPilot
+        uploads are not atomic)."""
+        self._stall = (self._uploads_started + upload, first_lost)
+        self._stall_count = 0
 
     @property
     def mission_start_time(self) -> float | None:
@@ -410,6 +436,8 @@ class SimAutopilot:
         if target not in (0, self.system_id):
             return
         try:
+            if self._stalled(msg):
+                return
             if self._server.handle(msg, self._sim_time):
                 return
             kind = msg.get_type()
@@ -424,6 +452,20 @@ class SimAutopilot:
                           mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED)
         except Exception:  # a malformed request must not take the simulated vehicle down
             logger.exception("simulator: error handling %s", msg)
+
+    def _stalled(self, msg: mavlink.MAVLink_message) -> bool:
+        """Count mission uploads and lose the items :meth:`inject_upload_stall` asked for."""
+        kind = msg.get_type()
+        if getattr(msg, "mission_type", MISSION) != MISSION:
+            return False
+        if kind == "MISSION_COUNT" and not self._server.receiving(MISSION):
+            self._uploads_started += 1
+            self._stall_count = msg.count
+        elif kind in ("MISSION_ITEM_INT", "MISSION_ITEM") and self._stall is not None \
+                and self._uploads_started == self._stall[0]:
+            first = self._stall[1] if self._stall[1] >= 0 else self._stall_count + self._stall[1]
+            return bool(msg.seq >= first)
+        return False
 
     def _ack(self, msg: mavlink.MAVLink_message, command: int, result: int) -> None:
         self._send(mavlink.MAVLink_command_ack_message(command, result, 0, 0, msg.get_srcSystem(),

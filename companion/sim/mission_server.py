@@ -141,6 +141,7 @@ class MissionServer:
         self.lists: dict[int, list[MissionItem]] = {MISSION: [home_item()], FENCE: []}
         self._uploads: dict[int, _Upload] = {}
         self.completed_uploads = 0
+        self.abandoned: list[list[MissionItem]] = []  # the mission as left by each abandoned upload
 
     @property
     def mission(self) -> list[MissionItem]:
@@ -175,6 +176,8 @@ class MissionServer:
         for mission_type, up in list(self._uploads.items()):
             if now - up.last_receive_t > UPLOAD_TIMEOUT_S:
                 del self._uploads[mission_type]
+                if mission_type == MISSION:
+                    self.abandoned.append(list(self.mission))
                 self._text(mavlink.MAV_SEVERITY_WARNING, "Mission upload timeout")
                 self._ack_to(up.sysid, up.compid, mavlink.MAV_MISSION_OPERATION_CANCELLED, mission_type)
                 logger.info("simulator: upload of type %d abandoned at item %d", mission_type, up.next_seq)

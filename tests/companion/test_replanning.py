@@ -1,0 +1,147 @@
+"""Live replanning end to end: the companion and the simulated autopilot over real UDP on 127.0.0.1.
+
+Each scenario is planned once per module (full settings: the intruders are timed against that plan) and flown
+at 10–20× with and without replanning; separations come from the simulator's truth tracks.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+
+import pytest
+
+from companion.builder import mission_from_plan_json, spec_from_plan_json
+from companion.events import EventLog
+from companion.items import compare_items
+from companion.link import Link
+from companion.protocol import MissionClient
+from companion.replan import ReplanConfig
+from companion.replanner import LiveReplanner
+from companion.sim import SimAutopilot
+from companion.supervisor import FlightSupervisor
+from planner.cli import main
+from planner.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[2]
+DYNAMIC = ROOT / "sitl_scenarios" / "rescue_dynamic.toml"
+CROSSING = ROOT / "sitl_scenarios" / "crossing_traffic.toml"
+
+
+def _plan(tmp_path_factory: pytest.TempPathFactory, scenario: Path) -> Path:
+    """PLAN.json timed for flight, made by `fuseplan fly` itself (it writes PLAN.json before flying): plan
+    with the same code path, then fly that file in every test."""
+    from planner.cli import _plan_doc_for
+
+    doc, _ = _plan_doc_for(scenario, None, [], None, feasible_only=True, for_flight=True)
+    path = tmp_path_factory.mktemp(scenario.stem) / "PLAN.json"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+@pytest.fixture(scope="module")
+def dynamic_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _plan(tmp_path_factory, DYNAMIC)
+
+
+@pytest.fixture(scope="module")
+def crossing_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return _plan(tmp_path_factory, CROSSING)
+
+
+def _fly(plan: Path, report: Path, *extra: str) -> tuple[int, dict, list[dict]]:
+    code = main(["fly", str(plan), "--sim", "--speedup", "20", "--report", str(report), "-q", *extra])
+    flight = json.loads((report / "flight.json").read_text())
+    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    return code, flight, events
+
+
+def _intruder_ids(scenario: Path) -> set[str]:
+    return {i.id for i in load_scenario(scenario).intruders}
+
+
+def test_rescue_dynamic_replans_and_keeps_separation(dynamic_plan: Path, tmp_path: Path) -> None:
+    code, fl, events = _fly(dynamic_plan, tmp_path / "rep")
+    assert code == 0 and fl["completed"] is True
+    assert fl["replans"] >= 1
+    seps = fl["min_separation_m"]
+    assert _intruder_ids(DYNAMIC) <= set(seps)
+    for tid in _intruder_ids(DYNAMIC):
+        assert seps[tid] >= fl["d_coll_m"], (tid, seps[tid])
+    assert fl["replan_latency_s"]["n"] == fl["replans"]
+    names = [e["event"] for e in events]
+    assert names.index("conflict") < names.index("replan_planned") < names.index("replanned")
+    done = [e for e in events if e["event"] == "replanned"]
+    assert all(e["sep_after_m"] >= fl["d_coll_m"] for e in done)
+    assert (tmp_path / "rep" / "track.png").stat().st_size > 0
+
+
+def test_rescue_dynamic_without_replanning_loses_separation(dynamic_plan: Path, tmp_path: Path) -> None:
+    """The control: the same flight with replanning off breaks d_coll, so the test above can fail."""
+    code, fl, events = _fly(dynamic_plan, tmp_path / "rep", "--no-replan")
+    assert code == 0 and fl["replans"] == 0 and fl["replanning"] is False
+    assert not any(e["event"] == "conflict" for e in events)
+    assert min(fl["min_separation_m"][t] for t in _intruder_ids(DYNAMIC)) < fl["d_coll_m"]
+
+
+@pytest.mark.parametrize("replan", [True, False], ids=["replan", "no-replan"])
+def test_two_intruders_in_a_static_field(crossing_plan: Path, tmp_path: Path, replan: bool) -> None:
+    code, fl, _ = _fly(crossing_plan, tmp_path / "rep", *([] if replan else ["--no-replan"]))
+    assert code == 0 and fl["completed"] is True
+    seps = [fl["min_separation_m"][t] for t in sorted(_intruder_ids(CROSSING))]
+    assert len(seps) == 2
+    if replan:
+        assert fl["replans"] >= 1
+        assert min(seps) >= fl["d_coll_m"], seps
+        assert fl["min_clearance_m"] >= fl["d_coll_m"]  # and the static field was respected meanwhile
+    else:
+        assert max(seps) < fl["d_coll_m"], seps  # both intruders would have come too close
+
+
+def _latest_verified(verified: list[tuple[float, list]], t: float) -> list:
+    return [items for tv, items in verified if tv <= t][-1]
+
+
+def test_failed_replan_upload_never_flies_a_mixed_mission(dynamic_plan: Path) -> None:
+    """The first replan's upload loses its last items (the simulator abandons it part-way, leaving old and
+    new items mixed, as ArduPilot does); the companion must hold, re-upload, verify, set current and go on,
+    and the vehicle must never begin an item that was not part of the mission verified at that moment."""
+    doc = json.loads(dynamic_plan.read_text())
+    sc = load_scenario(DYNAMIC)
+
+    async def flight() -> tuple:
+        async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=10.0, seed=3) as sim:
+            sim.inject_upload_stall(upload=2, first_lost=-4)  # upload 1 is the initial mission
+            async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
+                await link.wait_heartbeat(10.0)
+                items = mission_from_plan_json(doc, sc, "ardupilot")
+                spec = spec_from_plan_json(doc, sc, "ardupilot")
+                client = MissionClient(link)
+                events = EventLog()
+                sup = FlightSupervisor(link, client, events, arm=True)
+                async with LiveReplanner(link, client, events, sc, spec, items, ReplanConfig(), rate=10.0,
+                                         seed=1) as rp:
+                    out = await sup.fly(items, (), ready_timeout=30.0, flight_timeout=120.0, replanner=rp)
+                return out, events.records, rp.verified, sim.flown_items, sim.abandoned_uploads, sim.mission
+
+    out, records, verified, flown, abandoned, final = asyncio.run(flight())
+    names = [r["event"] for r in records]
+    assert out.completed, out.reason
+    assert "replan_upload_failed" in names and "hold" in names
+    assert names.index("replan_upload_failed") < names.index("replan_verified") < names.index("resume")
+    # the fault really left a mixed mission on the vehicle: equal to no verified mission
+    assert abandoned
+    for mixed in abandoned:
+        assert all(len(mixed) != len(v) or any(compare_items(a, b) for a, b in zip(v, mixed))
+                   for _t, v in verified)
+    # every item the vehicle began was the verified mission's item at that moment
+    assert len(flown) > 5
+    for t_wall, _t_sim, item in flown:
+        mission = _latest_verified(verified, t_wall)
+        assert item.seq < len(mission), (item.seq, len(mission))
+        assert compare_items(mission[item.seq], item) is None, (item.seq, item)
+    # and the vehicle ends with the last verified mission stored
+    last = verified[-1][1]
+    assert len(final) == len(last)
+    assert all(compare_items(a, b) is None for a, b in zip(last[1:], final[1:]))  # home (item 0) is the vehicle's
