@@ -92,7 +92,10 @@ class Subscription:
         """The next message; raises ``TimeoutError`` after ``timeout`` s, :class:`LinkError` once closed."""
         if self.closed and self._queue.empty():
             raise LinkError("subscription closed")
-        msg = await asyncio.wait_for(self._queue.get(), timeout)
+        # asyncio.timeout, not wait_for: on Python 3.11 wait_for can swallow a cancellation that arrives as the
+        # message does, leaving a cancelled task running for ever (seen with the replanner's watch loop)
+        async with asyncio.timeout(timeout):
+            msg = await self._queue.get()
         if msg is None:  # close() sentinel
             raise LinkError("subscription closed")
         return msg
@@ -437,7 +440,12 @@ class Link:
     async def wait_for(self, *types: str, predicate: Predicate | None = None, timeout: float = 1.5,
                        any_source: bool = False) -> Message:
         """The next matching message; ``TimeoutError`` after ``timeout`` s."""
-        return await asyncio.wait_for(self.expect(*types, predicate=predicate, any_source=any_source), timeout)
+        fut = self.expect(*types, predicate=predicate, any_source=any_source)
+        try:
+            async with asyncio.timeout(timeout):  # not wait_for: see Subscription.get
+                return await fut
+        finally:
+            fut.cancel()
 
     async def wait_heartbeat(self, timeout: float = 5.0) -> Message:
         """The target's HEARTBEAT: the last one if it is fresher than ``heartbeat_timeout``, else the next

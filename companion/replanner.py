@@ -18,12 +18,12 @@ the old route is clear again. Every decision goes to the event log.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import math
 import multiprocessing
 import time
 from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
@@ -91,24 +91,37 @@ class PlanWorker:
     ``settings`` (optional) are planned once, briefly, to warm the worker up."""
 
     def __init__(self, problem: Any = None, settings: Any = None) -> None:
-        self._pool = ProcessPoolExecutor(max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        self._pool: ProcessPoolExecutor | None = ProcessPoolExecutor(
+            max_workers=1, mp_context=multiprocessing.get_context("spawn"))
         self._warm = asyncio.get_running_loop().run_in_executor(self._pool, _warm_up, problem, settings)
+        self._warm.add_done_callback(lambda f: f.cancelled() or f.exception())  # no "never retrieved" noise
         self._overhead_s = 0.035  # running estimate: wall time of a job beyond its optimiser's search
 
     async def plan(self, problem: Any, settings: Any, seed: list[int], initial: np.ndarray,
                    budget_s: float) -> WorkerPlan:
         """Plan within ``budget_s`` of wall time in all: the search gets what the smoothing, the checks and
-        the hand-over to and from the process (measured on earlier jobs) leave of it."""
-        await self._warm
+        the hand-over to and from the process (measured on earlier jobs) leave of it. If the process cannot
+        be started or has died, plans in a thread instead (slower: it shares the interpreter)."""
         loop = asyncio.get_running_loop()
         t0 = time.monotonic()
         search = max(budget_s - self._overhead_s, 0.2 * budget_s)
-        out = await loop.run_in_executor(self._pool, _plan_job, problem, settings, seed, initial, search)
+        args = (problem, settings, seed, initial, search)
+        if self._pool is not None:
+            try:
+                await self._warm
+                out = await loop.run_in_executor(self._pool, _plan_job, *args)
+            except BrokenProcessPool as e:
+                log.warning("planner process failed (%s); planning in a thread from now on", e)
+                self._pool.shutdown(wait=False, cancel_futures=True)
+                self._pool = None
+        if self._pool is None:
+            out = await asyncio.to_thread(_plan_job, *args)
         self._overhead_s = 0.5 * self._overhead_s + 0.5 * max(time.monotonic() - t0 - out.optimiser_s, 0.0)
         return out
 
     def close(self) -> None:
-        self._pool.shutdown(wait=True, cancel_futures=True)
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
 
 
 @dataclass
@@ -385,10 +398,9 @@ class LiveReplanner:
                                          "the vehicle is holding") from e
                 continue
             finally:
-                if not upload.done():
+                if not upload.done():  # we are being cancelled: stop the upload too, keep the cancellation
                     upload.cancel()
-                    with contextlib.suppress(BaseException):
-                        await upload
+                    await asyncio.gather(upload, return_exceptions=True)
             self._upload_wall_s = 0.7 * self._upload_wall_s + 0.3 * (time.monotonic() - t0)
             break
         self.route = MissionRoute.of(items, self.scenario.home)

@@ -7,7 +7,6 @@ to the :class:`EventLog`; the CLI decides what the user sees.
 from __future__ import annotations
 
 import asyncio
-import contextlib
 import logging
 import time
 from collections.abc import Sequence
@@ -27,6 +26,7 @@ log = logging.getLogger(__name__)
 PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
 EKF_GOOD = 0x33F  # attitude, velocities, horizontal/vertical position, predicted positions
 PILOT_ARM_TIMEOUT_S = 600.0
+REPLANNER_STOP_S = 5.0  # wall seconds a cancelled replanner may take to finish (a plan in progress)
 
 
 @dataclass
@@ -167,8 +167,12 @@ class FlightSupervisor:
         finally:
             if task is not None and not task.done():
                 task.cancel()
-                with contextlib.suppress(asyncio.CancelledError):
-                    await task
+                done, _ = await asyncio.wait({task}, timeout=REPLANNER_STOP_S)
+                if not done:
+                    log.error("the replanner did not stop within %.0f s of being cancelled", REPLANNER_STOP_S)
+            if task is not None and task.done() and not task.cancelled() and task.exception() is not None \
+                    and not isinstance(task.exception(), CompanionError):
+                log.error("replanner failed", exc_info=task.exception())
         outcome.flight_s = time.monotonic() - t0
 
     async def _follow(self, sub: Subscription, items: Sequence[MissionItem], timeout: float,

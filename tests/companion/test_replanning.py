@@ -145,3 +145,35 @@ def test_failed_replan_upload_never_flies_a_mixed_mission(dynamic_plan: Path) ->
     last = verified[-1][1]
     assert len(final) == len(last)
     assert all(compare_items(a, b) is None for a, b in zip(last[1:], final[1:]))  # home (item 0) is the vehicle's
+
+
+def test_no_safe_plan_holds_then_resumes_when_the_threat_has_passed(dynamic_plan: Path) -> None:
+    """A budget too small to find any safe route (and no detour seeds): the companion must hold the vehicle
+    rather than fly into the conflict, keep retrying, and resume the (verified, unchanged) mission once the
+    prediction is clear."""
+    doc = json.loads(dynamic_plan.read_text())
+    sc = load_scenario(DYNAMIC)
+    cfg = ReplanConfig(budget_s=0.002, detour_offsets_m=())
+
+    async def flight() -> tuple:
+        async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=10.0, seed=4) as sim:
+            async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
+                await link.wait_heartbeat(10.0)
+                items = mission_from_plan_json(doc, sc, "ardupilot")
+                spec = spec_from_plan_json(doc, sc, "ardupilot")
+                client = MissionClient(link)
+                events = EventLog()
+                sup = FlightSupervisor(link, client, events, arm=True)
+                async with LiveReplanner(link, client, events, sc, spec, items, cfg, rate=10.0, seed=1) as rp:
+                    out = await sup.fly(items, (), ready_timeout=30.0, flight_timeout=150.0, replanner=rp)
+                return out, events.records, rp.verified, sim.flown_items
+
+    out, records, verified, flown = asyncio.run(flight())
+    holds = [r for r in records if r["event"] == "hold"]
+    assert holds and holds[0]["reason"].startswith("no safe plan")
+    names = [r["event"] for r in records]
+    assert names.index("hold") < names.index("threat_cleared") < names.index("resume")
+    assert len(verified) == 1  # nothing was uploaded: the vehicle resumed the mission it had
+    assert out.completed, out.reason
+    for t_wall, _t_sim, item in flown:
+        assert compare_items(_latest_verified(verified, t_wall)[item.seq], item) is None
