@@ -404,6 +404,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
         say(f"replans {flight['replans']}" + (f" (latency median {lat['median']:.2f} s, max {lat['max']:.2f} s)"
                                                if lat else "")
             + f"; min separation (truth): {seps}; d_coll {flight['d_coll_m']:g} m")
+        lost = [k for k, v in flight["min_separation_m"].items() if v < flight["d_coll_m"]]
+        if lost:
+            print(f"fuseplan: warning: separation below d_coll with {', '.join(lost)}"
+                  + (" (replanning was off)" if not flight["replanning"] else ""), file=sys.stderr)
     return EXIT_OK if flight["completed"] else EXIT_ABORTED
 
 
