@@ -5,7 +5,7 @@ from __future__ import annotations
 from pymavlink.dialects.v20 import common as mavlink
 
 ARDUPLANE = {"MANUAL": 0, "AUTO": 10, "RTL": 11, "LOITER": 12, "TAKEOFF": 13, "GUIDED": 15}
-ARDUCOPTER = {"STABILIZE": 0, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6, "LAND": 9}
+ARDUCOPTER = {"STABILIZE": 0, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6, "LAND": 9, "BRAKE": 17}
 # PX4: custom_mode = main << 16 | sub << 24 (px4_custom_mode.h)
 PX4 = {"AUTO": (4 << 16) | (4 << 24), "LOITER": (4 << 16) | (3 << 24), "RTL": (4 << 16) | (5 << 24),
        "HOLD": (4 << 16) | (3 << 24)}
@@ -18,6 +18,14 @@ def mode_number(autopilot: int, vehicle_type: int, name: str) -> int:
     if vehicle_type == mavlink.MAV_TYPE_FIXED_WING:
         return ARDUPLANE[name]
     return ARDUCOPTER[name]
+
+
+def hold_mode(autopilot: int, vehicle_type: int) -> str:
+    """The mode that stops a vehicle where it is without a pilot: ArduPlane LOITER (circles the spot),
+    ArduCopter BRAKE (LOITER would need the pilot's sticks for throttle), PX4 AUTO.LOITER (Hold)."""
+    if autopilot == mavlink.MAV_AUTOPILOT_PX4:
+        return "HOLD"
+    return "LOITER" if vehicle_type == mavlink.MAV_TYPE_FIXED_WING else "BRAKE"
 
 
 def mode_name(autopilot: int, vehicle_type: int, custom_mode: int) -> str:

@@ -45,6 +45,11 @@ class ReplanConfig:
     hold_retry_s: float = 3.0  # while holding: retry planning this often (vehicle s)
     check_interval_wall_s: float = 0.05  # conflict checks at most this often (wall)
 
+    def __post_init__(self) -> None:
+        if not (self.budget_s > 0 and self.population >= 2 and self.upload_attempts >= 1 and self.horizon_s > 0
+                and self.sample_dt_s > 0 and self.guard_s >= 0):
+            raise ValueError(f"invalid replanning settings: {self}")
+
 
 class VehicleClock:
     """Vehicle time in seconds from ``time_boot_ms`` (simulated time in SITL), extrapolated between messages.

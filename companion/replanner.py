@@ -29,6 +29,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
 
 from companion.builder import MissionSpec
 from companion.errors import CommandError, CompanionError, VehicleHolding
@@ -36,9 +37,10 @@ from companion.events import EventLog
 from companion.geo import geodetic_to_enu
 from companion.items import MissionItem
 from companion.link import Link, Message
-from companion.modes import mode_number
+from companion.modes import hold_mode, mode_name, mode_number
 from companion.protocol import MissionClient
 from companion.replan import (
+    CommitPoint,
     MissionRoute,
     ReplanConfig,
     VehicleClock,
@@ -54,7 +56,8 @@ from planner.plan import PlanStatus, plan
 from planner.scenario import Scenario
 
 log = logging.getLogger(__name__)
-WATCHED = ("GLOBAL_POSITION_INT", "ADSB_VEHICLE", "MISSION_CURRENT", "MISSION_ITEM_REACHED")
+WATCHED = ("GLOBAL_POSITION_INT", "ADSB_VEHICLE", "MISSION_CURRENT", "MISSION_ITEM_REACHED", "HEARTBEAT")
+PLANE_EARLY_SWITCH_M = 65.0  # ArduPlane counts a waypoint reached up to this far before it (AUTOPILOT_FACTS)
 BAND_INSET_M = 0.5  # a commit point is moved at least this far inside the altitude band
 GOOD = (PlanStatus.EXACT.value, PlanStatus.APPROXIMATE.value)
 
@@ -179,8 +182,10 @@ class LiveReplanner:
         self._last_replan = -math.inf  # mission time
         self._last_check = -math.inf  # wall
         self._upload_wall_s = 0.05  # running estimate of one verified upload (wall s)
-        self._noted_takeoff_conflict = False
         self._announced: set[int] = set()
+        self.custom_mode: int | None = None  # the vehicle's mode, from HEARTBEAT
+        self.groundspeed = 0.0
+        self._paused_in: int | None = None  # a mode we did not command, while replanning is paused
         self._sub: Any = None
         # started now, and warmed up on the whole route, so the first conflict finds it ready
         self._worker = PlanWorker(
@@ -223,6 +228,9 @@ class LiveReplanner:
             p = geodetic_to_enu(msg.lat / 1e7, msg.lon / 1e7, self.scenario.home.alt + msg.relative_alt / 1000,
                                 self.scenario.home)
             self.position = np.array([p[0], p[1], msg.relative_alt / 1000.0])
+            self.groundspeed = math.hypot(msg.vx, msg.vy) / 100.0
+        elif kind == "HEARTBEAT":
+            self.custom_mode = int(msg.custom_mode)
         elif kind == "ADSB_VEHICLE" and self.mission_t0 is not None:
             if self.tracks.update(msg, self.now()) is not None and msg.ICAO_address not in self._announced:
                 self._announced.add(msg.ICAO_address)
@@ -241,7 +249,36 @@ class LiveReplanner:
 
     @property
     def speed(self) -> float:
+        """Speed for ETAs along the route: the commanded cruise speed."""
         return self.scenario.vehicle.cruise_speed
+
+    def _number(self, name: str) -> int:
+        return mode_number(self.link.autopilot or 0, self.link.vehicle_type or 0, name)
+
+    @property
+    def hold_mode(self) -> str:
+        return hold_mode(self.link.autopilot or 0, self.link.vehicle_type or 0)
+
+    @property
+    def is_arduplane(self) -> bool:
+        return self.link.autopilot != mavlink.MAV_AUTOPILOT_PX4 and \
+            self.link.vehicle_type == mavlink.MAV_TYPE_FIXED_WING
+
+    def in_control(self) -> bool:
+        """The vehicle flies our mission in AUTO, or holds in the mode we put it in. Any other mode (the pilot
+        took over, a failsafe's RTL) belongs to someone else: the replanner then only watches."""
+        if self.custom_mode is None:
+            return True
+        ours = self._number(self.hold_mode) if self.holding is not None else self._number("AUTO")
+        mine = self.custom_mode == ours
+        if not mine and self._paused_in != self.custom_mode:
+            self._paused_in = self.custom_mode
+            self.events.log("replanning_paused", mode=mode_name(self.link.autopilot or 0,
+                                                                 self.link.vehicle_type or 0, self.custom_mode))
+        elif mine and self._paused_in is not None:
+            self._paused_in = None
+            self.events.log("replanning_resumed")
+        return mine
 
     def remaining(self) -> tuple[np.ndarray, np.ndarray]:
         assert self.position is not None
@@ -254,7 +291,7 @@ class LiveReplanner:
                                  c.margin_m, c.sample_dt_s)
 
     def on_route(self) -> bool:
-        """Flying the route (past the takeoff and the speed item), not holding."""
+        """Flying the route (past the takeoff and the speed item): the start waypoint or later."""
         return self.current_seq >= int(self.route.seqs[0]) and self.current_seq <= self.goal_seq
 
     # -- task ---------------------------------------------------------------------------------------
@@ -294,6 +331,8 @@ class LiveReplanner:
         """One look at the picture: replan on a conflict, or, while holding, retry or resume."""
         now = self.now()
         threats = self.threats(now)
+        if not self.in_control():
+            return
         if self.holding is not None:
             if now - self._last_replan >= self.cfg.hold_retry_s:
                 await self._retry_from_hold(now, threats)
@@ -303,12 +342,7 @@ class LiveReplanner:
         conflicts = self.predict(now, threats)
         if not conflicts:
             return
-        if not self.on_route():
-            if not self._noted_takeoff_conflict:
-                self._noted_takeoff_conflict = True
-                c = conflicts[0]
-                self.events.log("conflict_predicted", threat=c.threat_id, in_s=round(c.t - now, 1),
-                                separation_m=round(c.separation, 1), note="replanning starts after the takeoff")
+        if self.current_seq > self.goal_seq:
             return
         if now - self._last_replan < self.cfg.min_interval_s:
             return
@@ -332,7 +366,13 @@ class LiveReplanner:
                 + cfg.lead_margin_s
             lead_m = lead_s * self.speed
         current = max(self.current_seq, int(self.route.seqs[0]))
-        cp = commit_point(route, seqs, current, lead_m, self.speed, now)
+        departing = not self.on_route()
+        if departing:  # still climbing out: the new route starts at the planned start, which stays as it is
+            start = self.route.points[0]
+            cp = CommitPoint(start.copy(), 0.0, now + float(np.linalg.norm(start - route[0])) / self.speed,
+                             int(self.route.seqs[0]) + 1, self.route.points.copy())
+        else:
+            cp = commit_point(route, seqs, current, lead_m, self.speed, now)
         env = self.scenario.environment  # the vehicle's own height may sit a hair outside the band
         ground = float(env.ground(cp.point[0], cp.point[1]))
         cp.point[2] = cp.old_tail[0, 2] = np.clip(cp.point[2], ground + env.z_min + BAND_INSET_M,
@@ -360,21 +400,33 @@ class LiveReplanner:
                             f"{rec.sep_after_m:.0f} m)")
             rec.held = True
             return False
-        items = splice(self.route.items, cp.first_new_seq, new_route, self.goal_seq, self.spec)
+        items = splice(self.route.items, cp.first_new_seq, new_route[1:] if departing else new_route,
+                       self.goal_seq, self.spec)
         t_up = time.monotonic()
-        await self.swap(items, cp.first_new_seq, rec)
+        live = await self.swap(items, cp.first_new_seq, rec)
         rec.upload_s = round(time.monotonic() - t_up, 3)
+        if not live:
+            rec.outcome = "verified but no longer clear: holding"
+            self.events.log("replan_not_live", **rec.summary())
+            return False
         rec.latency_s = round(time.monotonic() - t_detect, 3)
         rec.outcome = "new mission current"
         self.events.log("replanned", **rec.summary())
         return True
 
-    async def swap(self, items: list[MissionItem], first_new_seq: int, rec: ReplanRecord) -> None:
-        """Upload ``items`` while flying and make them the live mission (see the module docstring)."""
+    async def swap(self, items: list[MissionItem], first_new_seq: int, rec: ReplanRecord) -> bool:
+        """Upload ``items`` while flying and make them the live mission (see the module docstring); False
+        when they were verified but are no longer safe to join (the vehicle is then held)."""
         cfg = self.cfg
-        if self.holding is None and \
-                self._eta_leave_prefix(first_new_seq) < cfg.guard_s + self._upload_wall_s * self.clock.rate:
-            await self.hold("the vehicle would finish its active item before the new mission is verified")
+        self._pump()
+        if self.holding is None and not self.is_arduplane:
+            # ArduCopter/Rover re-read the current and next two NAV items from storage as soon as they change,
+            # and PX4's behaviour is not ours to assume: only ArduPlane keeps flying its copy
+            await self.hold("the vehicle would re-read its items from storage during the upload")
+            rec.held = True
+        elif self.holding is None and self._eta_leave_prefix(first_new_seq) < \
+                cfg.guard_s + 2.0 * self._upload_wall_s * self.clock.rate:
+            await self.hold("the vehicle could finish its active item before the new mission is verified")
             rec.held = True
         for attempt in range(1, cfg.upload_attempts + 1):
             t0 = time.monotonic()
@@ -387,6 +439,18 @@ class LiveReplanner:
                             self._eta_leave_prefix(first_new_seq) < cfg.guard_s:
                         await self.hold("upload not verified yet and the vehicle is about to leave its item")
                         rec.held = True
+            except asyncio.CancelledError:
+                # cancelled mid-upload (flight ended, Ctrl-C): the stored mission may be mixed, so hold first
+                upload.cancel()
+                await asyncio.gather(upload, return_exceptions=True)
+                if self.holding is None:
+                    await asyncio.shield(self.hold("cancelled during an upload: the stored mission may be mixed"))
+                raise
+            except BaseException:
+                upload.cancel()
+                await asyncio.gather(upload, return_exceptions=True)
+                raise
+            try:
                 upload.result()
             except (CompanionError, TimeoutError) as e:
                 self.events.log("replan_upload_failed", n=rec.n, attempt=attempt, error=str(e))
@@ -397,20 +461,54 @@ class LiveReplanner:
                     raise VehicleHolding(f"replan {rec.n}: no verified upload after {attempt} attempts ({e}); "
                                          "the vehicle is holding") from e
                 continue
-            finally:
-                if not upload.done():  # we are being cancelled: stop the upload too, keep the cancellation
-                    upload.cancel()
-                    await asyncio.gather(upload, return_exceptions=True)
             self._upload_wall_s = 0.7 * self._upload_wall_s + 0.3 * (time.monotonic() - t0)
             break
         self.route = MissionRoute.of(items, self.scenario.home)
         self.verified.append((time.monotonic(), list(items)))
         self.events.log("replan_verified", n=rec.n, items=len(items), first_new=first_new_seq)
-        if self.current_seq >= first_new_seq or self.holding is not None:
-            target = first_new_seq if self.current_seq >= first_new_seq else self.current_seq
+        self._pump()
+        target = self.current_seq
+        if self.current_seq >= first_new_seq:  # its active item was replaced: join the new route
+            target = self._join_seq(first_new_seq)
+        if not self._clear_from(target):
+            reason = "no safe plan: the new route is no longer clear from where the vehicle is"
+            await self.hold(reason)
+            self.holding = reason  # retried from here like any plan that is not safe
+            rec.held = True
+            if target != self.current_seq:
+                await self.set_current(target)
+            return False
+        if target != self.current_seq:  # else AUTO resumes (restarts) the current, unchanged item by itself
             await self.set_current(target)
         if self.holding is not None:
             await self.resume()
+        return True
+
+    def _join_seq(self, first_new_seq: int) -> int:
+        """The commit point's item, or the next one if the vehicle is already past the commit point (it
+        would otherwise turn back for it)."""
+        seqs, pts = self.route.seqs, self.route.points
+        k = int(np.flatnonzero(seqs == first_new_seq)[0])
+        if self.position is None or k + 1 >= len(seqs):
+            return first_new_seq
+        ahead = pts[k + 1] - pts[k]
+        passed = float(np.dot(self.position - pts[k], ahead)) > self.scenario.vehicle.acceptance_radius * \
+            float(np.linalg.norm(ahead))
+        if passed:
+            self.events.log("commit_point_passed", joining=int(seqs[k + 1]))
+            return int(seqs[k + 1])
+        return first_new_seq
+
+    def _clear_from(self, seq: int) -> bool:
+        """Whether the mission from item ``seq`` on, flown from where the vehicle is now, keeps every threat
+        at d_coll or more (the plan was checked from the commit point at its ETA; this checks the join)."""
+        if self.position is None:
+            return True
+        now = self.now()
+        route, _ = self.route.remaining(self.position, max(seq, int(self.route.seqs[0])))
+        seps = route_separations(route, self.speed, 0.0, now, self.threats(now), self.cfg.horizon_s,
+                                 self.cfg.sample_dt_s)
+        return min((c.separation for c in seps), default=math.inf) >= self.scenario.hazard.d_coll
 
     async def set_current(self, seq: int) -> None:
         """DO_SET_MISSION_CURRENT and wait until MISSION_CURRENT shows it (the vehicle took it)."""
@@ -425,7 +523,8 @@ class LiveReplanner:
 
     def _eta_leave_prefix(self, first_new_seq: int) -> float:
         """Vehicle seconds until it could step into an item at or after ``first_new_seq`` (being rewritten):
-        when it completes item ``first_new_seq − 1``, or its active item if that is already being replaced."""
+        when it completes item ``first_new_seq − 1``, or its active item if that is already being replaced.
+        Pessimistic: the faster of cruise and ground speed, and ArduPlane's early waypoint switching."""
         if self.position is None:
             return math.inf
         route, seqs = self.remaining()
@@ -434,28 +533,39 @@ class LiveReplanner:
         if not hit.size:
             return math.inf
         legs = np.linalg.norm(np.diff(route[:hit[0] + 1], axis=0), axis=1)
-        return max(float(legs.sum()) - self.scenario.vehicle.acceptance_radius, 0.0) / self.speed
+        switch = self.scenario.vehicle.acceptance_radius
+        if self.is_arduplane:
+            switch = max(switch, PLANE_EARLY_SWITCH_M)
+        return max(float(legs.sum()) - switch, 0.0) / max(self.speed, self.groundspeed, 1.0)
+
+    def note_upload(self, seconds: float) -> None:
+        """The initial mission's verified upload took ``seconds`` (wall): the first guess for a replan's."""
+        self._upload_wall_s = max(self._upload_wall_s, float(seconds))
 
     # -- holding ------------------------------------------------------------------------------------
     async def _mode(self, name: str) -> None:
-        from pymavlink.dialects.v20 import common as mavlink
-
-        custom = mode_number(self.link.autopilot or 0, self.link.vehicle_type or 0, name)
+        custom = self._number(name)
         params = ((custom >> 16) & 0xFF, (custom >> 24) & 0xFF) \
             if self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4 else (custom,)
         await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
                                        *params)
+        self.custom_mode = custom  # accepted; the next HEARTBEAT will say so too
 
     async def hold(self, reason: str) -> None:
-        """LOITER where the vehicle is: it stops advancing through the mission."""
+        """Stop the vehicle advancing through its mission where it is (:func:`companion.modes.hold_mode`)."""
         if self.holding is not None:
             return
-        await self._mode("LOITER")
+        await self._mode(self.hold_mode)
         self.holding = reason
-        self.events.log("hold", reason=reason)
+        self.events.log("hold", mode=self.hold_mode, reason=reason)
 
     async def resume(self) -> None:
-        """Back to AUTO: the vehicle continues at the current item."""
+        """Back to AUTO at the current item, unless someone else has changed the mode meanwhile."""
+        if self.custom_mode is not None and self.custom_mode != self._number(self.hold_mode):
+            self.events.log("not_resuming", reason="the mode was changed by someone else",
+                            mode=mode_name(self.link.autopilot or 0, self.link.vehicle_type or 0, self.custom_mode))
+            self.holding = None
+            return
         await self._mode("AUTO")
         self.events.log("resume", reason=self.holding, seq=self.current_seq)
         self.holding = None

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.errors import CommandError, CompanionError, VehicleHolding
+from companion.errors import CommandError, CompanionError
 from companion.events import EventLog
 from companion.items import FENCE, MISSION, MissionItem
 from companion.link import Link, Subscription
@@ -170,9 +170,6 @@ class FlightSupervisor:
                 done, _ = await asyncio.wait({task}, timeout=REPLANNER_STOP_S)
                 if not done:
                     log.error("the replanner did not stop within %.0f s of being cancelled", REPLANNER_STOP_S)
-            if task is not None and task.done() and not task.cancelled() and task.exception() is not None \
-                    and not isinstance(task.exception(), CompanionError):
-                log.error("replanner failed", exc_info=task.exception())
         outcome.flight_s = time.monotonic() - t0
 
     async def _follow(self, sub: Subscription, items: Sequence[MissionItem], timeout: float,
@@ -184,8 +181,16 @@ class FlightSupervisor:
             if task is not None and task.done():
                 exc = task.exception()
                 outcome.reason = str(exc) if exc is not None else "replanner stopped"
-                outcome.holding = isinstance(exc, VehicleHolding)
                 self.events.log("replanner_failed", error=outcome.reason)
+                if exc is not None and not isinstance(exc, CompanionError):
+                    log.error("replanner failed", exc_info=exc)
+                if replanner is not None and replanner.holding is None:
+                    # it saw a conflict it could not resolve, or broke: do not fly on unsupervised into it
+                    try:
+                        await replanner.hold(f"replanner stopped: {outcome.reason}")
+                    except CompanionError as e:
+                        self.events.log("hold_failed", error=str(e))
+                outcome.holding = replanner is not None and replanner.holding is not None
                 return
             goal_seq = replanner.goal_seq if replanner is not None else fixed_goal
             left = timeout - (time.monotonic() - t0)
@@ -240,6 +245,8 @@ class FlightSupervisor:
         self.events.log("connected", system=self.link.target_system, autopilot=hb.autopilot,
                         vehicle_type=hb.type, mode=mode_name(hb.autopilot, hb.type, hb.custom_mode))
         out.upload_s = await self.upload(items, fence)
+        if replanner is not None:
+            replanner.note_upload(out.upload_s)
         await self.wait_ready(ready_timeout)
         first = next(it.seq for it in items if it.command != mavlink.MAV_CMD_NAV_WAYPOINT or it.seq > 0)
         with self.link.subscribe(*self.MONITORED) as sub:
@@ -247,5 +254,7 @@ class FlightSupervisor:
             if replanner is not None:
                 replanner.mission_started(time.monotonic())
             await self.monitor(items, flight_timeout, out, sub, replanner)
+        if replanner is not None and replanner.holding is not None:
+            out.holding = True
         self.events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
         return out

@@ -28,7 +28,7 @@ from planner.scenario import Home
 log = logging.getLogger(__name__)
 
 _EPS = 1e-12  # m²/s², relative speeds below this count as "no relative motion"
-_VERTICAL_VALID = mavlink.ADSB_FLAGS_VALID_VELOCITY | mavlink.ADSB_FLAGS_VERTICAL_VELOCITY_VALID
+_VERTICAL_VALID = mavlink.ADSB_FLAGS_VERTICAL_VELOCITY_VALID
 
 
 # ---------------------------------------------------------------------------------------------------------------

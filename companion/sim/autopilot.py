@@ -26,7 +26,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.items import FRAME_GLOBAL, MISSION, MissionItem
 from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, bearing
 from companion.sim.intruders import IntruderTrack, heading_deg
-from companion.sim.mission_server import MissionServer
+from companion.sim.mission_server import MissionServer, is_nav
 from companion.sim.navigator import Land, Loiter, Navigator, NavTask, ReturnHome, Takeoff, rtl_altitude
 from companion.sim.transport import SimTransport
 from planner.scenario import Scenario
@@ -156,6 +156,7 @@ class SimAutopilot:
         self._stall: tuple[int, int] | None = None  # (upload number, first item lost) for inject_upload_stall
         self._uploads_started = 0
         self._stall_count = 0
+        self._change_signature: tuple | None = None
         self._streams = _default_streams()
         self._tasks: list[asyncio.Task[None]] = []
 
@@ -231,6 +232,11 @@ class SimAutopilot:
     def abandoned_uploads(self) -> list[list[MissionItem]]:
         """The stored mission each time an upload was abandoned part-way (what the vehicle was left with)."""
         return [list(m) for m in self._server.abandoned]
+
+    def force_mode(self, name: str) -> None:
+        """Fault injection: change mode as a failsafe or the pilot would (e.g. "RTL"), not through MAVLink."""
+        if not self._set_mode(self._modes[name]):
+            raise ValueError(f"mode {name!r} refused")
 
     def inject_upload_stall(self, upload: int, first_lost: int) -> None:
         """Fault injection: the ``upload``-th mission upload from now (1 = the next) loses every item from
@@ -333,6 +339,8 @@ class SimAutopilot:
             return
         if self.mode == "AUTO":
             if self._nav.running:
+                if not self.is_plane:
+                    self._detect_mission_change()
                 self._nav.step(self._server.mission, dt)
             elif s.on_ground:
                 model.stay()
@@ -351,6 +359,20 @@ class SimAutopilot:
             model.stay()
         else:
             model.straight(s.z, dt)
+
+    def _detect_mission_change(self) -> None:
+        """ArduCopter (and Rover) in AUTO: when the stored current item or either of the next two NAV items
+        changes (an upload in progress rewriting them), the current item is re-read from storage and restarted
+        (AP_Mission's change detector). ArduPlane keeps flying its copy."""
+        mission = self._server.mission
+        seq = self._nav.current_seq
+        upcoming = [it for it in mission[seq:] if is_nav(it.command)][:3]
+        signature = (seq, tuple(upcoming))
+        previous, self._change_signature = self._change_signature, signature
+        if previous is not None and previous[0] == seq and previous != signature and seq < len(mission):
+            logger.info("simulator: mission changed under item %d: restarting it from storage", seq)
+            self._nav.start(mission, seq)
+            self._change_signature = (self._nav.current_seq, signature[1])
 
     def _item_to_enu(self, item: MissionItem) -> tuple[float, float, float]:
         s = self._model.state

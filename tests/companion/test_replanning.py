@@ -103,48 +103,105 @@ def _latest_verified(verified: list[tuple[float, list]], t: float) -> list:
     return [items for tv, items in verified if tv <= t][-1]
 
 
-def test_failed_replan_upload_never_flies_a_mixed_mission(dynamic_plan: Path) -> None:
-    """The first replan's upload loses its last items (the simulator abandons it part-way, leaving old and
-    new items mixed, as ArduPilot does); the companion must hold, re-upload, verify, set current and go on,
-    and the vehicle must never begin an item that was not part of the mission verified at that moment."""
-    doc = json.loads(dynamic_plan.read_text())
-    sc = load_scenario(DYNAMIC)
+@pytest.fixture(scope="module")
+def dynamic_copter_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from planner.cli import _plan_doc_for
 
-    async def flight() -> tuple:
-        async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=10.0, seed=3) as sim:
-            sim.inject_upload_stall(upload=2, first_lost=-4)  # upload 1 is the initial mission
-            async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
-                await link.wait_heartbeat(10.0)
-                items = mission_from_plan_json(doc, sc, "ardupilot")
-                spec = spec_from_plan_json(doc, sc, "ardupilot")
-                client = MissionClient(link)
-                events = EventLog()
-                sup = FlightSupervisor(link, client, events, arm=True)
-                async with LiveReplanner(link, client, events, sc, spec, items, ReplanConfig(), rate=10.0,
-                                         seed=1) as rp:
-                    out = await sup.fly(items, (), ready_timeout=30.0, flight_timeout=120.0, replanner=rp)
-                return out, events.records, rp.verified, sim.flown_items, sim.abandoned_uploads, sim.mission
+    doc, _ = _plan_doc_for(DYNAMIC, None, COPTER, None, feasible_only=True, for_flight=True)
+    path = tmp_path_factory.mktemp("copter") / "PLAN.json"
+    path.write_text(json.dumps(doc))
+    return path
 
-    out, records, verified, flown, abandoned, final = asyncio.run(flight())
-    names = [r["event"] for r in records]
-    assert out.completed, out.reason
-    assert "replan_upload_failed" in names and "hold" in names
-    assert names.index("replan_upload_failed") < names.index("replan_verified") < names.index("resume")
-    # the fault really left a mixed mission on the vehicle: equal to no verified mission
-    assert abandoned
-    for mixed in abandoned:
-        assert all(len(mixed) != len(v) or any(compare_items(a, b) for a, b in zip(v, mixed))
-                   for _t, v in verified)
-    # every item the vehicle began was the verified mission's item at that moment
+
+COPTER = ['vehicle.type="copter"', 'intruders[0].start_time=30.0']  # same route; the copter climbs vertically, so the intruder comes 20 s later
+
+
+async def _harness(sc, doc: dict, speedup: float, cfg: ReplanConfig, before=None, during=None,
+                   flight_timeout: float = 150.0) -> tuple:
+    """Fly ``doc`` on a simulator with a replanner; ``before(sim)`` runs before the flight, ``during(sim, rp)``
+    concurrently with it. Returns (outcome, event records, verified missions, flown items, sim)."""
+    async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=speedup, seed=3) as sim:
+        if before is not None:
+            before(sim)
+        async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
+            await link.wait_heartbeat(10.0)
+            items = mission_from_plan_json(doc, sc, "ardupilot")
+            spec = spec_from_plan_json(doc, sc, "ardupilot")
+            client = MissionClient(link)
+            events = EventLog()
+            sup = FlightSupervisor(link, client, events, arm=True)
+            async with LiveReplanner(link, client, events, sc, spec, items, cfg, rate=speedup, seed=1) as rp:
+                side = asyncio.create_task(during(sim, rp)) if during is not None else None
+                out = await sup.fly(items, (), ready_timeout=30.0, flight_timeout=flight_timeout, replanner=rp)
+                if side is not None:
+                    side.cancel()
+                    await asyncio.gather(side, return_exceptions=True)
+            return out, events.records, rp.verified, sim.flown_items, sim
+
+
+def _assert_only_verified_items_flown(verified: list, flown: list) -> None:
     assert len(flown) > 5
     for t_wall, _t_sim, item in flown:
         mission = _latest_verified(verified, t_wall)
         assert item.seq < len(mission), (item.seq, len(mission))
         assert compare_items(mission[item.seq], item) is None, (item.seq, item)
+
+
+@pytest.mark.parametrize("vehicle", ["plane", "copter"])
+def test_failed_replan_upload_never_flies_a_mixed_mission(dynamic_plan: Path, dynamic_copter_plan: Path,
+                                                          vehicle: str) -> None:
+    """The first replan's upload loses its last items (the simulator abandons it part-way, leaving old and
+    new items mixed, as ArduPilot does); the companion must hold, re-upload, verify, set current and go on,
+    and the vehicle must never begin an item that was not part of the mission verified at that moment. The
+    simulated copter, like ArduCopter, re-reads its current and next two items from storage when they change
+    during an upload, so it must be held before the upload begins."""
+    plane = vehicle == "plane"
+    doc = json.loads((dynamic_plan if plane else dynamic_copter_plan).read_text())
+    sc = load_scenario(DYNAMIC, [] if plane else COPTER)
+
+    def stall(sim: SimAutopilot) -> None:
+        sim.inject_upload_stall(upload=2, first_lost=-4)  # upload 1 is the initial mission
+
+    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 10.0, ReplanConfig(), before=stall))
+    # the fault really left a mixed mission on the vehicle: equal to no verified mission
+    assert sim.abandoned_uploads
+    for mixed in sim.abandoned_uploads:
+        assert all(len(mixed) != len(v) or any(compare_items(a, b) for a, b in zip(v, mixed))
+                   for _t, v in verified)
+    # every item the vehicle began was the verified mission's item at that moment
+    _assert_only_verified_items_flown(verified, flown)
+    names = [r["event"] for r in records]
+    assert out.completed, out.reason
+    assert "replan_upload_failed" in names and "hold" in names
+    assert names.index("replan_upload_failed") < names.index("replan_verified") < names.index("resume")
+    if not plane:
+        first_hold = next(r for r in records if r["event"] == "hold")
+        assert first_hold["mode"] == "BRAKE" and names.index("hold") < names.index("replan_upload_failed")
     # and the vehicle ends with the last verified mission stored
-    last = verified[-1][1]
+    last, final = verified[-1][1], sim.mission
     assert len(final) == len(last)
     assert all(compare_items(a, b) is None for a, b in zip(last[1:], final[1:]))  # home (item 0) is the vehicle's
+
+
+def test_replanner_leaves_a_failsafe_mode_alone(dynamic_plan: Path) -> None:
+    """A failsafe (or the pilot) puts the vehicle in RTL before the intruder is near: the replanner must not
+    switch it back to AUTO or hold it, only say that replanning is paused."""
+    doc = json.loads(dynamic_plan.read_text())
+    sc = load_scenario(DYNAMIC)
+
+    async def failsafe(sim: SimAutopilot, rp: LiveReplanner) -> None:
+        while sim.mission_time is None or sim.mission_time < 12.0:
+            await asyncio.sleep(0.01)
+        sim.force_mode("RTL")
+
+    out, records, verified, _flown, sim = asyncio.run(
+        _harness(sc, doc, 20.0, ReplanConfig(), during=failsafe, flight_timeout=8.0))  # RTL never completes
+    names = [r["event"] for r in records]
+    assert "replanning_paused" in names
+    after = names[names.index("replanning_paused"):]
+    assert not {"conflict", "hold", "resume", "mode"} & set(after), after
+    assert sim.mode == "RTL" and not out.completed
+    assert len(verified) == 1
 
 
 def test_no_safe_plan_holds_then_resumes_when_the_threat_has_passed(dynamic_plan: Path) -> None:
@@ -155,25 +212,11 @@ def test_no_safe_plan_holds_then_resumes_when_the_threat_has_passed(dynamic_plan
     sc = load_scenario(DYNAMIC)
     cfg = ReplanConfig(budget_s=0.002, detour_offsets_m=())
 
-    async def flight() -> tuple:
-        async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=10.0, seed=4) as sim:
-            async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
-                await link.wait_heartbeat(10.0)
-                items = mission_from_plan_json(doc, sc, "ardupilot")
-                spec = spec_from_plan_json(doc, sc, "ardupilot")
-                client = MissionClient(link)
-                events = EventLog()
-                sup = FlightSupervisor(link, client, events, arm=True)
-                async with LiveReplanner(link, client, events, sc, spec, items, cfg, rate=10.0, seed=1) as rp:
-                    out = await sup.fly(items, (), ready_timeout=30.0, flight_timeout=150.0, replanner=rp)
-                return out, events.records, rp.verified, sim.flown_items
-
-    out, records, verified, flown = asyncio.run(flight())
+    out, records, verified, flown, _sim = asyncio.run(_harness(sc, doc, 10.0, cfg))
     holds = [r for r in records if r["event"] == "hold"]
     assert holds and holds[0]["reason"].startswith("no safe plan")
     names = [r["event"] for r in records]
     assert names.index("hold") < names.index("threat_cleared") < names.index("resume")
     assert len(verified) == 1  # nothing was uploaded: the vehicle resumed the mission it had
     assert out.completed, out.reason
-    for t_wall, _t_sim, item in flown:
-        assert compare_items(_latest_verified(verified, t_wall)[item.seq], item) is None
+    _assert_only_verified_items_flown(verified, flown)

@@ -151,9 +151,13 @@ def adsb(enu, heading_cdeg=9000, speed_cms=2500, ver_cms=100, tslc=0, flags=ALL_
 
 def test_adsb_to_enu_position_and_velocity():
     picture = TrackPicture(HOME)
-    t = picture.update(adsb([300.0, 400, 120]), now=100.0)
+    t = picture.update(adsb([300.0, 400, 120], flags=ALL_VALID | mavlink.ADSB_FLAGS_VERTICAL_VELOCITY_VALID),
+                       now=100.0)
     np.testing.assert_allclose(t.position, [300, 400, 120], atol=0.05)  # 1e-7 deg ≈ 1 cm
     np.testing.assert_allclose(t.velocity, [25, 0, 1], atol=1e-9)  # heading 90° = east, climbing 1 m/s
+    # without the vertical-velocity flag the climb rate is not to be trusted (horizontal velocity still is)
+    t2 = TrackPicture(HOME).update(adsb([300.0, 400, 120]), now=100.0)
+    np.testing.assert_allclose(t2.velocity, [25, 0, 0], atol=1e-9)
     assert t.t_contact == 100.0 and t.callsign == "INTRUDR1" and t.id == "adsb-abc123"
 
 
@@ -190,7 +194,8 @@ def test_expiry_drops_stale_tracks():
 
 def test_threats_from_tracks_merge_with_scripted():
     picture = TrackPicture(HOME)
-    picture.update(adsb([300.0, 400, 120], tslc=2), now=100.0)  # last contact at 98 s
+    picture.update(adsb([300.0, 400, 120], tslc=2, flags=ALL_VALID | mavlink.ADSB_FLAGS_VERTICAL_VELOCITY_VALID),
+                   now=100.0)  # last contact at 98 s
     scripted = Threats(items=(Threat(id="orbit", kind="loiter", radius=50.0, p0=(0.0, 0, 100), speed=10.0,
                                      circle_radius=200.0),))
     threats = picture.threats(now=100.0, base_radius=30.0, growth_per_s=1.5, scripted=scripted)
