@@ -390,10 +390,17 @@ class LiveReplanner:
         after = route_separations(new_route, self.speed, 0.0, cp.t, threats, cfg.horizon_s, cfg.sample_dt_s)
         rec.sep_after_m = round(min((c.separation for c in after), default=math.inf), 2)
         rec.new_route = new_route.round(1).tolist()
-        safe = status in GOOD and rec.sep_after_m >= self.scenario.hazard.d_coll
+        d_coll = self.scenario.hazard.d_coll
+        # good: clear by the margin; else still used if it is safe and better than the route being flown
+        safe = status in GOOD and (rec.sep_after_m >= d_coll + cfg.margin_m
+                                   or rec.sep_after_m >= max(d_coll, conflict.separation))
         self.events.log("replan_planned", n=rec.n, status=rec.plan_status, plan_s=rec.plan_s,
                         separation_after_m=rec.sep_after_m, commit=rec.commit, waypoints=len(new_route),
                         violations=job.violations)
+        if not safe and self.holding is None and conflict.separation >= d_coll:
+            rec.outcome = "no better route: the current one (inside the margin, outside d_coll) is kept"
+            self.events.log("replan_skipped", n=rec.n, reason=rec.outcome)
+            return False
         if not safe:
             rec.outcome = "no safe plan: holding"
             await self.hold(f"no safe plan within {cfg.budget_s:g} s ({rec.plan_status}, predicted separation "
@@ -554,6 +561,11 @@ class LiveReplanner:
     async def hold(self, reason: str) -> None:
         """Stop the vehicle advancing through its mission where it is (:func:`companion.modes.hold_mode`)."""
         if self.holding is not None:
+            return
+        if self.custom_mode is not None and self.custom_mode != self._number("AUTO"):
+            # not flying the mission (a failsafe, the pilot): it cannot step into a mixed item; leave it be
+            self.events.log("not_holding", reason=reason, mode=mode_name(
+                self.link.autopilot or 0, self.link.vehicle_type or 0, self.custom_mode))
             return
         await self._mode(self.hold_mode)
         self.holding = reason

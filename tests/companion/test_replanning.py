@@ -184,13 +184,13 @@ def test_failed_replan_upload_never_flies_a_mixed_mission(dynamic_plan: Path, dy
 
 
 def test_replanner_leaves_a_failsafe_mode_alone(dynamic_plan: Path) -> None:
-    """A failsafe (or the pilot) puts the vehicle in RTL before the intruder is near: the replanner must not
-    switch it back to AUTO or hold it, only say that replanning is paused."""
+    """A failsafe (or the pilot) puts the vehicle in RTL before the intruder shows up: the replanner must not
+    switch it back to AUTO or hold it when the conflict comes, only say that replanning is paused."""
     doc = json.loads(dynamic_plan.read_text())
     sc = load_scenario(DYNAMIC)
 
     async def failsafe(sim: SimAutopilot, rp: LiveReplanner) -> None:
-        while sim.mission_time is None or sim.mission_time < 12.0:
+        while sim.mission_time is None or sim.mission_time < 6.0:  # the intruder is reported from 10 s
             await asyncio.sleep(0.01)
         sim.force_mode("RTL")
 
@@ -199,6 +199,7 @@ def test_replanner_leaves_a_failsafe_mode_alone(dynamic_plan: Path) -> None:
     names = [r["event"] for r in records]
     assert "replanning_paused" in names
     after = names[names.index("replanning_paused"):]
+    assert "track" in after  # the intruder was seen while paused
     assert not {"conflict", "hold", "resume", "mode"} & set(after), after
     assert sim.mode == "RTL" and not out.completed
     assert len(verified) == 1
