@@ -11,8 +11,7 @@ from __future__ import annotations
 import asyncio
 import csv
 import json
-import time
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -45,9 +44,16 @@ class LatencyRun:
     sep_after_m: float
 
 
-async def _one(plan_doc: dict, scenario: Scenario, run: int, speedup: float, cfg: ReplanConfig,
-               timeout_s: float) -> LatencyRun:
-    async with SimAutopilot(scenario, "udpin:127.0.0.1:0", speedup=speedup, seed=run) as sim:
+async def fly_on_sim(plan_doc: dict, scenario: Scenario, *, speedup: float, cfg: ReplanConfig, seed: int,
+                     flight_timeout: float, before: Callable[[SimAutopilot], None] | None = None,
+                     during: Callable[[SimAutopilot, LiveReplanner], Awaitable[None]] | None = None,
+                     stop: Callable[[LiveReplanner], bool] | None = None) -> tuple:
+    """Fly ``plan_doc`` with live replanning on a simulator over UDP on 127.0.0.1. ``before(sim)`` runs
+    before the flight (fault injection), ``during(sim, replanner)`` beside it; ``stop(replanner)`` ends the
+    flight early once true. Returns (outcome or None if stopped, event records, replanner, simulator)."""
+    async with SimAutopilot(scenario, "udpin:127.0.0.1:0", speedup=speedup, seed=seed) as sim:
+        if before is not None:
+            before(sim)
         async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
             await link.wait_heartbeat(10.0)
             items = mission_from_plan_json(plan_doc, scenario, "ardupilot")
@@ -56,17 +62,29 @@ async def _one(plan_doc: dict, scenario: Scenario, run: int, speedup: float, cfg
             events = EventLog()
             sup = FlightSupervisor(link, client, events, arm=True)
             async with LiveReplanner(link, client, events, scenario, spec, items, cfg, rate=speedup,
-                                     seed=run) as rp:
-                flight = asyncio.create_task(sup.fly(items, (), ready_timeout=30.0, flight_timeout=timeout_s,
-                                                     replanner=rp))
-                t0 = time.monotonic()
-                while not flight.done() and time.monotonic() - t0 < timeout_s:
-                    if any(r.latency_s is not None for r in rp.records):
-                        break
-                    await asyncio.sleep(0.05)
-                flight.cancel()
-                await asyncio.gather(flight, return_exceptions=True)
-                done = [r for r in rp.records if r.latency_s is not None]
+                                     seed=seed) as rp:
+                flight = asyncio.create_task(sup.fly(items, (), ready_timeout=30.0,
+                                                     flight_timeout=flight_timeout, replanner=rp))
+                side = asyncio.create_task(during(sim, rp)) if during is not None else None
+                while not flight.done() and not (stop is not None and stop(rp)):
+                    await asyncio.wait({flight}, timeout=0.05)
+                for task in (flight, side):
+                    if task is not None and not task.done():
+                        task.cancel()
+                out = (await asyncio.gather(flight, return_exceptions=True))[0]
+                if side is not None:
+                    await asyncio.gather(side, return_exceptions=True)
+                if isinstance(out, BaseException) and not isinstance(out, asyncio.CancelledError):
+                    raise out
+            return (None if isinstance(out, BaseException) else out), events.records, rp, sim
+
+
+async def _one(plan_doc: dict, scenario: Scenario, run: int, speedup: float, cfg: ReplanConfig,
+               timeout_s: float) -> LatencyRun:
+    _out, _records, rp, _sim = await fly_on_sim(
+        plan_doc, scenario, speedup=speedup, cfg=cfg, seed=run, flight_timeout=timeout_s,
+        stop=lambda r: any(x.latency_s is not None for x in r.records))
+    done = [r for r in rp.records if r.latency_s is not None]
     if not done:
         return LatencyRun(scenario.name, run, speedup, "no replan", False, float("nan"), float("nan"),
                           float("nan"), float("nan"))

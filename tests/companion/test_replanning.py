@@ -12,15 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from companion.builder import mission_from_plan_json, spec_from_plan_json
-from companion.events import EventLog
 from companion.items import compare_items
-from companion.link import Link
-from companion.protocol import MissionClient
+from companion.latency_bench import fly_on_sim
 from companion.replan import ReplanConfig
 from companion.replanner import LiveReplanner
 from companion.sim import SimAutopilot
-from companion.supervisor import FlightSupervisor
 from planner.cli import main
 from planner.scenario import load_scenario
 
@@ -118,25 +114,10 @@ COPTER = ['vehicle.type="copter"', 'intruders[0].start_time=30.0']  # same route
 
 async def _harness(sc, doc: dict, speedup: float, cfg: ReplanConfig, before=None, during=None,
                    flight_timeout: float = 150.0) -> tuple:
-    """Fly ``doc`` on a simulator with a replanner; ``before(sim)`` runs before the flight, ``during(sim, rp)``
-    concurrently with it. Returns (outcome, event records, verified missions, flown items, sim)."""
-    async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=speedup, seed=3) as sim:
-        if before is not None:
-            before(sim)
-        async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
-            await link.wait_heartbeat(10.0)
-            items = mission_from_plan_json(doc, sc, "ardupilot")
-            spec = spec_from_plan_json(doc, sc, "ardupilot")
-            client = MissionClient(link)
-            events = EventLog()
-            sup = FlightSupervisor(link, client, events, arm=True)
-            async with LiveReplanner(link, client, events, sc, spec, items, cfg, rate=speedup, seed=1) as rp:
-                side = asyncio.create_task(during(sim, rp)) if during is not None else None
-                out = await sup.fly(items, (), ready_timeout=30.0, flight_timeout=flight_timeout, replanner=rp)
-                if side is not None:
-                    side.cancel()
-                    await asyncio.gather(side, return_exceptions=True)
-            return out, events.records, rp.verified, sim.flown_items, sim
+    """(outcome, event records, verified missions, flown items, sim) of one flight with replanning."""
+    out, records, rp, sim = await fly_on_sim(doc, sc, speedup=speedup, cfg=cfg, seed=3, before=before,
+                                             during=during, flight_timeout=flight_timeout)
+    return out, records, rp.verified, sim.flown_items, sim
 
 
 def _assert_only_verified_items_flown(verified: list, flown: list) -> None:
@@ -221,3 +202,20 @@ def test_no_safe_plan_holds_then_resumes_when_the_threat_has_passed(dynamic_plan
     assert len(verified) == 1  # nothing was uploaded: the vehicle resumed the mission it had
     assert out.completed, out.reason
     _assert_only_verified_items_flown(verified, flown)
+
+
+def test_replan_latency_bench_writes_its_report(dynamic_plan: Path, tmp_path: Path) -> None:
+    """`fuseplan bench replan`'s machinery on one fast flight: files and columns, no timing asserted (speed
+    targets live in the bench's report, not in tests)."""
+    import csv
+
+    from companion.latency_bench import run_latency_bench
+
+    runs = run_latency_bench([(json.loads(dynamic_plan.read_text()), load_scenario(DYNAMIC))], runs=1,
+                             speedup=10.0, output=tmp_path)
+    assert len(runs) == 1 and runs[0].status in ("exact", "approximate")
+    assert 0 < runs[0].plan_s <= runs[0].latency_s and runs[0].sep_after_m >= 10.0
+    rows = list(csv.DictReader((tmp_path / "replan.csv").open()))
+    assert len(rows) == 1 and rows[0]["scenario"] == "rescue_dynamic"
+    md = (tmp_path / "replan.md").read_text()
+    assert "| rescue_dynamic | 10× | 1 | 1 |" in md
