@@ -23,6 +23,7 @@ from companion.replan import ReplanConfig
 from companion.replanner import LiveReplanner
 from companion.report import plot_track, write_json
 from companion.separation import min_separations
+from companion.signing import SigningKey
 from companion.supervisor import FlightOutcome, FlightSupervisor
 from planner.checks import obstacle_clearance
 from planner.scenario import Scenario
@@ -43,6 +44,7 @@ class FlyOptions:
     source_system: int = 1
     replan: bool = True  # live replanning around dynamic threats (when the scenario has any)
     replan_config: ReplanConfig | None = None  # None: ReplanConfig() defaults
+    signing_key: SigningKey | None = None  # MAVLink 2 signing (our simulator uses the same key)
 
 
 async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, events: EventLog) -> dict[str, Any]:
@@ -52,14 +54,17 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
     sim = None
     if opts.sim:
         sim = SimAutopilot(scenario, listen="udpin:127.0.0.1:0", speedup=opts.speedup, loss=opts.sim_loss,
-                           seed=int(plan_doc.get("seed") or 0))
+                           seed=int(plan_doc.get("seed") or 0), signing_key=opts.signing_key)
         await sim.start()
         url = f"udpout:127.0.0.1:{sim.port}"
         events.log("sim_started", port=sim.port, speedup=opts.speedup, loss=opts.sim_loss)
     else:
         url = opts.connect or ""
     try:
-        async with Link(url, source_system=opts.source_system, open_timeout=10.0) as link:
+        if opts.signing_key is not None:
+            events.log("signing", key=opts.signing_key.fingerprint)
+        async with Link(url, source_system=opts.source_system, open_timeout=10.0,
+                        signing_key=opts.signing_key) as link:
             hb = await link.wait_heartbeat(timeout=15.0)
             autopilot = "px4" if hb.autopilot == mavlink.MAV_AUTOPILOT_PX4 else "ardupilot"
             items = mission_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)

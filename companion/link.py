@@ -28,6 +28,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega
 
 from companion.errors import LinkError
+from companion.signing import SigningKey, enable_signing
 
 log = logging.getLogger(__name__)
 
@@ -155,8 +156,9 @@ class Link:
                  target_system: int | None = None, target_component: int | None = None,
                  baud: int = 57600, heartbeat_interval: float = 1.0, heartbeat_timeout: float = 5.0,
                  reconnect_min: float = 0.5, reconnect_max: float = 8.0, open_timeout: float = 0.0,
-                 dialect: ModuleType = ardupilotmega) -> None:
+                 dialect: ModuleType = ardupilotmega, signing_key: SigningKey | None = None) -> None:
         self.url = url
+        self._signing_key = signing_key  # MAVLink 2 signing: sign all we send, drop unsigned input
         self.source_system = source_system
         self.source_component = source_component
         self.baud = baud
@@ -255,6 +257,8 @@ class Link:
         # auto-switch to MAVLink 2 rewrites os.environ and the global dialect), which we do not want to touch.
         conn.mav = self.dialect.MAVLink(conn, srcSystem=self.source_system, srcComponent=self.source_component)
         conn.mav.robust_parsing = True
+        if self._signing_key is not None:
+            enable_signing(conn.mav, self._signing_key)
         conn.robust_parsing = True
         conn.first_byte = False
         conn.WIRE_PROTOCOL_VERSION = "2.0"

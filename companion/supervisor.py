@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.errors import CommandError, CompanionError
+from companion.errors import CommandError, CompanionError, MissionTimeout, MissionUploadError, MissionVerifyError
 from companion.events import EventLog
 from companion.items import FENCE, MISSION, MissionItem
 from companion.link import Link, Subscription
@@ -26,7 +26,9 @@ log = logging.getLogger(__name__)
 PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
 EKF_GOOD = 0x33F  # attitude, velocities, horizontal/vertical position, predicted positions
 PILOT_ARM_TIMEOUT_S = 600.0
-REPLANNER_STOP_S = 5.0  # wall seconds a cancelled replanner may take to finish (a plan in progress)
+REPLANNER_STOP_S = 5.0
+UPLOAD_ATTEMPTS = 3  # whole verified uploads tried before the flight when the link breaks one
+CANCELLED = mavlink.MAV_MISSION_OPERATION_CANCELLED  # wall seconds a cancelled replanner may take to finish (a plan in progress)
 
 
 @dataclass
@@ -81,13 +83,26 @@ class FlightSupervisor:
         self.events.log("ready", **{k: v for k, v in state.items() if v is not None})
 
     # -- upload ------------------------------------------------------------------------------------
-    async def upload(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = ()) -> float:
-        """Upload and verify by readback (mission, then fence if any); returns the seconds it took."""
+    async def upload(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (),
+                     attempts: int = UPLOAD_ATTEMPTS) -> float:
+        """Upload and verify by readback (mission, then fence if any); returns the seconds it took. Before the
+        flight a transfer the link broke (timeout, the autopilot's own timeout cancelling it, a readback that
+        differs) is simply done again, up to ``attempts`` times; a refusal of an item is not."""
         t0 = time.monotonic()
         self.events.log("upload_start", mission_items=len(items), fence_items=len(fence))
-        await self.client.upload_verified(items, MISSION)
-        if fence:
-            await self.client.upload_verified(fence, FENCE)
+        for kind, payload in ((MISSION, items), (FENCE, fence)):
+            if not payload:
+                continue
+            for attempt in range(1, attempts + 1):
+                try:
+                    await self.client.upload_verified(payload, kind)
+                    break
+                except (MissionTimeout, MissionVerifyError, MissionUploadError) as e:
+                    transient = not isinstance(e, MissionUploadError) or e.result == CANCELLED
+                    self.events.log("upload_failed", mission_type=kind, attempt=attempt, error=str(e),
+                                    retrying=transient and attempt < attempts)
+                    if not transient or attempt == attempts:
+                        raise
         dt = time.monotonic() - t0
         self.events.log("upload_verified", seconds=round(dt, 3))
         return dt

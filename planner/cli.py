@@ -70,6 +70,9 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--arm", action="store_true", help="let the companion arm the vehicle (never without this)")
     fl.add_argument("--no-fence", action="store_true", help="do not upload the no-fly cylinders as a fence")
     fl.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory as waypoints")
+    fl.add_argument("--signing-key", type=Path, metavar="FILE",
+                    help="MAVLink 2 signing: a 32-byte key file or a passphrase file (SHA-256, as MAVProxy); "
+                    "sign everything, ignore unsigned input")
     fl.add_argument("--no-replan", action="store_true",
                     help="fly the first plan whatever the threats do (no live replanning)")
     fl.add_argument("--replan-budget", type=float, default=None, metavar="S",
@@ -87,6 +90,7 @@ def _parser() -> argparse.ArgumentParser:
     sm.add_argument("--speedup", type=float, default=1.0)
     sm.add_argument("--loss", type=float, default=0.0, help="packet loss probability")
     sm.add_argument("--latency", type=float, default=0.0, help="extra outgoing latency, s")
+    sm.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key (as for fly)")
     bn = sub.add_parser("bench", help="reproduce one of the paper's experiments (e.g. ablation) and report it")
     bn.add_argument("name", help="which bench (e.g. ablation)")
     bn.add_argument("--runs", type=int, default=None, help="runs per variant (default: the bench's, 30)")
@@ -351,11 +355,13 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from companion.events import EventLog
     from companion.fly import FlyOptions, fly
     from companion.replan import ReplanConfig
+    from companion.signing import SigningKey
 
     if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.sim_loss < 1:
         raise FuseplanError("--speedup must be a finite number > 0 and --sim-loss in [0, 1)")
     if not args.sim and (args.speedup != 1.0 or args.sim_loss):
         raise FuseplanError("--speedup and --sim-loss apply to the built-in simulator (--sim) only")
+    key = SigningKey.load(args.signing_key) if getattr(args, "signing_key", None) else None
     overrides = list(args.overrides) + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else [])
     try:
         args.report.mkdir(parents=True, exist_ok=True)
@@ -379,7 +385,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
         replan_cfg = ReplanConfig(budget_s=args.replan_budget)
     opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
                       arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report,
-                      replan=not getattr(args, "no_replan", False), replan_config=replan_cfg)
+                      replan=not getattr(args, "no_replan", False), replan_config=replan_cfg,
+                      signing_key=key)
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
     try:
         flight = asyncio.run(fly(doc, sc, opts, events))
@@ -441,6 +448,7 @@ def _echo_event(rec: dict) -> None:
 def cmd_sim(args: argparse.Namespace) -> int:
     import asyncio
 
+    from companion.signing import SigningKey
     from companion.sim import serve
     from planner.scenario import load_scenario
 
@@ -451,7 +459,8 @@ def cmd_sim(args: argparse.Namespace) -> int:
     print(f"simulated {sc.vehicle.type} for {sc.name} on {args.listen} (speed-up {args.speedup:g}); Ctrl-C stops",
           flush=True)
     try:
-        asyncio.run(serve(sc, args.listen, args.speedup, args.loss, args.latency))
+        key = SigningKey.load(args.signing_key) if args.signing_key else None
+        asyncio.run(serve(sc, args.listen, args.speedup, args.loss, args.latency, signing_key=key))
     except KeyboardInterrupt:
         pass
     except OSError as e:

@@ -28,6 +28,7 @@ from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, bearing
 from companion.sim.intruders import IntruderTrack, heading_deg
 from companion.sim.mission_server import MissionServer, is_nav
 from companion.sim.navigator import Land, Loiter, Navigator, NavTask, ReturnHome, Takeoff, rtl_altitude
+from companion.signing import SigningKey
 from companion.sim.transport import SimTransport
 from planner.scenario import Scenario
 
@@ -116,7 +117,7 @@ class SimAutopilot:
 
     def __init__(self, scenario: Scenario, listen: str = "udpin:127.0.0.1:14550", speedup: float = 1.0,
                  loss: float = 0.0, latency_s: float = 0.0, seed: int = 0, system_id: int = 1,
-                 vehicle: Literal["plane", "copter"] | None = None) -> None:
+                 vehicle: Literal["plane", "copter"] | None = None, signing_key: SigningKey | None = None) -> None:
         if speedup <= 0.0:
             raise ValueError(f"speedup must be > 0, got {speedup}")
         limits = scenario.vehicle
@@ -130,7 +131,7 @@ class SimAutopilot:
         self._home = scenario.home
         self._rng = np.random.default_rng(seed)
         self._transport = SimTransport(listen, self._on_message, system_id=system_id, component_id=COMPONENT_ID,
-                                       loss=loss, latency_s=latency_s, rng=self._rng)
+                                       loss=loss, latency_s=latency_s, rng=self._rng, signing_key=signing_key)
         start_xy = (float(scenario.start[0]), float(scenario.start[1]))
         heading = bearing(*start_xy) if math.hypot(*start_xy) > 1.0 else 0.0  # "runway" pointing the way out
         self._model = FlightModel(limits, heading)
@@ -713,10 +714,10 @@ class SimAutopilot:
 
 async def serve(scenario: Scenario, listen: str = "udpin:127.0.0.1:14550", speedup: float = 1.0,
                 loss: float = 0.0, latency_s: float = 0.0, until: float | asyncio.Event | None = None,
-                seed: int = 0) -> None:
+                seed: int = 0, signing_key: SigningKey | None = None) -> None:
     """Run a :class:`SimAutopilot` until cancelled, until ``until`` seconds of simulated time have passed (a
     number), or until ``until`` is set (an :class:`asyncio.Event`). Used by ``fuseplan sim``."""
-    async with SimAutopilot(scenario, listen, speedup, loss, latency_s, seed) as sim:
+    async with SimAutopilot(scenario, listen, speedup, loss, latency_s, seed, signing_key=signing_key) as sim:
         logger.info("simulated %s serving on %s (port %d), speed-up %g", sim.vehicle.type, listen, sim.port,
                     speedup)
         if until is None:

@@ -21,6 +21,7 @@ import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.errors import LinkError
+from companion.signing import SigningKey, enable_signing
 
 logger = logging.getLogger(__name__)
 
@@ -60,7 +61,8 @@ class SimTransport:
     """Listening MAVLink endpoint of the simulator; ``on_message`` gets every parsed, not-dropped message."""
 
     def __init__(self, listen: str, on_message: MessageHandler, *, system_id: int, component_id: int,
-                 loss: float = 0.0, latency_s: float = 0.0, rng: np.random.Generator | None = None) -> None:
+                 loss: float = 0.0, latency_s: float = 0.0, rng: np.random.Generator | None = None,
+                 signing_key: SigningKey | None = None) -> None:
         if not 0.0 <= loss < 1.0:
             raise ValueError(f"loss must be in [0, 1), got {loss}")
         if latency_s < 0.0:
@@ -70,9 +72,10 @@ class SimTransport:
         self._loss = loss
         self._latency = latency_s
         self._rng = rng if rng is not None else np.random.default_rng(0)
-        self._packer = new_mavlink(system_id, component_id)
+        self._signing_key = signing_key
+        self._packer = self._mavlink(system_id, component_id)
         self._udp: asyncio.DatagramTransport | None = None
-        self._udp_parser = new_mavlink(system_id, component_id)
+        self._udp_parser = self._mavlink(system_id, component_id)
         self._peer: tuple[str, int] | None = None
         self._server: asyncio.Server | None = None
         self._tcp_clients: dict[asyncio.StreamWriter, asyncio.Task[None]] = {}
@@ -80,6 +83,12 @@ class SimTransport:
         self.port = self.address.port
         self.sent = 0
         self.received = 0
+
+    def _mavlink(self, system_id: int, component_id: int) -> mavlink.MAVLink:
+        mav = new_mavlink(system_id, component_id)
+        if self._signing_key is not None:  # as ArduPilot with a key set: signed out, unsigned in rejected
+            enable_signing(mav, self._signing_key)
+        return mav
 
     @property
     def connected(self) -> bool:
@@ -178,7 +187,7 @@ class SimTransport:
         task = asyncio.current_task()
         assert task is not None
         self._tcp_clients[writer] = task
-        parser = new_mavlink(self._packer.srcSystem, self._packer.srcComponent)
+        parser = self._mavlink(self._packer.srcSystem, self._packer.srcComponent)
         logger.info("simulator: TCP client %s connected", writer.get_extra_info("peername"))
         try:
             while data := await reader.read(4096):
