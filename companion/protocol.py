@@ -203,6 +203,17 @@ class MissionClient:
             raise MissionVerifyError(*diff)
         return got
 
+    async def verify(self, items: Sequence[MissionItem], mission_type: int = MISSION) -> list[MissionItem]:
+        """Download ``mission_type`` and compare it with ``items`` as :meth:`upload_verified` does; returns the
+        readback, raises :class:`MissionVerifyError` on the first difference (e.g. after a link outage)."""
+        expected = [replace(it, seq=i, mission_type=mission_type) for i, it in enumerate(items)]
+        async with self._lock:
+            got = await self._download(mission_type)
+        diff = self._difference(expected, got, self._home_at_zero(mission_type))
+        if diff is not None:
+            raise MissionVerifyError(*diff)
+        return got
+
     def _home_at_zero(self, mission_type: int) -> bool:
         return mission_type == MISSION and self.link.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
 
@@ -249,10 +260,13 @@ class MissionClient:
 
     async def _request(self, sub, request: Message, want: str | tuple[str, ...], wait: float, operation: str,
                        seq: int | None, match=None) -> Message:
-        """Send ``request`` until a ``want`` message (passing ``match``) arrives; MISSION_ACK errors raise."""
+        """Send ``request`` until a ``want`` message (passing ``match``) arrives. MISSION_ACK errors raise,
+        except MAV_MISSION_ERROR, which ArduPilot also sends for a stray item that arrives after an upload (a
+        duplicate on a lossy link): it is taken as an answer to our request only when it keeps coming."""
         want = (want,) if isinstance(want, str) else want
         self.link.send(request)
         misses = 0
+        stray_errors = 0
         start = asyncio.get_running_loop().time()
         while True:
             try:
@@ -265,6 +279,11 @@ class MissionClient:
                 continue
             mtype = msg.get_type()
             if mtype == "MISSION_ACK":
+                if msg.type == mavlink.MAV_MISSION_ERROR and stray_errors < self.retries:
+                    stray_errors += 1
+                    log.debug("MISSION_ACK ERROR during %s (stray item?); asking again", operation)
+                    self.link.send(request)
+                    continue
                 if msg.type != ACCEPTED:
                     raise MissionUploadError(msg.type, seq, operation)
                 continue  # a stale ACK of something else

@@ -107,6 +107,16 @@ class FlightSupervisor:
         self.events.log("upload_verified", seconds=round(dt, 3))
         return dt
 
+    async def resync(self, expected: Sequence[MissionItem]) -> None:
+        """After a link outage, read the mission back before acting again: it must still be the one we
+        verified (nobody else uploaded meanwhile, nothing half-written). A mismatch is an error."""
+        try:
+            got = await self.client.verify(expected, MISSION)
+        except MissionVerifyError as e:
+            self.events.log("resync_mismatch", seq=e.seq, field=e.field)
+            raise
+        self.events.log("resync", items=len(got), result="the vehicle still has our verified mission")
+
     # -- start -------------------------------------------------------------------------------------
     async def set_mode(self, name: str) -> None:
         """MAV_CMD_DO_SET_MODE: ArduPilot takes the custom mode in param2; PX4 its main mode in param2 and
@@ -192,6 +202,7 @@ class FlightSupervisor:
         fixed_goal = max(it.seq for it in items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
         t0 = time.monotonic()
         last_current = None
+        lost_at: float | None = None  # when the link was found lost
         while True:
             if task is not None and task.done():
                 exc = task.exception()
@@ -216,9 +227,16 @@ class FlightSupervisor:
             try:
                 msg = await sub.get(min(left, 0.2 if task is not None else 1.0))
             except TimeoutError:
-                if self.link.heartbeat_age > self.link.heartbeat_timeout:
-                    self.events.log("heartbeat_lost", age_s=round(self.link.heartbeat_age, 1))
+                if self.link.heartbeat_age > self.link.heartbeat_timeout and lost_at is None:
+                    lost_at = time.monotonic()
+                    self.events.log("link_lost", age_s=round(self.link.heartbeat_age, 1),
+                                    decision="the vehicle keeps flying its verified mission; waiting for the link")
                 continue
+            if lost_at is not None and msg.get_type() == "HEARTBEAT":
+                self.events.log("link_restored", outage_s=round(time.monotonic() - lost_at, 1))
+                lost_at = None
+                expected = replanner.verified[-1][1] if replanner is not None else items
+                await self.resync(expected)
             kind = msg.get_type()
             t = time.monotonic() - t0
             if kind == "GLOBAL_POSITION_INT":

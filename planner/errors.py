@@ -7,6 +7,10 @@ class FuseplanError(Exception):
     """Root of all fuseplan errors."""
 
 
+def _one_line(text: str) -> str:
+    return str(text).replace("\r", "\\r").replace("\n", "\\n")
+
+
 class ScenarioError(FuseplanError):
     """A scenario file is missing, malformed or invalid.
 
@@ -17,8 +21,9 @@ class ScenarioError(FuseplanError):
         self.file = str(file)
         self.field = field
         self.reason = reason
-        where = f"{self.file}: {field}" if field else self.file
-        super().__init__(f"{where}: {reason}")
+        # one line whatever the pieces hold (a key or a value from the file may contain line breaks)
+        where = f"{self.file}: {_one_line(field)}" if field else self.file
+        super().__init__(f"{where}: {_one_line(reason)}")
 
     def __reduce__(self):  # noqa: ANN204 - survives pickling across process pools
         return (type(self), (self.file, self.field, self.reason))

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import math
 import re
@@ -296,7 +297,10 @@ def _field_path(loc: tuple[int | str, ...]) -> str:
         elif i > 0 and item in _UNION_TAGS.get(str(loc[0]), ()) and (i == 1 or isinstance(loc[i - 1], int)):
             continue
         else:
-            out += f".{item}" if out else str(item)
+            name = str(item)
+            if not re.fullmatch(r"[A-Za-z0-9_-]+", name):  # a key TOML would have to quote: quote it, one line
+                name = json.dumps(name)
+            out += f".{name}" if out else name
     return out
 
 

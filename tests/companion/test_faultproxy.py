@@ -9,9 +9,11 @@ import pytest
 
 from companion.builder import build_mission, MissionSpec
 from companion.faultproxy import FaultProxy, Faults
+from companion.events import EventLog
 from companion.link import Link
 from companion.protocol import MissionClient
 from companion.sim import SimAutopilot
+from companion.supervisor import FlightSupervisor
 from planner.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -79,7 +81,8 @@ def test_outage_drops_everything_for_its_duration() -> None:
 
 
 def test_corruption_is_caught_by_mavlink_crc() -> None:
-    """Corrupted datagrams reach the other side but fail MAVLink's checksum: a verified upload still works."""
+    """Corrupted datagrams reach the other side but fail MAVLink's checksum (they are dropped, never taken for
+    data): the verified pre-flight upload still ends with the right mission stored."""
     sc = load_scenario(ROOT / "sitl_scenarios" / "rescue_static.toml")
     items = build_mission([[200.0, 200, 50], [500, 600, 80], [800, 800, 50]], MissionSpec("ardupilot", sc.vehicle,
                                                                                           sc.home))
@@ -90,7 +93,8 @@ def test_corruption_is_caught_by_mavlink_crc() -> None:
                                   seed=2) as proxy:
                 async with Link(f"udpout:127.0.0.1:{proxy.port}", open_timeout=5.0) as link:
                     await link.wait_heartbeat(10.0)
-                    await MissionClient(link).upload_verified(items)
+                    # the supervisor's pre-flight upload: redone when the link breaks a transfer
+                    await FlightSupervisor(link, MissionClient(link), EventLog(), arm=False).upload(items)
                     return proxy.counters, sim.mission
 
     counters, stored = asyncio.run(go())
