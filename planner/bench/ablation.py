@@ -9,7 +9,6 @@ whole budget, as in the paper. Writes ``ablation.md``, ``ablation.csv``, ``ablat
 
 from __future__ import annotations
 
-import csv
 import math
 from collections.abc import Sequence
 from pathlib import Path
@@ -27,6 +26,7 @@ from planner.bench.runner import (
     command_line,
     settings_list,
     summarise,
+    write_csv,
 )
 
 COLUMNS = ("cost", "length_m", "time_s", "convergence_iteration", "penalty")
@@ -55,8 +55,8 @@ def _report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSetting
     labels = {v.key: v.label for v in VARIANTS}
     paths = [out_dir / "ablation.csv", out_dir / "ablation_runs.csv", out_dir / "ablation.md",
              out_dir / "ablation.png", out_dir / "ablation_convergence.png"]
-    _write_csv(paths[0], rows, list(rows[0].keys()))
-    _write_csv(paths[1], [{**r, "label": labels[r["variant"]]} for r in records], list(RUN_COLUMNS))
+    write_csv(paths[0], rows, list(rows[0].keys()))
+    write_csv(paths[1], [{**r, "label": labels[r["variant"]]} for r in records], list(RUN_COLUMNS))
     paths[2].write_text(markdown(rows, settings))
     plot_bars(paths[3], rows)
     from planner.compare import plot_convergence
@@ -158,13 +158,6 @@ def markdown(rows: Sequence[dict[str, Any]], settings: BenchSettings) -> str:
               "\"over 99 % performance improvement\" of spherical over Cartesian coding (Fig. 28 text), which "
               "does not match its own +83.3 %; it is not judged here.", ""]
     return "\n".join(lines)
-
-
-def _write_csv(path: Path, rows: Sequence[dict[str, Any]], fields: list[str]) -> None:
-    with path.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=fields, extrasaction="ignore")
-        w.writeheader()
-        w.writerows(rows)
 
 
 def plot_bars(path: Path, rows: Sequence[dict[str, Any]]) -> None:

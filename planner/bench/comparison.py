@@ -12,7 +12,6 @@ per claim), ``NAME.csv`` (mean ± std per algorithm), ``NAME_runs.csv`` (one row
 
 from __future__ import annotations
 
-import csv
 import functools
 import math
 from collections.abc import Callable, Sequence
@@ -22,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from planner.bench.runner import (
+    write_csv,
     SCENARIO_DIR,
     Bench,
     BenchSettings,
@@ -258,13 +258,6 @@ def markdown(name: str, title: str, rows: Sequence[dict[str, Any]], claims: Sequ
     return "\n".join(lines)
 
 
-def _write_csv(path: Path, rows: Sequence[dict[str, Any]], fields: Sequence[str]) -> None:
-    with path.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(fields), extrasaction="ignore")
-        w.writeheader()
-        w.writerows(rows)
-
-
 def _plt():
     import matplotlib
 
@@ -325,8 +318,8 @@ def _report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSetting
     labels = {v.key: v.label for v in VARIANTS}
     paths = [out_dir / f"{name}.csv", out_dir / f"{name}_runs.csv", out_dir / f"{name}.md",
              out_dir / f"{name}.png", out_dir / f"{name}_convergence.png", out_dir / f"{name}_radar.png"]
-    _write_csv(paths[0], rows, list(rows[0].keys()))
-    _write_csv(paths[1], run_rows(records, labels), RUN_COLUMNS)
+    write_csv(paths[0], rows, list(rows[0].keys()))
+    write_csv(paths[1], run_rows(records, labels), RUN_COLUMNS)
     paths[2].write_text(markdown(name, title, rows, claims(rows, records), settings, paper_col, paper_head, notes))
     plot_bars(paths[3], rows)
     plot_convergence(paths[4], [{"algorithm": labels[r["variant"]], "history": list(r["history"])}

@@ -17,7 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.bench.comparison import (ALGORITHMS, BUDGET, CATEGORIES, LABELS, RUN_COLUMNS, _plt, _write_csv,
+from planner.bench.runner import write_csv
+from planner.bench.comparison import (ALGORITHMS, BUDGET, CATEGORIES, LABELS, RUN_COLUMNS, _plt,
                                       run_rows)
 from planner.bench.runner import SCENARIO_DIR, Bench, BenchSettings, Variant, claims_table, command_line, settings_list
 
@@ -135,8 +136,8 @@ def _report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSetting
     rows = table_rows(records)
     paths = [out_dir / "constraints.csv", out_dir / "constraints_runs.csv", out_dir / "constraints.md",
              out_dir / "constraints.png"]
-    _write_csv(paths[0], rows, list(rows[0].keys()))
-    _write_csv(paths[1], run_rows(records, {v.key: v.label for v in VARIANTS}), RUN_COLUMNS)
+    write_csv(paths[0], rows, list(rows[0].keys()))
+    write_csv(paths[1], run_rows(records, {v.key: v.label for v in VARIANTS}), RUN_COLUMNS)
     paths[2].write_text(markdown(rows, settings))
     plot(paths[3], rows)
     return paths

@@ -26,8 +26,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.bench.ablation import _write_csv
 from planner.bench.runner import (
+    write_csv,
     SCENARIO_DIR,
     Bench,
     BenchSettings,
@@ -66,8 +66,8 @@ def _report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSetting
     rows = table_rows(runs)
     paths = [out_dir / "gkdm.csv", out_dir / "gkdm_runs.csv", out_dir / "gkdm.md", out_dir / "gkdm.png",
              out_dir / "gkdm_convergence.png"]
-    _write_csv(paths[0], rows, list(rows[0].keys()))
-    _write_csv(paths[1], runs, list(RUN_COLUMNS))
+    write_csv(paths[0], rows, list(rows[0].keys()))
+    write_csv(paths[1], runs, list(RUN_COLUMNS))
     paths[2].write_text(markdown(rows, target, settings))
     plot_bars(paths[3], rows)
     plot_curves(paths[4], records, target)

@@ -17,8 +17,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.bench.ablation import _write_csv
 from planner.bench.runner import (
+    write_csv,
     SCENARIO_DIR,
     Bench,
     BenchSettings,
@@ -57,8 +57,8 @@ def _report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSetting
     labels = {v.key: v.label for v in VARIANTS}
     paths = [out_dir / f"{NAME}.csv", out_dir / f"{NAME}_runs.csv", out_dir / f"{NAME}.md",
              out_dir / f"{NAME}.png", out_dir / f"{NAME}_convergence.png"]
-    _write_csv(paths[0], rows, list(rows[0].keys()))
-    _write_csv(paths[1], [{**r, "label": labels[r["variant"]]} for r in records], list(RUN_COLUMNS))
+    write_csv(paths[0], rows, list(rows[0].keys()))
+    write_csv(paths[1], [{**r, "label": labels[r["variant"]]} for r in records], list(RUN_COLUMNS))
     paths[2].write_text(markdown(rows, settings, _straight(settings)))
     plot_bars(paths[3], rows)
     from planner.compare import plot_convergence

@@ -8,6 +8,7 @@ bit for bit, whatever the number of workers or the order in which runs finished.
 
 from __future__ import annotations
 
+import csv
 import hashlib
 import json
 import math
@@ -240,3 +241,11 @@ def add_cost_comparison(rows: list[dict[str, Any]], records: Sequence[dict[str, 
         row["delta_cost_pct"] = 100.0 * (row["cost_mean"] - base["cost_mean"]) / base["cost_mean"]
         row["p_ranksums"] = math.nan if row is base else float(ranksums(costs(row["variant"]), ref).pvalue)
     return rows
+
+
+def write_csv(path: Path, rows: Sequence[dict[str, Any]], fields: Sequence[str]) -> None:
+    """One CSV table with the given columns (extra keys in a row are left out)."""
+    with path.open("w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(fields), extrasaction="ignore")
+        w.writeheader()
+        w.writerows(rows)

@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.bench.ablation import _write_csv
+from planner.bench.runner import write_csv
 from planner.bench.runner import SCENARIO_DIR, Bench, BenchSettings, Variant, command_line, settings_list, summarise
 
 BASE = {"n_pop": 250, "max_iter": 100, "n_waypoints": 16, "obstacles": 100}
@@ -88,8 +88,8 @@ def _report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSetting
     for row in rows:
         row["factor"], row["level"] = _split(row["variant"])
     paths = [out_dir / "speed.csv", out_dir / "speed_runs.csv", out_dir / "speed.md", out_dir / "speed.png"]
-    _write_csv(paths[0], rows, list(rows[0].keys()))
-    _write_csv(paths[1], runs, list(RUN_COLUMNS))
+    write_csv(paths[0], rows, list(rows[0].keys()))
+    write_csv(paths[1], runs, list(RUN_COLUMNS))
     paths[2].write_text(markdown(rows, runs, settings))
     plot(paths[3], rows, runs)
     return paths
