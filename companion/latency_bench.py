@@ -9,7 +9,6 @@ included) and upload + readback + set-current. Targets: planning ≤ 150 ms, end
 from __future__ import annotations
 
 import asyncio
-import csv
 import json
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import asdict, dataclass
@@ -25,6 +24,7 @@ from companion.replan import ReplanConfig
 from companion.replanner import LiveReplanner
 from companion.sim import SimAutopilot
 from companion.supervisor import FlightSupervisor
+from planner.bench.runner import write_csv
 from planner.scenario import Scenario
 
 PLAN_TARGET_S = 0.150
@@ -119,11 +119,7 @@ def _pct(values: np.ndarray, q: float) -> float:
 def write_report(results: list[LatencyRun], cfg: ReplanConfig, output: Path) -> list[Path]:
     output.mkdir(parents=True, exist_ok=True)
     csv_path = output / "replan.csv"
-    with csv_path.open("w", newline="") as f:
-        w = csv.DictWriter(f, fieldnames=list(LatencyRun.__dataclass_fields__))
-        w.writeheader()
-        for r in results:
-            w.writerow(asdict(r))
+    write_csv(csv_path, [asdict(r) for r in results], list(LatencyRun.__dataclass_fields__))
     (output / "replan.json").write_text(json.dumps([asdict(r) for r in results], indent=1) + "\n")
     lines = [
         "# Replan latency on the built-in simulated autopilot",
