@@ -7,6 +7,7 @@ protocol client, the exports and the simulated autopilot.
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -99,6 +100,21 @@ def compare_items(sent: MissionItem, got: MissionItem, alt_tol: float = 0.01,
                 return f.name, a, b
         elif a != b:
             return f.name, a, b
+    return None
+
+
+def mission_difference(sent: Sequence[MissionItem], got: Sequence[MissionItem],
+                       home_at_zero: bool = True) -> tuple[int, str, object, object] | None:
+    """First ``(seq, field, sent, got)`` difference between an upload and its readback (or any two missions),
+    or None. ``home_at_zero``: skip item 0, which ArduPilot replaces with its home."""
+    if len(got) != len(sent):
+        return min(len(got), len(sent)), "count", len(sent), len(got)
+    for a, b in zip(sent, got):
+        if home_at_zero and a.seq == 0:
+            continue  # ArduPilot's home: acknowledged, ignored, read back as the real home
+        diff = compare_items(a, b)
+        if diff is not None:
+            return (a.seq, *diff)
     return None
 
 

@@ -30,7 +30,7 @@ from dataclasses import replace
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.errors import CommandError, MissionTimeout, MissionUploadError, MissionVerifyError
-from companion.items import MISSION, MissionItem, compare_items
+from companion.items import MISSION, MissionItem, mission_difference
 from companion.link import Link, Message
 
 log = logging.getLogger(__name__)
@@ -47,6 +47,10 @@ def command_result_name(result: int) -> str:
 def command_name(command: int) -> str:
     entry = mavlink.enums["MAV_CMD"].get(command)
     return entry.name if entry is not None else f"MAV_CMD {command}"
+
+
+DOWNLOAD_RESTARTS = 3  # a stalled download is started again this many times (the last try is patient)
+FINAL_ACK_MISSES = 3  # waits (of ``timeout``) for the final MISSION_ACK before checking by readback
 
 
 class MissionClient:
@@ -98,10 +102,11 @@ class MissionClient:
         async with self._lock:
             await self._upload(items, mission_type)
 
-    async def _upload(self, items: list[MissionItem], mission_type: int) -> None:
+    async def _upload(self, items: list[MissionItem], mission_type: int) -> list[MissionItem] | None:
+        """The upload; returns the readback when one was needed to confirm it (else None)."""
         ambiguous = await self._transfer(items, mission_type)
         if ambiguous is None:
-            return
+            return None
         # The final MISSION_ACK went missing, and our resent last item met an autopilot that had already
         # finished (ArduPilot answers an item outside an upload with MAV_MISSION_ERROR) or nothing answered:
         # only a readback can tell whether the upload completed.
@@ -111,11 +116,12 @@ class MissionClient:
             got = await self._download(mission_type)
         except (MissionTimeout, MissionUploadError):
             got = None
-        if got is None or self._difference(items, got, self._home_at_zero(mission_type)) is not None:
+        if got is None or mission_difference(items, got, self.home_at_zero(mission_type)) is not None:
             if result is None:
                 raise MissionTimeout("upload", seq)
             raise MissionUploadError(result, seq)
         log.info("uploaded %d items (mission type %d; confirmed by readback)", len(items), mission_type)
+        return got
 
     async def _transfer(self, items: list[MissionItem], mission_type: int) -> tuple[int | None, int] | None:
         """The upload exchange: None once the autopilot ACKs it; ``(result or None, seq)`` when the outcome is
@@ -146,6 +152,11 @@ class MissionClient:
                     # on its own clock (ArduPilot: every 1 s, abandoning after 8 s), so give up only when it
                     # has been silent longer than that, whatever our resend count
                     silent = loop.time() - progress
+                    if final_resent and misses >= FINAL_ACK_MISSES:
+                        # the last item went out again and again with no answer at all (MAVSDK and PX4 do not
+                        # answer an item after the transfer ended, ArduPilot would NACK it): the final ACK was
+                        # probably lost, and a readback tells at once
+                        return None, count - 1
                     if (last_sent is None and misses > self.retries and self._give_up(progress)) or (
                             last_sent is not None and silent > self.item_giveup_s):
                         if final_resent:
@@ -193,12 +204,13 @@ class MissionClient:
         target is ArduPilot and this is the MISSION list) skips seq 0, which ArduPilot replaces with home.
         Returns the readback; raises :class:`MissionVerifyError` on the first difference."""
         if home_at_zero is None:
-            home_at_zero = self._home_at_zero(mission_type)
+            home_at_zero = self.home_at_zero(mission_type)
         sent = [replace(it, seq=i, mission_type=mission_type) for i, it in enumerate(items)]
         async with self._lock:
-            await self._upload(sent, mission_type)
-            got = await self._download(mission_type)
-        diff = self._difference(sent, got, home_at_zero)
+            got = await self._upload(sent, mission_type)
+            if got is None:  # (else the upload was already confirmed by a readback)
+                got = await self._download(mission_type)
+        diff = mission_difference(sent, got, home_at_zero)
         if diff is not None:
             raise MissionVerifyError(*diff)
         return got
@@ -209,27 +221,14 @@ class MissionClient:
         expected = [replace(it, seq=i, mission_type=mission_type) for i, it in enumerate(items)]
         async with self._lock:
             got = await self._download(mission_type)
-        diff = self._difference(expected, got, self._home_at_zero(mission_type))
+        diff = mission_difference(expected, got, self.home_at_zero(mission_type))
         if diff is not None:
             raise MissionVerifyError(*diff)
         return got
 
-    def _home_at_zero(self, mission_type: int) -> bool:
+    def home_at_zero(self, mission_type: int) -> bool:
+        """ArduPilot keeps home at item 0 of the mission list (replaced on upload, read back as the real home)."""
         return mission_type == MISSION and self.link.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
-
-    @staticmethod
-    def _difference(sent: Sequence[MissionItem], got: Sequence[MissionItem],
-                    home_at_zero: bool) -> tuple[int, str, object, object] | None:
-        """First ``(seq, field, sent, got)`` difference between an upload and its readback, or None."""
-        if len(got) != len(sent):
-            return min(len(got), len(sent)), "count", len(sent), len(got)
-        for a, b in zip(sent, got):
-            if home_at_zero and a.seq == 0:
-                continue  # ArduPilot's home: acknowledged, ignored, read back as the real home
-            diff = compare_items(a, b)
-            if diff is not None:
-                return (a.seq, *diff)
-        return None
 
     # ------------------------------------------------------------------ download
     async def download(self, mission_type: int = MISSION) -> list[MissionItem]:
@@ -238,6 +237,19 @@ class MissionClient:
             return await self._download(mission_type)
 
     async def _download(self, mission_type: int) -> list[MissionItem]:
+        """The list, started again from MISSION_REQUEST_LIST when an item stops coming: MAVSDK (and PX4) drop
+        a download whose next request they miss too often, and then answer no more item requests; ArduPilot
+        keeps no download state, so starting again costs it only the items already read."""
+        for restart in range(DOWNLOAD_RESTARTS + 1):
+            try:
+                return await self._download_once(mission_type, patient=restart == DOWNLOAD_RESTARTS)
+            except MissionTimeout as e:
+                if restart == DOWNLOAD_RESTARTS or self.link.heartbeat_age > self.link.heartbeat_timeout:
+                    raise
+                log.info("download stalled at item %s; starting it again", e.seq)
+        raise AssertionError("unreachable")
+
+    async def _download_once(self, mission_type: int, patient: bool) -> list[MissionItem]:
         link = self.link
         ts, tc = self._target()
         pred = self._for(mission_type)
@@ -252,17 +264,19 @@ class MissionClient:
                 msg = await self._request(
                     sub, mavlink.MAVLink_mission_request_int_message(ts, tc, seq, mission_type),
                     ("MISSION_ITEM_INT", "MISSION_ITEM"), self.item_timeout, "download", seq,
-                    match=lambda m, seq=seq: m.seq == seq)
+                    match=lambda m, seq=seq: m.seq == seq, patient=patient)
                 got.append(replace(MissionItem.from_message(msg), mission_type=mission_type))
         link.send(mavlink.MAVLink_mission_ack_message(ts, tc, ACCEPTED, mission_type))
         log.info("downloaded %d items (mission type %d)", count, mission_type)
         return got
 
     async def _request(self, sub, request: Message, want: str | tuple[str, ...], wait: float, operation: str,
-                       seq: int | None, match=None) -> Message:
+                       seq: int | None, match=None, patient: bool = True) -> Message:
         """Send ``request`` until a ``want`` message (passing ``match``) arrives. MISSION_ACK errors raise,
         except MAV_MISSION_ERROR, which ArduPilot also sends for a stray item that arrives after an upload (a
-        duplicate on a lossy link): it is taken as an answer to our request only when it keeps coming."""
+        duplicate on a lossy link): it is taken as an answer to our request only when it keeps coming. After
+        ``retries`` unanswered sends, ``patient`` keeps going while the autopilot is alive (up to
+        ``item_giveup_s``); otherwise it gives up at once."""
         want = (want,) if isinstance(want, str) else want
         self.link.send(request)
         misses = 0
@@ -273,7 +287,7 @@ class MissionClient:
                 msg = await sub.get(wait)
             except TimeoutError:
                 misses += 1
-                if misses > self.retries and self._give_up(start):
+                if misses > self.retries and (not patient or self._give_up(start)):
                     raise MissionTimeout(operation, seq) from None
                 self.link.send(request)
                 continue
