@@ -35,6 +35,14 @@ class MissionUploadError(CompanionError):
         where = f" at item {seq}" if seq is not None else ""
         super().__init__(f"mission {operation} refused{where}: {mission_result_name(result)}")
 
+    @property
+    def refused(self) -> bool:
+        """A refusal (of an item or the list), not the autopilot's own timeout cancelling the transfer: doing
+        the same upload again will likely be refused again."""
+        from pymavlink.dialects.v20 import common as mavlink
+
+        return self.result != mavlink.MAV_MISSION_OPERATION_CANCELLED
+
 
 class MissionVerifyError(CompanionError):
     """The readback differs from what was uploaded."""
@@ -42,6 +50,15 @@ class MissionVerifyError(CompanionError):
     def __init__(self, seq: int, field: str, sent: object, got: object) -> None:
         self.seq, self.field, self.sent, self.got = seq, field, sent, got
         super().__init__(f"mission readback differs at item {seq}: {field} sent {sent!r}, got {got!r}")
+
+
+class UploadAborted(CompanionError):
+    """An upload failed for good (``cause``); ``left_with`` says which verified mission the vehicle was left with
+    (the previous one restored, or none if that failed too)."""
+
+    def __init__(self, cause: CompanionError, left_with: str) -> None:
+        self.cause, self.left_with = cause, left_with
+        super().__init__(f"{cause}; {left_with}")
 
 
 class CommandError(CompanionError):

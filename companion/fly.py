@@ -116,7 +116,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     airborne = flown[:, 2] > 1.0 if len(flown) else np.zeros(0, dtype=bool)
     clearance = obstacle_clearance(flown[airborne], None, scenario.environment) if airborne.any() else np.zeros(0)
     min_clear = float(clearance.min()) if clearance.size else math.inf
-    seps = _separations(sim, scenario)
+    seps = truth_separations(sim, scenario)
     records = replanner.records if replanner is not None else []
     done = [r for r in records if r.latency_s is not None]
     doc = {
@@ -155,7 +155,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     return doc
 
 
-def _separations(sim: Any, scenario: Scenario) -> dict:
+def truth_separations(sim: Any, scenario: Scenario) -> dict:
     """Truth-track minimum separation to every intruder and scripted threat (simulator runs only)."""
     if sim is None or not sim.truth:
         return {}

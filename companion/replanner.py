@@ -32,13 +32,14 @@ import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.builder import MissionSpec
-from companion.errors import CommandError, CompanionError, VehicleHolding
+from companion.errors import CommandError, CompanionError, MissionUploadError, VehicleHolding
 from companion.events import EventLog
 from companion.geo import geodetic_to_enu
 from companion.items import MissionItem
 from companion.link import Link, Message
 from companion.modes import hold_mode, mode_name, mode_number
 from companion.protocol import MissionClient
+from companion.restore import restore_mission
 from companion.replan import (
     CommitPoint,
     MissionRoute,
@@ -186,6 +187,10 @@ class LiveReplanner:
         self.custom_mode: int | None = None  # the vehicle's mode, from HEARTBEAT
         self.groundspeed = 0.0
         self._paused_in: int | None = None  # a mode we did not command, while replanning is paused
+        self._link_down = False  # between the supervisor's link_lost and its re-sync: no telemetry, no uploads
+        self._fresh_since = 0.0  # monotonic: position and active item must be newer than this to predict from
+        # monotonic time of the latest position and (if the autopilot streams it) active item
+        self._seen: dict[str, float] = {"GLOBAL_POSITION_INT": 0.0}
         self._sub: Any = None
         # started now, and warmed up on the whole route, so the first conflict finds it ready
         self._worker = PlanWorker(
@@ -223,6 +228,8 @@ class LiveReplanner:
 
     def observe(self, msg: Message) -> None:
         kind = msg.get_type()
+        if kind in ("GLOBAL_POSITION_INT", "MISSION_CURRENT"):
+            self._seen[kind] = time.monotonic()
         if kind == "GLOBAL_POSITION_INT":
             self.clock.observe(msg.time_boot_ms, time.monotonic())
             p = geodetic_to_enu(msg.lat / 1e7, msg.lon / 1e7, self.scenario.home.alt + msg.relative_alt / 1000,
@@ -280,6 +287,21 @@ class LiveReplanner:
             self.events.log("replanning_resumed")
         return mine
 
+    def link_lost(self) -> None:
+        """The supervisor found the link lost: positions are stale and nothing can be uploaded, so stop
+        predicting until :meth:`link_restored` (the vehicle flies, or holds on, its verified mission)."""
+        if not self._link_down:
+            self._link_down = True
+            self.events.log("replanning_paused", reason="link lost", decision=(
+                "the vehicle holds" if self.holding is not None else "the vehicle flies its verified mission"))
+
+    def link_restored(self) -> None:
+        """The link is back and the supervisor has re-synced the mission: predict again from fresh telemetry."""
+        if self._link_down:
+            self._link_down = False
+            self._fresh_since = time.monotonic()  # position and active item are from before the outage
+            self.events.log("replanning_resumed", reason="link restored, mission re-synced")
+
     def remaining(self) -> tuple[np.ndarray, np.ndarray]:
         assert self.position is not None
         return self.route.remaining(self.position, max(self.current_seq, int(self.route.seqs[0])))
@@ -329,6 +351,8 @@ class LiveReplanner:
 
     async def step(self) -> None:
         """One look at the picture: replan on a conflict, or, while holding, retry or resume."""
+        if self._link_down or min(self._seen.values()) < self._fresh_since:
+            return
         now = self.now()
         threats = self.threats(now)
         if not self.in_control():
@@ -464,9 +488,16 @@ class LiveReplanner:
                 if self.holding is None:  # the stored mission may now be part old, part new
                     await self.hold("upload failed: the stored mission may be mixed")
                     rec.held = True
-                if attempt == cfg.upload_attempts:
-                    raise VehicleHolding(f"replan {rec.n}: no verified upload after {attempt} attempts ({e}); "
-                                         "the vehicle is holding") from e
+                refused = isinstance(e, MissionUploadError) and e.refused
+                if refused or attempt == cfg.upload_attempts:
+                    # a refusal will likely come again: first put the last verified mission back, so that what
+                    # is stored is verified while the vehicle holds and whatever happens next
+                    restored, left_with = await restore_mission(self.client, self.events, self.verified[-1][1])
+                    if restored:
+                        self.verified.append((time.monotonic(), list(self.verified[-1][1])))
+                    if attempt == cfg.upload_attempts:
+                        raise VehicleHolding(f"replan {rec.n}: no verified upload after {attempt} attempts ({e}); "
+                                             f"{left_with}; the vehicle is holding") from e
                 continue
             self._upload_wall_s = 0.7 * self._upload_wall_s + 0.3 * (time.monotonic() - t0)
             break

@@ -8,27 +8,29 @@ from __future__ import annotations
 
 import asyncio
 import logging
+import math
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.errors import CommandError, CompanionError, MissionTimeout, MissionUploadError, MissionVerifyError
+from companion.errors import (CommandError, CompanionError, MissionTimeout, MissionUploadError, MissionVerifyError,
+                              UploadAborted)
 from companion.events import EventLog
 from companion.items import FENCE, MISSION, MissionItem
 from companion.link import Link, Subscription
 from companion.modes import mode_name, mode_number
 from companion.protocol import MissionClient
 from companion.replanner import LiveReplanner
+from companion.restore import restore_mission
 
 log = logging.getLogger(__name__)
 PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
 EKF_GOOD = 0x33F  # attitude, velocities, horizontal/vertical position, predicted positions
 PILOT_ARM_TIMEOUT_S = 600.0
-REPLANNER_STOP_S = 5.0
+REPLANNER_STOP_S = 5.0  # wall seconds a cancelled replanner may take to finish (a plan in progress)
 UPLOAD_ATTEMPTS = 3  # whole verified uploads tried before the flight when the link breaks one
-CANCELLED = mavlink.MAV_MISSION_OPERATION_CANCELLED  # wall seconds a cancelled replanner may take to finish (a plan in progress)
 
 
 @dataclass
@@ -87,25 +89,41 @@ class FlightSupervisor:
                      attempts: int = UPLOAD_ATTEMPTS) -> float:
         """Upload and verify by readback (mission, then fence if any); returns the seconds it took. Before the
         flight a transfer the link broke (timeout, the autopilot's own timeout cancelling it, a readback that
-        differs) is simply done again, up to ``attempts`` times; a refusal of an item is not."""
-        t0 = time.monotonic()
+        differs) is simply done again, up to ``attempts`` times; a refusal of an item is not. Each list is read
+        first, so that if its upload fails for good the previous one can be restored (the stored list may be
+        part new, part old): raises :class:`UploadAborted` saying what the vehicle was left with."""
         self.events.log("upload_start", mission_items=len(items), fence_items=len(fence))
+        dt = 0.0  # the uploads' own time, not the backups' (the replanner's first guess at a replan upload)
         for kind, payload in ((MISSION, items), (FENCE, fence)):
             if not payload:
                 continue
+            previous = await self._backup(kind)
+            t0 = time.monotonic()
             for attempt in range(1, attempts + 1):
                 try:
                     await self.client.upload_verified(payload, kind)
                     break
                 except (MissionTimeout, MissionVerifyError, MissionUploadError) as e:
-                    transient = not isinstance(e, MissionUploadError) or e.result == CANCELLED
+                    transient = not (isinstance(e, MissionUploadError) and e.refused)
                     self.events.log("upload_failed", mission_type=kind, attempt=attempt, error=str(e),
                                     retrying=transient and attempt < attempts)
                     if not transient or attempt == attempts:
-                        raise
-        dt = time.monotonic() - t0
+                        _, left_with = await restore_mission(self.client, self.events, previous, kind)
+                        raise UploadAborted(e, left_with) from e
+            dt += time.monotonic() - t0
         self.events.log("upload_verified", seconds=round(dt, 3))
         return dt
+
+    async def _backup(self, kind: int) -> list[MissionItem] | None:
+        """The vehicle's ``kind`` list before we overwrite it (None if it cannot be read: a restore then
+        clears the list instead)."""
+        try:
+            previous = await self.client.download(kind)
+        except (CompanionError, TimeoutError) as e:
+            self.events.log("backup_failed", mission_type=kind, error=str(e))
+            return None
+        self.events.log("backup", mission_type=kind, items=len(previous))
+        return previous
 
     async def resync(self, expected: Sequence[MissionItem]) -> None:
         """After a link outage, read the mission back before acting again: it must still be the one we
@@ -228,15 +246,20 @@ class FlightSupervisor:
                 msg = await sub.get(min(left, 0.2 if task is not None else 1.0))
             except TimeoutError:
                 if self.link.heartbeat_age > self.link.heartbeat_timeout and lost_at is None:
-                    lost_at = time.monotonic()
-                    self.events.log("link_lost", age_s=round(self.link.heartbeat_age, 1),
+                    age = self.link.heartbeat_age
+                    lost_at = time.monotonic() - (age if math.isfinite(age) else 0.0)  # the last HEARTBEAT heard
+                    self.events.log("link_lost", age_s=round(age, 1),
                                     decision="the vehicle keeps flying its verified mission; waiting for the link")
+                    if replanner is not None:
+                        replanner.link_lost()
                 continue
             if lost_at is not None and msg.get_type() == "HEARTBEAT":
                 self.events.log("link_restored", outage_s=round(time.monotonic() - lost_at, 1))
                 lost_at = None
                 expected = replanner.verified[-1][1] if replanner is not None else items
                 await self.resync(expected)
+                if replanner is not None:
+                    replanner.link_restored()
             kind = msg.get_type()
             t = time.monotonic() - t0
             if kind == "GLOBAL_POSITION_INT":

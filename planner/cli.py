@@ -419,9 +419,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
 
 
 _ECHOED = ("reached", "statustext", "mode", "armed", "upload_verified", "mission_start", "ready", "connected",
-           "finished", "timeout", "heartbeat_lost", "arm_refused", "waiting_for_pilot_arm", "failed", "track",
+           "finished", "timeout", "arm_refused", "waiting_for_pilot_arm", "failed", "track",
            "track_expired", "conflict_predicted", "hold", "resume", "threat_cleared", "replan_upload_failed",
-           "set_current", "replanner_failed")
+           "set_current", "replanner_failed", "upload_failed", "backup_failed", "mission_restored",
+           "mission_restore_failed", "link_lost", "link_restored", "resync", "resync_mismatch")
 
 
 def _echo_event(rec: dict) -> None:

@@ -17,6 +17,7 @@ import dataclasses
 import logging
 import math
 import time
+from collections.abc import Callable
 from typing import Literal
 
 import numpy as np
@@ -157,6 +158,7 @@ class SimAutopilot:
         self._stall: tuple[int, int] | None = None  # (upload number, first item lost) for inject_upload_stall
         self._uploads_started = 0
         self._stall_count = 0
+        self._refusals: list[tuple[MissionItem, list[MissionItem]]] = []
         self._change_signature: tuple | None = None
         self._streams = _default_streams()
         self._tasks: list[asyncio.Task[None]] = []
@@ -246,6 +248,34 @@ class SimAutopilot:
         uploads are not atomic)."""
         self._stall = (self._uploads_started + upload, first_lost)
         self._stall_count = 0
+
+    def inject_outage(self, seconds: float) -> None:
+        """Fault injection: the link is gone for ``seconds`` (wall): nothing in or out, TCP connects refused and
+        open TCP connections left half-open (see :meth:`SimTransport.outage`). The vehicle flies on."""
+        self._transport.outage(seconds)
+
+    def inject_item_refusal(self, seq: int | None, result: int = mavlink.MAV_MISSION_ERROR, times: int | None = 1,
+                            when: Callable[[MissionItem], bool] | None = None) -> None:
+        """Fault injection: refuse mission item ``seq`` (None: any item) with MISSION_ACK ``result`` (as ArduPilot
+        does when it cannot store an item) the next ``times`` times (None: always), only where ``when(item)``
+        holds if given. Items before it stay written: the stored mission is left part new, part old."""
+        left = [times]
+
+        def refuse(item: MissionItem) -> int:
+            if item.mission_type != MISSION or seq not in (None, item.seq) or (when is not None and not when(item)) \
+                    or left[0] == 0:
+                return mavlink.MAV_MISSION_ACCEPTED
+            if left[0] is not None:
+                left[0] -= 1
+            self._refusals.append((item, list(self._server.mission)))
+            return result
+
+        self._server.refuse = refuse
+
+    @property
+    def refusals(self) -> list[tuple[MissionItem, list[MissionItem]]]:
+        """Every item :meth:`inject_item_refusal` refused, with the mission it left stored (part new, part old)."""
+        return list(self._refusals)
 
     @property
     def mission_start_time(self) -> float | None:

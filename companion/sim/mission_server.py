@@ -142,6 +142,7 @@ class MissionServer:
         self._uploads: dict[int, _Upload] = {}
         self.completed_uploads = 0
         self.abandoned: list[list[MissionItem]] = []  # the mission as left by each abandoned upload
+        self.refuse: Callable[[MissionItem], int] | None = None  # fault injection: a result for an item, or ACCEPTED
 
     @property
     def mission(self) -> list[MissionItem]:
@@ -277,6 +278,8 @@ class MissionServer:
             result = mavlink.MAV_MISSION_ACCEPTED  # home: acknowledged (by the next request) and ignored
         else:
             result = validate_item(item)
+            if result == mavlink.MAV_MISSION_ACCEPTED and self.refuse is not None:
+                result = self.refuse(item)
             if result == mavlink.MAV_MISSION_ACCEPTED:
                 result = self._store(mission_type, up, replace(item, current=0))
         if result != mavlink.MAV_MISSION_ACCEPTED:

@@ -80,6 +80,8 @@ class SimTransport:
         self._server: asyncio.Server | None = None
         self._tcp_clients: dict[asyncio.StreamWriter, asyncio.Task[None]] = {}
         self._pending: set[asyncio.TimerHandle] = set()
+        self._silent_until = 0.0  # loop time: an outage (nothing in or out) lasts until then
+        self._relisten: asyncio.Task[None] | None = None
         self.port = self.address.port
         self.sent = 0
         self.received = 0
@@ -114,6 +116,10 @@ class SimTransport:
         for handle in self._pending:
             handle.cancel()
         self._pending.clear()
+        if self._relisten is not None:
+            self._relisten.cancel()
+            await asyncio.gather(self._relisten, return_exceptions=True)
+            self._relisten = None
         if self._udp is not None:
             protocol = self._udp.get_protocol()
             self._udp.close()
@@ -122,13 +128,43 @@ class SimTransport:
             await protocol.closed  # the socket is really closed only after connection_lost
         if self._server is not None:
             self._server.close()
-            for writer, task in list(self._tcp_clients.items()):
-                task.cancel()
-                writer.close()
-            await asyncio.gather(*self._tcp_clients.values(), return_exceptions=True)
-            self._tcp_clients.clear()
+        for writer, task in list(self._tcp_clients.items()):
+            task.cancel()
+            writer.close()
+        await asyncio.gather(*self._tcp_clients.values(), return_exceptions=True)
+        self._tcp_clients.clear()
+        if self._server is not None:
             await self._server.wait_closed()
             self._server = None
+
+    def outage(self, seconds: float) -> None:
+        """Fault injection: the network goes away for ``seconds`` (wall). Nothing gets through either way; on TCP
+        the port also stops listening (connects are refused) while open connections stay half-open, as after a
+        cable pull, and listens again on the same port afterwards."""
+        loop = asyncio.get_running_loop()
+        self._silent_until = loop.time() + seconds
+        if self._server is None:
+            return
+        self._server.close()  # existing connections are left alone
+        handle: asyncio.TimerHandle
+
+        def relisten() -> None:
+            self._pending.discard(handle)
+            self._relisten = asyncio.ensure_future(self._listen_again())
+
+        handle = loop.call_later(seconds, relisten)
+        self._pending.add(handle)
+
+    def _silent(self) -> bool:
+        return self._silent_until > 0.0 and asyncio.get_running_loop().time() < self._silent_until
+
+    async def _listen_again(self) -> None:
+        try:
+            self._server = await asyncio.start_server(self._serve_tcp_client, self.address.host, self.port)
+        except OSError as exc:
+            logger.error("simulator: cannot listen again on tcp port %d after the outage: %s", self.port, exc)
+            return
+        logger.info("simulator: listening again on tcp port %d", self.port)
 
     # --- outgoing -------------------------------------------------------------------------------------------
 
@@ -136,7 +172,7 @@ class SimTransport:
         """Pack and send one message (subject to loss and latency); silently nothing if no peer yet."""
         buf = msg.pack(self._packer)
         self._packer.seq = (self._packer.seq + 1) % 256
-        if not self.connected:
+        if not self.connected or self._silent():
             return
         if self._loss and self._rng.random() < self._loss:
             return
@@ -164,6 +200,8 @@ class SimTransport:
     # --- incoming -------------------------------------------------------------------------------------------
 
     def _feed(self, parser: mavlink.MAVLink, data: bytes, per_message_loss: bool) -> None:
+        if self._silent():
+            return
         try:
             messages = parser.parse_buffer(data) or []
         except mavlink.MAVError as exc:  # robust_parsing makes this rare; a bad packet must not kill the link

@@ -82,6 +82,50 @@ def test_fly_unreachable_autopilot_exits_4(tmp_path, capsys) -> None:
     assert len(err) == 1 and err[0].startswith("fuseplan: error:")
 
 
+def test_fly_refused_item_exits_4_with_one_line_and_the_previous_mission_restored(tmp_path, capsys) -> None:
+    """`fuseplan fly --connect` to an autopilot (our simulator, in its own thread) that refuses item 4 of the
+    upload: exit 4, one line naming the item, the autopilot's answer and what the vehicle was left with."""
+    import asyncio
+    import threading
+
+    from companion.sim import SimAutopilot
+    from planner.scenario import load_scenario
+
+    ready, stop, port, left = threading.Event(), threading.Event(), [0], []
+
+    async def autopilot() -> None:
+        async with SimAutopilot(load_scenario(STATIC), "udpin:127.0.0.1:0", speedup=20.0) as sim:
+            sim.inject_item_refusal(4)
+            port[0] = sim.port
+            ready.set()
+            while not stop.is_set():
+                await asyncio.sleep(0.05)
+            left.append((sim.mission, sim.refusals, sim.armed))
+
+    thread = threading.Thread(target=asyncio.run, args=(autopilot(),), name="sim")
+    thread.start()
+    try:
+        assert ready.wait(10.0)
+        report = tmp_path / "r"
+        code = main(["fly", str(STATIC), "--connect", f"udpout:127.0.0.1:{port[0]}", "--report", str(report),
+                     "-q", *FAST])
+    finally:
+        stop.set()
+        thread.join(10.0)
+    mission, refusals, armed = left[0]
+    assert code == 4
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("fuseplan: error: mission upload refused at item 4: MAV_MISSION_ERROR; ")
+    assert "previous verified mission (1 item) was restored" in err[0]  # the simulator had home only
+    assert [it.seq for it, _ in refusals] == [4] and len(refusals[0][1]) > 1  # items 1-3 had been written
+    assert len(mission) == 1 and not armed  # back to the empty mission it had (home only), never started
+    fl = _flight(report)
+    assert fl["completed"] is False and "refused at item 4" in fl["reason"]
+    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    assert [e["which"] for e in events if e["event"] == "mission_restored"] == ["previous"]
+
+
 def test_sim_command_serves_heartbeats(tmp_path) -> None:
     with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
         s.bind(("127.0.0.1", 0))

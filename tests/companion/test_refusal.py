@@ -1,0 +1,101 @@
+"""An autopilot refusing item k of an upload (MISSION_ACK error) before the flight (issue 7; during a flight:
+tests/companion/test_replanning.py).
+
+ArduPilot writes items as they arrive, so a refusal at item k leaves the stored mission part new, part old.
+The companion must end with a verified mission stored (the previous one restored, proved by readback, or the
+new one) and the vehicle must never begin an item that was not verified. Real UDP on 127.0.0.1.
+"""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import replace
+from pathlib import Path
+
+import pytest
+
+from companion.builder import mission_from_plan_json
+from companion.errors import UploadAborted
+from companion.events import EventLog
+from companion.items import compare_items, mission_difference
+from companion.link import Link
+from companion.protocol import MissionClient
+from companion.restore import restore_mission
+from companion.sim import SimAutopilot
+from companion.supervisor import FlightSupervisor
+from planner.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[2]
+STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
+
+
+def same_mission(a: list, b: list) -> bool:
+    """Equal missions, item 0 (ArduPilot's home) aside."""
+    return mission_difference(a, b) is None
+
+
+@pytest.fixture(scope="module")
+def static_doc() -> dict:
+    from planner.cli import _plan_doc_for
+
+    doc, _ = _plan_doc_for(STATIC, None, ["planner.pso.n_pop=100", "planner.pso.max_iter=40"], None)
+    return doc
+
+
+async def _refused_before_flight(doc: dict, k: int) -> tuple:
+    sc = load_scenario(STATIC)
+    async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=20.0, seed=1) as sim:
+        async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
+            await link.wait_heartbeat(10.0)
+            client = MissionClient(link)
+            items = mission_from_plan_json(doc, sc, "ardupilot")
+            # a different mission already on the vehicle (the operator's last one): 10 m higher
+            previous = [items[0]] + [replace(it, z=it.z + 10.0) for it in items[1:]]
+            await client.upload_verified(previous)
+            sim.inject_item_refusal(k)
+            events = EventLog()
+            with pytest.raises(UploadAborted) as err:
+                await FlightSupervisor(link, client, events, arm=True).fly(items, ready_timeout=30.0)
+            readback = await client.download()
+            return err.value, readback, previous, items, events.records, sim.refusals, sim.flown_items, \
+                sim.armed
+
+
+def test_refusal_before_the_flight_restores_the_previous_mission(static_doc: dict) -> None:
+    k = 4
+    error, readback, previous, items, records, refused, flown, armed = asyncio.run(
+        _refused_before_flight(static_doc, k))
+    assert [it.seq for it, _ in refused] == [k]  # the fault happened once, on item k of our upload
+    assert compare_items(refused[0][0], replace(items[k], current=0)) is None
+    mixed = refused[0][1]  # what the refusal left stored: neither mission
+    assert not same_mission(mixed, previous) and not same_mission(mixed, items)
+    # one clear line naming the item, the autopilot's answer and what the vehicle was left with
+    text = str(error)
+    assert "\n" not in text
+    assert f"refused at item {k}: MAV_MISSION_ERROR" in text and "previous verified mission" in text
+    # the readback proves the previous mission is stored again (not the mix the refusal left)
+    assert same_mission(readback, previous) and not same_mission(readback, items)
+    names = [r["event"] for r in records]
+    assert names.index("backup") < names.index("upload_failed") < names.index("mission_restored")
+    failed = next(r for r in records if r["event"] == "upload_failed")
+    assert failed["retrying"] is False  # a refusal is not a link fault: the same upload is not repeated
+    assert next(r for r in records if r["event"] == "mission_restored")["which"] == "previous"
+    assert "mission_start" not in names and flown == [] and not armed
+
+
+def test_restore_with_no_known_previous_mission_clears_it(static_doc: dict) -> None:
+    async def run() -> tuple:
+        sc = load_scenario(STATIC)
+        async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=20.0, seed=1) as sim:
+            async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
+                await link.wait_heartbeat(10.0)
+                client = MissionClient(link)
+                await client.upload_verified(mission_from_plan_json(static_doc, sc, "ardupilot"))
+                events = EventLog()
+                restored, text = await restore_mission(client, events, None)
+                return restored, text, await client.download(), events.records
+
+    restored, text, readback, records = asyncio.run(run())
+    assert restored and "cleared" in text
+    assert len(readback) == 1  # ArduPilot keeps home at item 0
+    assert records[-1]["event"] == "mission_restored" and records[-1]["which"] == "cleared"
