@@ -298,8 +298,13 @@ class FlightSupervisor:
         failures (the CLI maps them)."""
         out = FlightOutcome(False, "", mission_count=len(items), fence_count=len(fence))
         hb = await self.link.wait_heartbeat(timeout=10.0)
+        mode = mode_name(hb.autopilot, hb.type, hb.custom_mode)
         self.events.log("connected", system=self.link.target_system, autopilot=hb.autopilot,
-                        vehicle_type=hb.type, mode=mode_name(hb.autopilot, hb.type, hb.custom_mode))
+                        vehicle_type=hb.type, mode=mode, armed=bool(hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED))
+        if hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
+            # an upload is not atomic: it would change, item by item, the mission the vehicle may be flying
+            raise CompanionError(f"the vehicle is armed (mode {mode}): fuseplan fly uploads a mission only to a "
+                                 "disarmed vehicle; nothing was uploaded")
         out.upload_s = await self.upload(items, fence)
         if replanner is not None:
             replanner.note_upload(out.upload_s)

@@ -99,3 +99,29 @@ def test_restore_with_no_known_previous_mission_clears_it(static_doc: dict) -> N
     assert restored and "cleared" in text
     assert len(readback) == 1  # ArduPilot keeps home at item 0
     assert records[-1]["event"] == "mission_restored" and records[-1]["which"] == "cleared"
+
+
+def test_an_armed_vehicle_gets_no_upload(static_doc: dict) -> None:
+    """A vehicle that is already armed (maybe flying its own mission) is left alone: uploads are not atomic."""
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from companion.errors import CompanionError
+
+    async def run() -> tuple:
+        sc = load_scenario(STATIC)
+        async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=20.0, seed=1) as sim:
+            async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
+                await link.wait_heartbeat(10.0)
+                client = MissionClient(link)
+                sup = FlightSupervisor(link, client, EventLog(), arm=True)
+                await sup.wait_ready(30.0)
+                await client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+                await link.wait_for("HEARTBEAT", timeout=5.0,
+                                    predicate=lambda m: m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+                with pytest.raises(CompanionError) as err:
+                    await sup.fly(mission_from_plan_json(static_doc, sc, "ardupilot"))
+                return str(err.value), sim.mission, sim.armed
+
+    text, mission, armed = asyncio.run(run())
+    assert text.startswith("the vehicle is armed (mode MANUAL)") and "nothing was uploaded" in text
+    assert len(mission) == 1 and armed  # untouched
