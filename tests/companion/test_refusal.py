@@ -9,6 +9,8 @@ new one) and the vehicle must never begin an item that was not verified. Real UD
 from __future__ import annotations
 
 import asyncio
+import contextlib
+from collections.abc import AsyncIterator
 from dataclasses import replace
 from pathlib import Path
 
@@ -42,23 +44,27 @@ def static_doc() -> dict:
     return doc
 
 
-async def _refused_before_flight(doc: dict, k: int) -> tuple:
-    sc = load_scenario(STATIC)
-    async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=20.0, seed=1) as sim:
+@contextlib.asynccontextmanager
+async def _on_sim() -> AsyncIterator[tuple[SimAutopilot, Link, MissionClient]]:
+    """The simulated plane on rescue_static over UDP on 127.0.0.1, a link to it, and a mission client."""
+    async with SimAutopilot(load_scenario(STATIC), "udpin:127.0.0.1:0", speedup=20.0, seed=1) as sim:
         async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
             await link.wait_heartbeat(10.0)
-            client = MissionClient(link)
-            items = mission_from_plan_json(doc, sc, "ardupilot")
-            # a different mission already on the vehicle (the operator's last one): 10 m higher
-            previous = [items[0]] + [replace(it, z=it.z + 10.0) for it in items[1:]]
-            await client.upload_verified(previous)
-            sim.inject_item_refusal(k)
-            events = EventLog()
-            with pytest.raises(UploadAborted) as err:
-                await FlightSupervisor(link, client, events, arm=True).fly(items, ready_timeout=30.0)
-            readback = await client.download()
-            return err.value, readback, previous, items, events.records, sim.refusals, sim.flown_items, \
-                sim.armed
+            yield sim, link, MissionClient(link)
+
+
+async def _refused_before_flight(doc: dict, k: int) -> tuple:
+    async with _on_sim() as (sim, link, client):
+        items = mission_from_plan_json(doc, load_scenario(STATIC), "ardupilot")
+        # a different mission already on the vehicle (the operator's last one): 10 m higher
+        previous = [items[0]] + [replace(it, z=it.z + 10.0) for it in items[1:]]
+        await client.upload_verified(previous)
+        sim.inject_item_refusal(k)
+        events = EventLog()
+        with pytest.raises(UploadAborted) as err:
+            await FlightSupervisor(link, client, events, arm=True).fly(items, ready_timeout=30.0)
+        readback = await client.download()
+        return err.value, readback, previous, items, events.records, sim.refusals, sim.flown_items, sim.armed
 
 
 def test_refusal_before_the_flight_restores_the_previous_mission(static_doc: dict) -> None:
@@ -85,15 +91,11 @@ def test_refusal_before_the_flight_restores_the_previous_mission(static_doc: dic
 
 def test_restore_with_no_known_previous_mission_clears_it(static_doc: dict) -> None:
     async def run() -> tuple:
-        sc = load_scenario(STATIC)
-        async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=20.0, seed=1) as sim:
-            async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
-                await link.wait_heartbeat(10.0)
-                client = MissionClient(link)
-                await client.upload_verified(mission_from_plan_json(static_doc, sc, "ardupilot"))
-                events = EventLog()
-                restored, text = await restore_mission(client, events, None)
-                return restored, text, await client.download(), events.records
+        async with _on_sim() as (_sim, _link, client):
+            await client.upload_verified(mission_from_plan_json(static_doc, load_scenario(STATIC), "ardupilot"))
+            events = EventLog()
+            restored, text = await restore_mission(client, events, None)
+            return restored, text, await client.download(), events.records
 
     restored, text, readback, records = asyncio.run(run())
     assert restored and "cleared" in text
@@ -108,19 +110,15 @@ def test_an_armed_vehicle_gets_no_upload(static_doc: dict) -> None:
     from companion.errors import CompanionError
 
     async def run() -> tuple:
-        sc = load_scenario(STATIC)
-        async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=20.0, seed=1) as sim:
-            async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0) as link:
-                await link.wait_heartbeat(10.0)
-                client = MissionClient(link)
-                sup = FlightSupervisor(link, client, EventLog(), arm=True)
-                await sup.wait_ready(30.0)
-                await client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
-                await link.wait_for("HEARTBEAT", timeout=5.0,
-                                    predicate=lambda m: m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-                with pytest.raises(CompanionError) as err:
-                    await sup.fly(mission_from_plan_json(static_doc, sc, "ardupilot"))
-                return str(err.value), sim.mission, sim.armed
+        async with _on_sim() as (sim, link, client):
+            sup = FlightSupervisor(link, client, EventLog(), arm=True)
+            await sup.wait_ready(30.0)
+            await client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+            await link.wait_for("HEARTBEAT", timeout=5.0,
+                                predicate=lambda m: m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+            with pytest.raises(CompanionError) as err:
+                await sup.fly(mission_from_plan_json(static_doc, load_scenario(STATIC), "ardupilot"))
+            return str(err.value), sim.mission, sim.armed
 
     text, mission, armed = asyncio.run(run())
     assert text.startswith("the vehicle is armed (mode MANUAL)") and "nothing was uploaded" in text
