@@ -20,6 +20,14 @@ def mode_number(autopilot: int, vehicle_type: int, name: str) -> int:
     return ARDUCOPTER[name]
 
 
+def set_mode_params(autopilot: int, custom_mode: int) -> tuple[int, ...]:
+    """MAV_CMD_DO_SET_MODE's params for ``custom_mode``: ArduPilot takes the custom mode in param2; PX4 its main
+    mode in param2 and sub mode in param3."""
+    if autopilot == mavlink.MAV_AUTOPILOT_PX4:
+        return (mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, (custom_mode >> 16) & 0xFF, (custom_mode >> 24) & 0xFF)
+    return (mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, custom_mode)
+
+
 def hold_mode(autopilot: int, vehicle_type: int) -> str:
     """The mode that stops a vehicle where it is without a pilot: ArduPlane LOITER (circles the spot),
     ArduCopter BRAKE (LOITER would need the pilot's sticks for throttle), PX4 AUTO.LOITER (Hold)."""

@@ -37,7 +37,7 @@ from companion.events import EventLog
 from companion.geo import geodetic_to_enu
 from companion.items import MissionItem
 from companion.link import Link, Message
-from companion.modes import hold_mode, mode_name, mode_number
+from companion.modes import hold_mode, mode_name, mode_number, set_mode_params
 from companion.protocol import MissionClient
 from companion.restore import restore_mission
 from companion.replan import (
@@ -262,6 +262,9 @@ class LiveReplanner:
     def _number(self, name: str) -> int:
         return mode_number(self.link.autopilot or 0, self.link.vehicle_type or 0, name)
 
+    def _name(self, custom_mode: int) -> str:
+        return mode_name(self.link.autopilot or 0, self.link.vehicle_type or 0, custom_mode)
+
     @property
     def hold_mode(self) -> str:
         return hold_mode(self.link.autopilot or 0, self.link.vehicle_type or 0)
@@ -280,8 +283,7 @@ class LiveReplanner:
         mine = self.custom_mode == ours
         if not mine and self._paused_in != self.custom_mode:
             self._paused_in = self.custom_mode
-            self.events.log("replanning_paused", mode=mode_name(self.link.autopilot or 0,
-                                                                 self.link.vehicle_type or 0, self.custom_mode))
+            self.events.log("replanning_paused", mode=self._name(self.custom_mode))
         elif mine and self._paused_in is not None:
             self._paused_in = None
             self.events.log("replanning_resumed")
@@ -365,8 +367,6 @@ class LiveReplanner:
             return
         conflicts = self.predict(now, threats)
         if not conflicts:
-            return
-        if self.current_seq > self.goal_seq:
             return
         if now - self._last_replan < self.cfg.min_interval_s:
             return
@@ -583,10 +583,8 @@ class LiveReplanner:
     # -- holding ------------------------------------------------------------------------------------
     async def _mode(self, name: str) -> None:
         custom = self._number(name)
-        params = ((custom >> 16) & 0xFF, (custom >> 24) & 0xFF) \
-            if self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4 else (custom,)
-        await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-                                       *params)
+        await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE,
+                                       *set_mode_params(self.link.autopilot or 0, custom))
         self.custom_mode = custom  # accepted; the next HEARTBEAT will say so too
 
     async def hold(self, reason: str) -> None:
@@ -595,8 +593,7 @@ class LiveReplanner:
             return
         if self.custom_mode is not None and self.custom_mode != self._number("AUTO"):
             # not flying the mission (a failsafe, the pilot): it cannot step into a mixed item; leave it be
-            self.events.log("not_holding", reason=reason, mode=mode_name(
-                self.link.autopilot or 0, self.link.vehicle_type or 0, self.custom_mode))
+            self.events.log("not_holding", reason=reason, mode=self._name(self.custom_mode))
             return
         await self._mode(self.hold_mode)
         self.holding = reason
@@ -606,7 +603,7 @@ class LiveReplanner:
         """Back to AUTO at the current item, unless someone else has changed the mode meanwhile."""
         if self.custom_mode is not None and self.custom_mode != self._number(self.hold_mode):
             self.events.log("not_resuming", reason="the mode was changed by someone else",
-                            mode=mode_name(self.link.autopilot or 0, self.link.vehicle_type or 0, self.custom_mode))
+                            mode=self._name(self.custom_mode))
             self.holding = None
             return
         await self._mode("AUTO")

@@ -20,7 +20,7 @@ from companion.errors import (CommandError, CompanionError, MissionTimeout, Miss
 from companion.events import EventLog
 from companion.items import FENCE, MISSION, MissionItem
 from companion.link import Link, Subscription
-from companion.modes import mode_name, mode_number
+from companion.modes import mode_name, mode_number, set_mode_params
 from companion.protocol import MissionClient
 from companion.replanner import LiveReplanner
 from companion.restore import restore_mission
@@ -137,15 +137,10 @@ class FlightSupervisor:
 
     # -- start -------------------------------------------------------------------------------------
     async def set_mode(self, name: str) -> None:
-        """MAV_CMD_DO_SET_MODE: ArduPilot takes the custom mode in param2; PX4 its main mode in param2 and
-        sub mode in param3."""
+        """MAV_CMD_DO_SET_MODE (:func:`companion.modes.set_mode_params`)."""
         custom = mode_number(self.link.autopilot or 0, self.link.vehicle_type or 0, name)
-        if self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4:
-            params = ((custom >> 16) & 0xFF, (custom >> 24) & 0xFF)
-        else:
-            params = (custom,)
-        await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE, mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED,
-                                       *params)
+        await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE,
+                                       *set_mode_params(self.link.autopilot or 0, custom))
         self.events.log("mode", mode=name)
 
     async def arm_vehicle(self, attempts: int = 5) -> None:
