@@ -209,6 +209,7 @@ class FlightSupervisor:
                 if not done:
                     log.error("the replanner did not stop within %.0f s of being cancelled", REPLANNER_STOP_S)
         outcome.flight_s = time.monotonic() - t0
+        outcome.holding = replanner is not None and replanner.holding is not None
 
     async def _follow(self, sub: Subscription, items: Sequence[MissionItem], timeout: float,
                       outcome: FlightOutcome, replanner: LiveReplanner | None, task: asyncio.Task | None) -> None:
@@ -229,7 +230,6 @@ class FlightSupervisor:
                         await replanner.hold(f"replanner stopped: {outcome.reason}")
                     except CompanionError as e:
                         self.events.log("hold_failed", error=str(e))
-                outcome.holding = replanner is not None and replanner.holding is not None
                 return
             goal_seq = replanner.goal_seq if replanner is not None else fixed_goal
             left = timeout - (time.monotonic() - t0)
@@ -310,7 +310,5 @@ class FlightSupervisor:
             if replanner is not None:
                 replanner.mission_started(time.monotonic())
             await self.monitor(items, flight_timeout, out, sub, replanner)
-        if replanner is not None and replanner.holding is not None:
-            out.holding = True
         self.events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
         return out
