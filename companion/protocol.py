@@ -53,6 +53,19 @@ DOWNLOAD_RESTARTS = 3  # a stalled download is started again this many times (th
 FINAL_ACK_MISSES = 3  # waits (of ``timeout``) for the final MISSION_ACK before checking by readback
 
 
+def _numbered(items: Sequence[MissionItem], mission_type: int) -> list[MissionItem]:
+    """``items`` as the whole list of ``mission_type``: renumbered 0… in order and stamped with the type."""
+    return [replace(it, seq=i, mission_type=mission_type) for i, it in enumerate(items)]
+
+
+def _matching(expected: list[MissionItem], got: list[MissionItem], home_at_zero: bool) -> list[MissionItem]:
+    """``got`` if it matches ``expected`` (:func:`mission_difference`), else :class:`MissionVerifyError`."""
+    diff = mission_difference(expected, got, home_at_zero)
+    if diff is not None:
+        raise MissionVerifyError(*diff)
+    return got
+
+
 class MissionClient:
     """Mission protocol client for MISSION and FENCE (and RALLY) lists. Times in seconds.
 
@@ -98,9 +111,8 @@ class MissionClient:
         """Upload ``items`` as the whole ``mission_type`` list. Items are renumbered 0… in order and stamped with
         ``mission_type``. Raises :class:`MissionUploadError` on a MISSION_ACK error, :class:`MissionTimeout`
         when the autopilot stops answering, :class:`LinkError` if the link drops."""
-        items = [replace(it, seq=i, mission_type=mission_type) for i, it in enumerate(items)]
         async with self._lock:
-            await self._upload(items, mission_type)
+            await self._upload(_numbered(items, mission_type), mission_type)
 
     async def _upload(self, items: list[MissionItem], mission_type: int) -> list[MissionItem] | None:
         """The upload; returns the readback when one was needed to confirm it (else None)."""
@@ -205,26 +217,19 @@ class MissionClient:
         Returns the readback; raises :class:`MissionVerifyError` on the first difference."""
         if home_at_zero is None:
             home_at_zero = self.home_at_zero(mission_type)
-        sent = [replace(it, seq=i, mission_type=mission_type) for i, it in enumerate(items)]
+        sent = _numbered(items, mission_type)
         async with self._lock:
             got = await self._upload(sent, mission_type)
             if got is None:  # (else the upload was already confirmed by a readback)
                 got = await self._download(mission_type)
-        diff = mission_difference(sent, got, home_at_zero)
-        if diff is not None:
-            raise MissionVerifyError(*diff)
-        return got
+        return _matching(sent, got, home_at_zero)
 
     async def verify(self, items: Sequence[MissionItem], mission_type: int = MISSION) -> list[MissionItem]:
         """Download ``mission_type`` and compare it with ``items`` as :meth:`upload_verified` does; returns the
         readback, raises :class:`MissionVerifyError` on the first difference (e.g. after a link outage)."""
-        expected = [replace(it, seq=i, mission_type=mission_type) for i, it in enumerate(items)]
         async with self._lock:
             got = await self._download(mission_type)
-        diff = mission_difference(expected, got, self.home_at_zero(mission_type))
-        if diff is not None:
-            raise MissionVerifyError(*diff)
-        return got
+        return _matching(_numbered(items, mission_type), got, self.home_at_zero(mission_type))
 
     def home_at_zero(self, mission_type: int) -> bool:
         """ArduPilot keeps home at item 0 of the mission list (replaced on upload, read back as the real home)."""
@@ -240,14 +245,14 @@ class MissionClient:
         """The list, started again from MISSION_REQUEST_LIST when an item stops coming: MAVSDK (and PX4) drop
         a download whose next request they miss too often, and then answer no more item requests; ArduPilot
         keeps no download state, so starting again costs it only the items already read."""
-        for restart in range(DOWNLOAD_RESTARTS + 1):
+        for _ in range(DOWNLOAD_RESTARTS):
             try:
-                return await self._download_once(mission_type, patient=restart == DOWNLOAD_RESTARTS)
+                return await self._download_once(mission_type, patient=False)
             except MissionTimeout as e:
-                if restart == DOWNLOAD_RESTARTS or self.link.heartbeat_age > self.link.heartbeat_timeout:
-                    raise
+                if self.link.heartbeat_age > self.link.heartbeat_timeout:
+                    raise  # the autopilot has gone quiet, not just one transfer
                 log.info("download stalled at item %s; starting it again", e.seq)
-        raise AssertionError("unreachable")
+        return await self._download_once(mission_type, patient=True)
 
     async def _download_once(self, mission_type: int, patient: bool) -> list[MissionItem]:
         link = self.link
