@@ -4,8 +4,9 @@ a MAVSDK server, SITL) and drops, duplicates, reorders, delays and corrupts data
     companion --udpout--> [front 127.0.0.1:port]  proxy  [back] --> autopilot's udpin port
     companion <---------- [front]                 proxy  [back] <-- autopilot
 
-Replies go to the last address that sent to the front. Every random choice comes from one seeded generator, so a
-given seed and traffic order (per direction) give the same faults. :meth:`outage` drops everything for a while (link loss).
+Replies go to the last address that sent to the front. Every random choice comes from a seeded generator per
+direction, so a given seed and traffic order (per direction) give the same faults. :meth:`outage` drops
+everything for a while (link loss).
 """
 
 from __future__ import annotations

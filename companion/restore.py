@@ -34,7 +34,8 @@ async def restore_mission(client: MissionClient, events: EventLog, previous: Seq
                 if len(got) > (1 if client.home_at_zero(mission_type) else 0):  # ArduPilot keeps home at 0
                     raise MissionVerifyError(len(got) - 1, "count", 0, len(got))
                 events.log("mission_restored", mission_type=mission_type, which="cleared", attempt=attempt)
-                return True, f"the vehicle's previous {kind} was unknown, so its {kind} list was cleared (verified empty)"
+                return True, (f"the vehicle's previous {kind} was unknown, so its {kind} list was cleared "
+                              "(verified empty)")
             got = await client.upload_verified(previous, mission_type)
             events.log("mission_restored", mission_type=mission_type, which="previous", items=len(got),
                        attempt=attempt)
@@ -44,5 +45,5 @@ async def restore_mission(client: MissionClient, events: EventLog, previous: Seq
             error = e
             events.log("mission_restore_attempt_failed", mission_type=mission_type, attempt=attempt, error=str(e))
     events.log("mission_restore_failed", mission_type=mission_type, error=str(error))
-    return False, (f"restoring the previous {kind} failed too ({error}): the stored {kind} may be part old, part new; "
-            "do not start it")
+    return False, (f"restoring the previous {kind} failed too ({error}): the stored {kind} may be part old, "
+                   "part new; do not start it")

@@ -259,14 +259,15 @@ class SimAutopilot:
         """Fault injection: refuse mission item ``seq`` (None: any item) with MISSION_ACK ``result`` (as ArduPilot
         does when it cannot store an item) the next ``times`` times (None: always), only where ``when(item)``
         holds if given. Items before it stay written: the stored mission is left part new, part old."""
-        left = [times]
+        left = times
 
         def refuse(item: MissionItem) -> int:
-            if item.mission_type != MISSION or seq not in (None, item.seq) or (when is not None and not when(item)) \
-                    or left[0] == 0:
+            nonlocal left
+            if item.mission_type != MISSION or seq not in (None, item.seq) or left == 0 \
+                    or (when is not None and not when(item)):
                 return mavlink.MAV_MISSION_ACCEPTED
-            if left[0] is not None:
-                left[0] -= 1
+            if left is not None:
+                left -= 1
             self._refusals.append((item, list(self._server.mission)))
             return result
 

@@ -156,7 +156,7 @@ class SimTransport:
         self._pending.add(handle)
 
     def _silent(self) -> bool:
-        return self._silent_until > 0.0 and asyncio.get_running_loop().time() < self._silent_until
+        return asyncio.get_running_loop().time() < self._silent_until
 
     async def _listen_again(self) -> None:
         try:
