@@ -21,7 +21,6 @@ from typing import Any
 import numpy as np
 
 from planner.bench.runner import (
-    write_csv,
     SCENARIO_DIR,
     Bench,
     BenchSettings,
@@ -30,6 +29,7 @@ from planner.bench.runner import (
     command_line,
     settings_list,
     summarise,
+    write_csv,
 )
 
 ALGORITHMS = ("fusion", "spso", "qpso", "psogsa", "bpso", "pso")

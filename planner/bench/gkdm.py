@@ -27,7 +27,6 @@ from typing import Any
 import numpy as np
 
 from planner.bench.runner import (
-    write_csv,
     SCENARIO_DIR,
     Bench,
     BenchSettings,
@@ -36,6 +35,7 @@ from planner.bench.runner import (
     command_line,
     settings_list,
     summarise,
+    write_csv,
 )
 
 TARGET_FACTOR = 1.001  # target cost = median final cost of the G arm × this (0.1 %: inside the ACO phase's gain)

@@ -18,7 +18,6 @@ from typing import Any
 import numpy as np
 
 from planner.bench.runner import (
-    write_csv,
     SCENARIO_DIR,
     Bench,
     BenchSettings,
@@ -28,6 +27,7 @@ from planner.bench.runner import (
     command_line,
     settings_list,
     summarise,
+    write_csv,
 )
 
 NAME = "large-scale"
