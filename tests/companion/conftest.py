@@ -1,12 +1,16 @@
 """Companion test fixtures: a leak check on every test (tasks, threads, sockets — as pymodbus' test/conftest.py
-does) and a raw MAVLink peer on a plain UDP socket, for talking to a :class:`Link` without going through it."""
+does), a raw MAVLink peer on a plain UDP socket, for talking to a :class:`Link` without going through it, and
+quick plans of rescue_static to fly (made once per session)."""
 
 from __future__ import annotations
 
 import asyncio
+import copy
 import os
 import socket
 import threading
+from collections.abc import Callable
+from pathlib import Path
 
 import pytest
 import pytest_asyncio
@@ -109,3 +113,23 @@ def raw_peer():
     with RawPeer() as peer:
         yield peer
 
+
+
+STATIC = Path(__file__).resolve().parents[2] / "sitl_scenarios" / "rescue_static.toml"
+QUICK_PLAN = ("planner.pso.n_pop=200", "planner.pso.max_iter=80")  # a feasible rescue_static plan in ~0.5 s
+
+
+@pytest.fixture(scope="session")
+def static_plan_doc() -> Callable[..., dict]:
+    """``static_plan_doc(*overrides)``: the PLAN.json document of rescue_static planned with the quick settings
+    (and ``overrides``), made once per session; each call returns a fresh copy."""
+    from planner.cli import _plan_doc_for
+
+    made: dict[tuple[str, ...], dict] = {}
+
+    def get(*overrides: str) -> dict:
+        if overrides not in made:
+            made[overrides], _ = _plan_doc_for(STATIC, None, [*QUICK_PLAN, *overrides], None)
+        return copy.deepcopy(made[overrides])
+
+    return get

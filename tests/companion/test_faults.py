@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 from pathlib import Path
 
 import pytest
@@ -21,34 +20,12 @@ from planner.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
-
-
-QUICK = ["planner.pso.n_pop=200", "planner.pso.max_iter=80"]
-COPTER = ['vehicle.type="copter"']
-
-
-def _plan(tmp_path_factory: pytest.TempPathFactory, overrides: list[str]) -> Path:
-    from planner.cli import _plan_doc_for
-
-    doc, _ = _plan_doc_for(STATIC, None, QUICK + overrides, None)
-    path = tmp_path_factory.mktemp("static") / "PLAN.json"
-    path.write_text(json.dumps(doc))
-    return path
-
-
-@pytest.fixture(scope="module")
-def static_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _plan(tmp_path_factory, [])
-
-
-@pytest.fixture(scope="module")
-def static_copter_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    return _plan(tmp_path_factory, COPTER)
+COPTER = ('vehicle.type="copter"',)
 
 
 async def _fly_through_proxy(doc: dict, faults: Faults, seed: int, speedup: float = 20.0,
-                             overrides: list[str] | None = None) -> tuple:
-    sc = load_scenario(STATIC, overrides or [])
+                             overrides: tuple[str, ...] = ()) -> tuple:
+    sc = load_scenario(STATIC, list(overrides))
     async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=speedup, seed=seed) as sim:
         async with FaultProxy(("127.0.0.1", sim.port), faults, seed=seed) as proxy:
             async with Link(f"udpout:127.0.0.1:{proxy.port}", open_timeout=5.0) as link:
@@ -62,14 +39,13 @@ async def _fly_through_proxy(doc: dict, faults: Faults, seed: int, speedup: floa
 
 @pytest.mark.parametrize("vehicle,seed", [("plane", 1), ("plane", 2), ("copter", 1)])
 def test_full_flight_through_30_percent_drop_with_duplicates_and_reordering(
-        static_plan: Path, static_copter_plan: Path, vehicle: str, seed: int) -> None:
+        static_plan_doc, vehicle: str, seed: int) -> None:
     """Upload, start (the copter: GUIDED, arm, AUTO) and fly to the goal with 30 % of the datagrams dropped each
     way, 10 % duplicated and 10 % reordered."""
-    copter = vehicle == "copter"
-    doc = json.loads((static_copter_plan if copter else static_plan).read_text())
+    overrides = COPTER if vehicle == "copter" else ()
     faults = Faults(drop=0.3, duplicate=0.1, reorder=0.1)
     out, counters, stored, items, events = asyncio.run(
-        _fly_through_proxy(doc, faults, seed, overrides=COPTER if copter else None))
+        _fly_through_proxy(static_plan_doc(*overrides), faults, seed, overrides=overrides))
     assert out.completed, out.reason
     assert any(e["event"] == "upload_verified" for e in events)
     assert counters.dropped > 0 and counters.duplicated > 0 and counters.reordered > 0
@@ -77,13 +53,13 @@ def test_full_flight_through_30_percent_drop_with_duplicates_and_reordering(
 
 
 @pytest.mark.parametrize("transport", ["udp", "tcp"])
-def test_a_10_s_link_outage_mid_flight_is_survived(static_plan: Path, transport: str) -> None:
+def test_a_10_s_link_outage_mid_flight_is_survived(static_plan_doc, transport: str) -> None:
     """The link goes silent for 10 s while the vehicle flies: the companion says so (the vehicle flies on with
     its verified mission), waits, and when the link is back reads the mission back (it must still be ours)
     before going on to the end of the flight. UDP: the proxy drops everything. TCP (as to ArduPilot SITL's
     port 5760): the open connection goes half-open and connects are refused meanwhile, so the link must notice
     the silence, drop the connection and reconnect with back-off once the port answers again."""
-    doc = json.loads(static_plan.read_text())
+    doc = static_plan_doc()
     sc = load_scenario(STATIC)
     tcp = transport == "tcp"
 

@@ -36,12 +36,9 @@ def same_mission(a: list, b: list) -> bool:
     return mission_difference(a, b) is None
 
 
-@pytest.fixture(scope="module")
-def static_doc() -> dict:
-    from planner.cli import _plan_doc_for
-
-    doc, _ = _plan_doc_for(STATIC, None, ["planner.pso.n_pop=100", "planner.pso.max_iter=40"], None)
-    return doc
+@pytest.fixture
+def static_doc(static_plan_doc) -> dict:
+    return static_plan_doc()
 
 
 @contextlib.asynccontextmanager

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
 
@@ -34,12 +35,12 @@ def same_mission(a: list, b: list) -> bool:
     return mission_difference(a, b) is None
 
 
-def _plan(tmp_path_factory: pytest.TempPathFactory, scenario: Path) -> Path:
+def _plan(tmp_path_factory: pytest.TempPathFactory, scenario: Path, overrides: Sequence[str] = ()) -> Path:
     """PLAN.json timed for flight, made by `fuseplan fly` itself (it writes PLAN.json before flying): plan
     with the same code path, then fly that file in every test."""
     from planner.cli import _plan_doc_for
 
-    doc, _ = _plan_doc_for(scenario, None, [], None, feasible_only=True, for_flight=True)
+    doc, _ = _plan_doc_for(scenario, None, list(overrides), None, feasible_only=True, for_flight=True)
     path = tmp_path_factory.mktemp(scenario.stem) / "PLAN.json"
     path.write_text(json.dumps(doc))
     return path
@@ -110,17 +111,13 @@ def _latest_verified(verified: list[tuple[float, list]], t: float) -> list:
     return [items for tv, items in verified if tv <= t][-1]
 
 
+# same route; the copter climbs vertically, so the intruder comes 20 s later
+COPTER = ['vehicle.type="copter"', 'intruders[0].start_time=30.0']
+
+
 @pytest.fixture(scope="module")
 def dynamic_copter_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from planner.cli import _plan_doc_for
-
-    doc, _ = _plan_doc_for(DYNAMIC, None, COPTER, None, feasible_only=True, for_flight=True)
-    path = tmp_path_factory.mktemp("copter") / "PLAN.json"
-    path.write_text(json.dumps(doc))
-    return path
-
-
-COPTER = ['vehicle.type="copter"', 'intruders[0].start_time=30.0']  # same route; the copter climbs vertically, so the intruder comes 20 s later
+    return _plan(tmp_path_factory, DYNAMIC, COPTER)
 
 
 async def _harness(sc, doc: dict, speedup: float, cfg: ReplanConfig, before=None, during=None,
@@ -215,7 +212,8 @@ def test_refused_replan_upload_restores_a_verified_mission(dynamic_plan: Path, d
         assert len(sim.refusals) == 1
         assert out.completed, out.reason
         assert names.index("mission_restored") < names.index("replan_verified") < names.index("resume")
-        assert same_mission(sim.mission, verified[-1][1]) and not same_mission(sim.mission, initial)  # the new one, verified
+        # the new one, verified
+        assert same_mission(sim.mission, verified[-1][1]) and not same_mission(sim.mission, initial)
     else:
         attempts = ReplanConfig().upload_attempts
         assert len(sim.refusals) == attempts and len(restores) == attempts

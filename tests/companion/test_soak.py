@@ -5,7 +5,6 @@ under 3 minutes (about 2 on the 2-core CI machine)."""
 from __future__ import annotations
 
 import asyncio
-import json
 import os
 from pathlib import Path
 
@@ -41,11 +40,8 @@ def _sockets() -> int:
 
 
 @pytest.mark.slow
-def test_twenty_missions_in_a_row_without_leaks(tmp_path: Path) -> None:
-    from planner.cli import _plan_doc_for
-
-    doc, _ = _plan_doc_for(STATIC, None, ["planner.pso.n_pop=200", "planner.pso.max_iter=80"], None)
-    (tmp_path / "PLAN.json").write_text(json.dumps(doc))
+def test_twenty_missions_in_a_row_without_leaks(static_plan_doc) -> None:
+    doc = static_plan_doc()
     sc = load_scenario(STATIC)
     rng = np.random.default_rng(2026)
     sockets0 = _sockets()
