@@ -7,7 +7,6 @@ protocol client, the exports and the simulated autopilot.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 
 from pymavlink.dialects.v20 import common as mavlink
@@ -81,16 +80,14 @@ def normalise_frame(frame: int) -> int:
 
 def compare_items(sent: MissionItem, got: MissionItem, alt_tol: float = 0.01,
                   param_tol: float = 1e-4) -> tuple[str, object, object] | None:
-    """First difference between an uploaded item and its readback, or None; frames are normalised (and not
-    compared for items sent in MAV_FRAME_MISSION), float params compared with a tolerance (they travel as
-    float32). NaN equals NaN."""
+    """First ``(field, sent, got)`` difference between two items, or None: frames normalised, float params
+    compared with a tolerance (they travel as float32), NaN equal to NaN, the current flag ignored. What an
+    autopilot does not store is :func:`companion.storage.stored`'s business, not this one's."""
     for f in fields(MissionItem):
         a, b = getattr(sent, f.name), getattr(got, f.name)
         if f.name == "current":
             continue  # the autopilot owns the current flag
         if f.name == "frame":
-            if a == FRAME_MISSION:  # no position: ArduPilot stores no frame for DO_ commands
-                continue
             a, b = normalise_frame(a), normalise_frame(b)
         if isinstance(a, float) or isinstance(b, float):
             if a != a and b != b:  # both NaN
@@ -100,21 +97,6 @@ def compare_items(sent: MissionItem, got: MissionItem, alt_tol: float = 0.01,
                 return f.name, a, b
         elif a != b:
             return f.name, a, b
-    return None
-
-
-def mission_difference(sent: Sequence[MissionItem], got: Sequence[MissionItem],
-                       home_at_zero: bool = True) -> tuple[int, str, object, object] | None:
-    """First ``(seq, field, sent, got)`` difference between an upload and its readback (or any two missions),
-    or None. ``home_at_zero``: skip item 0, which ArduPilot replaces with its home."""
-    if len(got) != len(sent):
-        return min(len(got), len(sent)), "count", len(sent), len(got)
-    for a, b in zip(sent, got):
-        if home_at_zero and a.seq == 0:
-            continue  # ArduPilot's home: acknowledged, ignored, read back as the real home
-        diff = compare_items(a, b)
-        if diff is not None:
-            return (a.seq, *diff)
     return None
 
 

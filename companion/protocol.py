@@ -30,7 +30,8 @@ from dataclasses import replace
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.errors import CommandError, MissionTimeout, MissionUploadError, MissionVerifyError
-from companion.items import MISSION, MissionItem, mission_difference
+from companion.items import MISSION, MissionItem
+from companion.storage import Firmware, mission_difference
 from companion.link import Link, Message
 
 log = logging.getLogger(__name__)
@@ -58,9 +59,10 @@ def _numbered(items: Sequence[MissionItem], mission_type: int) -> list[MissionIt
     return [replace(it, seq=i, mission_type=mission_type) for i, it in enumerate(items)]
 
 
-def _matching(expected: list[MissionItem], got: list[MissionItem], home_at_zero: bool) -> list[MissionItem]:
+def _matching(expected: list[MissionItem], got: list[MissionItem], home_at_zero: bool,
+              firmware: Firmware) -> list[MissionItem]:
     """``got`` if it matches ``expected`` (:func:`mission_difference`), else :class:`MissionVerifyError`."""
-    diff = mission_difference(expected, got, home_at_zero)
+    diff = mission_difference(expected, got, home_at_zero, firmware)
     if diff is not None:
         raise MissionVerifyError(*diff)
     return got
@@ -128,7 +130,8 @@ class MissionClient:
             got = await self._download(mission_type)
         except (MissionTimeout, MissionUploadError):
             got = None
-        if got is None or mission_difference(items, got, self.home_at_zero(mission_type)) is not None:
+        home = self.home_at_zero(mission_type)
+        if got is None or mission_difference(items, got, home, self.firmware) is not None:
             if result is None:
                 raise MissionTimeout("upload", seq)
             raise MissionUploadError(result, seq)
@@ -212,9 +215,9 @@ class MissionClient:
 
     async def upload_verified(self, items: Sequence[MissionItem], mission_type: int = MISSION,
                               home_at_zero: bool | None = None) -> list[MissionItem]:
-        """Upload, download and compare item by item (:func:`compare_items`). ``home_at_zero`` (default: the
-        target is ArduPilot and this is the MISSION list) skips seq 0, which ArduPilot replaces with home.
-        Returns the readback; raises :class:`MissionVerifyError` on the first difference."""
+        """Upload, download and compare item by item as the target stores them (:mod:`companion.storage`).
+        ``home_at_zero`` (default: the target is ArduPilot and this is the MISSION list) skips seq 0, which
+        ArduPilot replaces with home. Returns the readback; raises :class:`MissionVerifyError` on the first difference."""
         if home_at_zero is None:
             home_at_zero = self.home_at_zero(mission_type)
         sent = _numbered(items, mission_type)
@@ -222,14 +225,19 @@ class MissionClient:
             got = await self._upload(sent, mission_type)
             if got is None:  # (else the upload was already confirmed by a readback)
                 got = await self._download(mission_type)
-        return _matching(sent, got, home_at_zero)
+        return _matching(sent, got, home_at_zero, self.firmware)
 
     async def verify(self, items: Sequence[MissionItem], mission_type: int = MISSION) -> list[MissionItem]:
         """Download ``mission_type`` and compare it with ``items`` as :meth:`upload_verified` does; returns the
         readback, raises :class:`MissionVerifyError` on the first difference (e.g. after a link outage)."""
         async with self._lock:
             got = await self._download(mission_type)
-        return _matching(_numbered(items, mission_type), got, self.home_at_zero(mission_type))
+        return _matching(_numbered(items, mission_type), got, self.home_at_zero(mission_type), self.firmware)
+
+    @property
+    def firmware(self) -> Firmware:
+        """How the target stores items (:mod:`companion.storage`), from its HEARTBEAT."""
+        return Firmware.of(self.link.autopilot, self.link.vehicle_type)
 
     def home_at_zero(self, mission_type: int) -> bool:
         """ArduPilot keeps home at item 0 of the mission list (replaced on upload, read back as the real home)."""

@@ -19,7 +19,8 @@ import pytest
 from companion.builder import mission_from_plan_json
 from companion.errors import UploadAborted
 from companion.events import EventLog
-from companion.items import compare_items, mission_difference
+from companion.items import compare_items
+from companion.storage import mission_difference
 from companion.link import Link
 from companion.protocol import MissionClient
 from companion.restore import restore_mission

@@ -16,7 +16,8 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.builder import mission_from_plan_json
-from companion.items import compare_items, mission_difference
+from companion.items import compare_items
+from companion.storage import mission_difference
 from companion.fly import truth_separations
 from companion.latency_bench import fly_on_sim
 from companion.replan import ReplanConfig

@@ -1,0 +1,114 @@
+"""What an autopilot keeps of a mission, fence or rally item: the readback comparison rules, written once.
+
+An autopilot does not store a MISSION_ITEM_INT as sent. ArduPilot packs each command into a 15-byte record
+(AP_Mission) and each fence or rally point into its own small record, so a readback returns only what that
+record carries: frames as their non-INT twins, commands without a position in frame GLOBAL, fence and rally
+points with autocontinue 0 and without the fields they do not use, NAV_WAYPOINT's acceptance and pass-by
+radii as whole metres up to 255 on a plane and not at all on a copter (which keeps the hold time instead).
+:func:`stored` maps an item to that form; an upload is verified by comparing ``stored(sent)`` with
+``stored(got)`` (:func:`companion.items.compare_items`), and the built-in simulator stores ``stored(item)``
+so that its readback is the real one. Every rule here was seen on ArduPilot 4.7 SITL (plane and copter) and
+is checked by the conformance tests (tests/conformance). Commands not listed keep every field (strict).
+"""
+
+from __future__ import annotations
+
+import enum
+import math
+from collections.abc import Sequence
+from dataclasses import replace
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.items import FENCE, RALLY, MissionItem, compare_items, normalise_frame
+
+
+class Firmware(enum.Enum):
+    """How an autopilot stores items: ArduPlane and the other ArduPilot vehicles differ in NAV_WAYPOINT."""
+
+    ARDUPLANE = "arduplane"
+    ARDUCOPTER = "arducopter"  # also Rover and Sub: AP_Mission's non-plane branch
+    PX4 = "px4"
+    GENERIC = "generic"  # stores every field (MAVSDK's MissionRawServer)
+
+    @classmethod
+    def of(cls, autopilot: int | None, vehicle_type: int | None) -> Firmware:
+        """From a HEARTBEAT's ``autopilot`` and ``type``."""
+        if autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
+            return cls.ARDUPLANE if vehicle_type in _FIXED_WING else cls.ARDUCOPTER
+        if autopilot == mavlink.MAV_AUTOPILOT_PX4:
+            return cls.PX4
+        return cls.GENERIC
+
+    @property
+    def ardupilot(self) -> bool:
+        return self in (Firmware.ARDUPLANE, Firmware.ARDUCOPTER)
+
+
+_FIXED_WING = frozenset({mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_TYPE_VTOL_DUOROTOR,  # QuadPlane types too
+                         mavlink.MAV_TYPE_VTOL_QUADROTOR, mavlink.MAV_TYPE_VTOL_TILTROTOR})
+
+# ArduPilot commands without a position: read back in frame GLOBAL whatever frame was sent
+_NO_POSITION = frozenset({mavlink.MAV_CMD_DO_CHANGE_SPEED, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH,
+                          mavlink.MAV_CMD_DO_JUMP, mavlink.MAV_CMD_DO_SET_SERVO, mavlink.MAV_CMD_DO_SET_RELAY,
+                          mavlink.MAV_CMD_CONDITION_DELAY, mavlink.MAV_CMD_DO_SET_HOME})
+_BYTE_MAX = 255  # ArduPlane packs NAV_WAYPOINT's acceptance and pass-by radii in one byte each
+
+
+def stored(item: MissionItem, firmware: Firmware) -> MissionItem:
+    """``item`` as ``firmware`` stores it and returns it in a readback (frames always normalised)."""
+    item = replace(item, frame=normalise_frame(item.frame))
+    if not firmware.ardupilot:
+        return item
+    if item.frame == mavlink.MAV_FRAME_MISSION:  # no position: ArduPilot keeps no frame
+        item = replace(item, frame=mavlink.MAV_FRAME_GLOBAL)
+    if item.mission_type in (FENCE, RALLY):
+        return _stored_point(item)
+    cmd = item.command
+    if cmd in _NO_POSITION:
+        item = replace(item, frame=mavlink.MAV_FRAME_GLOBAL)
+    if cmd == mavlink.MAV_CMD_NAV_WAYPOINT:
+        if firmware is Firmware.ARDUPLANE:  # radii in whole metres (truncated, as a C cast), no hold time
+            return replace(item, param1=0.0, param2=_byte(item.param2), param3=_byte(item.param3), param4=0.0)
+        return replace(item, param1=_whole(item.param1), param2=0.0, param3=0.0, param4=0.0)  # hold time, s
+    if cmd == mavlink.MAV_CMD_NAV_LOITER_UNLIM:  # radius as whole metres, its sign is the direction
+        return replace(item, param1=0.0, param2=0.0, param3=math.copysign(_whole(abs(item.param3)), item.param3),
+                       param4=0.0)
+    if cmd in (mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_NAV_LAND):  # param1 only (pitch / abort altitude)
+        return replace(item, param2=0.0, param3=0.0, param4=0.0)
+    if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
+        return replace(item, param1=0.0, param2=0.0, param3=0.0, param4=0.0)
+    return item
+
+
+def _stored_point(item: MissionItem) -> MissionItem:
+    """An ArduPilot fence or rally point: position (and param1: a circle's radius or a polygon's vertex
+    count) only; stored without a frame for fences, with autocontinue 0 for both."""
+    if item.mission_type == FENCE:
+        return replace(item, frame=mavlink.MAV_FRAME_GLOBAL, param2=0.0, param3=0.0, param4=0.0, z=0.0,
+                       autocontinue=0)
+    return replace(item, param1=0.0, param2=0.0, param3=0.0, param4=0.0, autocontinue=0)
+
+
+def _whole(value: float) -> float:
+    """A float param kept as an unsigned 16-bit integer (truncated; NaN → 0)."""
+    return float(int(value)) if math.isfinite(value) and value > 0 else 0.0
+
+
+def _byte(value: float) -> float:
+    return min(float(_BYTE_MAX), _whole(value))
+
+
+def mission_difference(sent: Sequence[MissionItem], got: Sequence[MissionItem], home_at_zero: bool = True,
+                       firmware: Firmware = Firmware.GENERIC) -> tuple[int, str, object, object] | None:
+    """First ``(seq, field, sent, got)`` difference between an upload and its readback (or any two lists) as
+    ``firmware`` stores them, or None. ``home_at_zero``: skip item 0, which ArduPilot replaces with its home."""
+    if len(got) != len(sent):
+        return min(len(got), len(sent)), "count", len(sent), len(got)
+    for a, b in zip(sent, got):
+        if home_at_zero and a.seq == 0:
+            continue  # ArduPilot's home: acknowledged, ignored, read back as the real home
+        diff = compare_items(stored(a, firmware), stored(b, firmware))
+        if diff is not None:
+            return (a.seq, *diff)
+    return None
