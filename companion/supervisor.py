@@ -31,6 +31,10 @@ EKF_GOOD = 0x33F  # attitude, velocities, horizontal/vertical position, predicte
 PILOT_ARM_TIMEOUT_S = 600.0
 REPLANNER_STOP_S = 5.0  # wall seconds a cancelled replanner may take to finish (a plan in progress)
 UPLOAD_ATTEMPTS = 3  # whole verified uploads tried before the flight when the link breaks one
+BOOT_TIMEOUT_S = 60.0  # wall seconds an autopilot may take to finish booting
+BOOT_GRACE_S = 10.0  # a MAV_MISSION_NO_SPACE this soon after boot is the boot's, not the mission's size
+BOOTING_STATES = frozenset({mavlink.MAV_STATE_UNINIT, mavlink.MAV_STATE_BOOT, mavlink.MAV_STATE_CALIBRATING})
+ARDUPLANE_INITIALISING = 16  # ArduPlane's custom mode until its setup has finished
 
 
 @dataclass
@@ -47,6 +51,13 @@ class FlightOutcome:
     holding: bool = False  # ended with the vehicle held (loitering) by the companion
 
 
+def _booting(hb: object) -> bool:
+    """A HEARTBEAT of an autopilot that has not finished booting."""
+    return hb.system_status in BOOTING_STATES or (  # type: ignore[attr-defined]
+        hb.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA and hb.type == mavlink.MAV_TYPE_FIXED_WING  # type: ignore[attr-defined]
+        and hb.custom_mode == ARDUPLANE_INITIALISING)  # type: ignore[attr-defined]
+
+
 class FlightSupervisor:
     """Flies one mission. ``arm``: may the companion arm the vehicle (only when asked, or our own sim)."""
 
@@ -55,8 +66,51 @@ class FlightSupervisor:
         self.client = client
         self.events = events
         self.arm = arm
+        self.booted_at: float | None = None  # time.monotonic() when the autopilot was seen booted
 
     # -- readiness ---------------------------------------------------------------------------------
+    async def wait_booted(self, timeout: float = BOOT_TIMEOUT_S) -> None:
+        """Wait until the autopilot has finished booting before touching its mission: its HEARTBEAT no longer
+        says UNINIT/BOOT/CALIBRATING (nor, on ArduPlane, mode INITIALISING) and, from ArduPilot or PX4, a first
+        SYS_STATUS has come. An ArduPilot that is still booting refuses every upload with
+        MAV_MISSION_NO_SPACE (AUTOPILOT_FACTS: a companion usually powers up with its autopilot)."""
+        t0 = time.monotonic()
+        wants_status = self.link.autopilot in (mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, mavlink.MAV_AUTOPILOT_PX4)
+        hb, status_seen, said = self.link.last_heartbeat_msg, not wants_status, False
+        with self.link.subscribe("HEARTBEAT", "SYS_STATUS") as sub:
+            while hb is None or _booting(hb) or not status_seen:
+                if not said and hb is not None and _booting(hb):
+                    self.events.log("booting", system_status=hb.system_status,
+                                    mode=mode_name(hb.autopilot, hb.type, hb.custom_mode))
+                    said = True
+                left = timeout - (time.monotonic() - t0)
+                if left <= 0:
+                    what = (f"HEARTBEAT system_status {hb.system_status}, mode "
+                            f"{mode_name(hb.autopilot, hb.type, hb.custom_mode)}" if hb is not None and _booting(hb)
+                            else "no SYS_STATUS")
+                    raise CompanionError(f"the autopilot did not finish booting within {timeout:.0f} s ({what}); "
+                                         "nothing was uploaded")
+                try:
+                    msg = await sub.get(left)
+                except TimeoutError:
+                    continue
+                if msg.get_type() == "HEARTBEAT":
+                    hb = msg
+                else:
+                    status_seen = True
+        self.booted_at = time.monotonic()
+        if said:
+            self.events.log("booted", seconds=round(self.booted_at - t0, 2))
+
+    def _refused_while_booting(self, e: Exception) -> bool:
+        """An upload refused with MAV_MISSION_NO_SPACE by an autopilot that is booting or has just booted
+        (its mission storage is not ready yet): worth doing again, unlike a real lack of space."""
+        if not (isinstance(e, MissionUploadError) and e.result == mavlink.MAV_MISSION_NO_SPACE):
+            return False
+        hb = self.link.last_heartbeat_msg
+        recent = self.booted_at is not None and time.monotonic() - self.booted_at < BOOT_GRACE_S
+        return recent or (hb is not None and _booting(hb))
+
     async def wait_ready(self, timeout: float) -> None:
         """Wait for a 3-D GPS fix, a healthy pre-arm check and a good EKF (each only if the autopilot
         reports it), instead of retrying arming blindly (AUTOPILOT_FACTS: 'System not initialised')."""
@@ -104,12 +158,16 @@ class FlightSupervisor:
                     await self.client.upload_verified(payload, kind)
                     break
                 except (MissionTimeout, MissionVerifyError, MissionUploadError) as e:
-                    transient = not (isinstance(e, MissionUploadError) and e.refused)
+                    booting = self._refused_while_booting(e)
+                    transient = booting or not (isinstance(e, MissionUploadError) and e.refused)
                     self.events.log("upload_failed", mission_type=kind, attempt=attempt, error=str(e),
                                     retrying=transient and attempt < attempts)
                     if not transient or attempt == attempts:
                         _, left_with = await restore_mission(self.client, self.events, previous, kind)
                         raise UploadAborted(e, left_with) from e
+                    if booting:
+                        await self.wait_booted()
+                        await asyncio.sleep(1.0)
             dt += time.monotonic() - t0
         self.events.log("upload_verified", seconds=round(dt, 3))
         return dt
@@ -300,6 +358,7 @@ class FlightSupervisor:
             # an upload is not atomic: it would change, item by item, the mission the vehicle may be flying
             raise CompanionError(f"the vehicle is armed (mode {mode}): fuseplan fly uploads a mission only to a "
                                  "disarmed vehicle; nothing was uploaded")
+        await self.wait_booted()
         out.upload_s = await self.upload(items, fence)
         if replanner is not None:
             replanner.note_upload(out.upload_s)

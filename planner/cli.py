@@ -422,7 +422,7 @@ _ECHOED = ("reached", "statustext", "mode", "armed", "upload_verified", "mission
            "finished", "timeout", "arm_refused", "waiting_for_pilot_arm", "failed", "track",
            "track_expired", "conflict_predicted", "hold", "resume", "threat_cleared", "replan_upload_failed",
            "set_current", "replanner_failed", "upload_failed", "backup_failed", "mission_restored",
-           "mission_restore_failed", "link_lost", "link_restored", "resync", "resync_mismatch")
+           "mission_restore_failed", "link_lost", "link_restored", "resync", "resync_mismatch", "booting", "booted")
 
 
 def _echo_event(rec: dict) -> None:
