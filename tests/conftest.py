@@ -1,15 +1,63 @@
-"""Shared fixtures: paths to the shipped scenarios."""
+"""Shared fixtures: paths to the shipped scenarios, and real ArduPilot SITL processes (tests/sitl_harness.py)."""
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from sitl_harness import HomeLike, SitlInstance, start_sitl, unavailable
 
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ROOT / "sitl_scenarios"
+
+SitlFactory = Callable[..., SitlInstance]
+SITL_FIXTURES = {"sitl_factory", "sitl_factory_fn"}
 
 
 @pytest.fixture
 def rescue_static() -> Path:
     return SCENARIOS / "rescue_static.toml"
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark every test that uses a SITL fixture ``sitl``, so ``-m "not sitl"`` leaves them out."""
+    for item in items:
+        if SITL_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.sitl)
+
+
+def _sitl_factory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SitlFactory]:
+    """Yield ``start(vehicle, home, speedup=10.0) -> SitlInstance``; stop all it started afterwards."""
+    started: list[SitlInstance] = []
+
+    def start(vehicle: str, home: HomeLike | tuple[float, float, float], speedup: float = 10.0) -> SitlInstance:
+        reason = unavailable(vehicle)
+        if reason:
+            pytest.skip(reason)
+        sitl = start_sitl(vehicle, home, tmp_path_factory.mktemp(f"sitl-{vehicle}"), speedup)
+        started.append(sitl)
+        return sitl
+
+    yield start
+    problems = []
+    for sitl in started:
+        try:
+            sitl.stop()
+        except AssertionError as e:
+            problems.append(str(e))
+    if problems:
+        pytest.fail("\n".join(problems))
+
+
+@pytest.fixture(scope="module")
+def sitl_factory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SitlFactory]:
+    """``start(vehicle, home, speedup=10.0)``: a real SITL per call, stopped at the end of the test module
+    (skips the test when $FUSEPLAN_SITL_DIR or the vehicle's binary is missing)."""
+    yield from _sitl_factory(tmp_path_factory)
+
+
+@pytest.fixture
+def sitl_factory_fn(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SitlFactory]:
+    """As ``sitl_factory``, but everything started is stopped at the end of the test."""
+    yield from _sitl_factory(tmp_path_factory)
