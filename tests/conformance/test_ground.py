@@ -1,0 +1,242 @@
+"""On the ground, with a booted and ready autopilot shared by the module: the mission protocol as ArduPilot
+speaks it, what it stores of each item fuseplan builds (companion.storage's rules, item type by item type),
+fences, rally points, the current item, and the copter's refusal to arm in AUTO."""
+
+from __future__ import annotations
+
+import asyncio
+from dataclasses import dataclass
+
+import pytest
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.errors import CommandError
+from companion.items import FENCE, RALLY, MissionItem, compare_items
+from conformance.conftest import (HOME, NAN, collect, home_item, item, next_matching, numbered,
+                                  takeoff, texts, waypoint)
+
+pytestmark = pytest.mark.asyncio(loop_scope="module")
+
+FRAME_GLOBAL_INT = mavlink.MAV_FRAME_GLOBAL_INT
+FRAME_REL_INT = mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
+
+
+def _difference(v, sent: list[MissionItem], got: list[MissionItem], skip_home: bool) -> str | None:
+    """The first item whose readback is not ``stored(sent)`` field for field, described; None if all are."""
+    if len(got) != len(sent):
+        return f"{len(got)} items read back, {len(sent)} sent"
+    for s, g in zip(sent, got):
+        if skip_home and s.seq == 0:
+            continue
+        diff = compare_items(v.stored(s), g)
+        if diff is not None:
+            return f"item {s.seq} (command {s.command}): {diff[0]} stored() says {diff[1]!r}, read back {diff[2]!r}"
+    return None
+
+
+# ------------------------------------------------------------------------------------------------ mission protocol
+async def test_upload_items_are_requested_with_legacy_mission_request(vehicle) -> None:
+    mission = numbered([home_item(), takeoff(40.0), waypoint(200.0, 0.0, 40.0), waypoint(200.0, 200.0, 40.0)])
+    with vehicle.link.subscribe("MISSION_REQUEST", "MISSION_REQUEST_INT") as sub:
+        await vehicle.client.upload(mission)
+        requests = sub.drain()
+    assert {r.get_type() for r in requests} == {"MISSION_REQUEST"}
+    assert sorted({r.seq for r in requests}) == [0, 1, 2, 3]
+
+
+async def test_item_0_is_ignored_and_reads_back_as_the_real_home(vehicle) -> None:
+    fake_home = item(mavlink.MAV_CMD_NAV_WAYPOINT, 500.0, 500.0, 123.0, frame=FRAME_REL_INT)
+    got = await vehicle.client.upload_verified(numbered([fake_home, waypoint(200.0, 0.0, 40.0)]))
+    home = got[0]
+    assert home.frame == mavlink.MAV_FRAME_GLOBAL
+    assert home.command == mavlink.MAV_CMD_NAV_WAYPOINT
+    assert abs(home.lat - HOME.lat) < 2e-6 and abs(home.lon - HOME.lon) < 2e-6  # ~0.2 m
+    assert abs(home.z - HOME.alt) < 1.0  # AMSL
+
+
+async def test_frames_read_back_as_their_non_int_twins(vehicle) -> None:
+    frames = [mavlink.MAV_FRAME_GLOBAL_INT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+              mavlink.MAV_FRAME_GLOBAL_TERRAIN_ALT_INT, mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT]
+    sent = [home_item()] + [item(mavlink.MAV_CMD_NAV_WAYPOINT, 100.0 * (i + 1), 0.0,
+                                 HOME.alt + 40.0 if f in (0, 5) else 40.0, frame=f) for i, f in enumerate(frames)]
+    got = await vehicle.client.upload_verified(numbered(sent))
+    assert [g.frame for g in got[1:]] == [0, 3, 10, 0, 3]
+
+
+@dataclass(frozen=True)
+class Case:
+    """One mission item as fuseplan's builder makes it, with values that exercise a storage rule."""
+
+    item: MissionItem
+    why: str
+
+
+CASES = {
+    # NAV_WAYPOINT: ArduPlane keeps param2/param3 as whole metres ≤ 255 and no hold time; ArduCopter keeps only
+    # the hold time (param1, whole seconds); param4 (yaw) is not stored by either
+    "waypoint_radius_300": Case(waypoint(200.0, 0.0, 40.0, param1=3.7, param2=300.0, param4=NAN),
+                                "plane 300 → 255, copter → 0; hold 3.7 s: plane 0, copter 3"),
+    "waypoint_radius_20.7": Case(waypoint(200.0, 0.0, 40.0, param2=20.7, param3=20.7),
+                                 "plane radius and pass-by 20.7 → 20, copter → 0"),
+    "waypoint_radius_20": Case(waypoint(200.0, 0.0, 40.0, param2=20.0), "plane 20, copter → 0"),
+    "takeoff": Case(takeoff(40.0, pitch=10.0), "builder's plane pitch 10° (copter 0) kept"),
+    "takeoff_nan_yaw": Case(item(mavlink.MAV_CMD_NAV_TAKEOFF, 0.0, 0.0, 40.0, param4=NAN), "param4 NaN → 0"),
+    "takeoff_fractional_pitch": Case(takeoff(40.0, pitch=5.5), "param1 5.5: stored() keeps it"),
+    "change_speed": Case(item(mavlink.MAV_CMD_DO_CHANGE_SPEED, frame=mavlink.MAV_FRAME_MISSION, located=False,
+                              param1=0.0, param2=18.0, param3=-1.0), "frame MISSION → GLOBAL, speed kept"),
+    "change_speed_fractional": Case(item(mavlink.MAV_CMD_DO_CHANGE_SPEED, located=False, param1=1.0, param2=22.5,
+                                         param3=-1.0), "frame 6 → GLOBAL, 22.5 m/s kept (float)"),
+    "loiter_unlim": Case(item(mavlink.MAV_CMD_NAV_LOITER_UNLIM, 0.0, 200.0, 60.0, param1=1.0, param2=2.0,
+                              param3=-60.5, param4=NAN), "radius -60.5 → -60 (sign = direction), rest 0"),
+    "rtl": Case(item(mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH, located=False), "frame 6 → GLOBAL"),
+    "land": Case(item(mavlink.MAV_CMD_NAV_LAND, 200.0, 200.0, 0.0), "builder's ArduPilot land: param4 0"),
+    "land_nan_yaw": Case(item(mavlink.MAV_CMD_NAV_LAND, 200.0, 200.0, 0.0, param4=NAN), "param4 NaN (PX4's yaw)"),
+}
+
+
+@pytest.mark.parametrize("case", CASES)
+async def test_mission_item_reads_back_as_storage_rules_say(vehicle, case) -> None:
+    sent = numbered([home_item(), CASES[case].item])
+    await vehicle.client.upload(sent)
+    got = await vehicle.client.download()
+    diff = _difference(vehicle, sent, got, skip_home=True)
+    assert diff is None, f"{case} ({CASES[case].why}): {diff}"
+
+
+# ------------------------------------------------------------------------------------------------ fence
+def _fence() -> list[MissionItem]:
+    """Every fence item type; fields a fence item does not use are set, to see them dropped."""
+    fence = [
+        item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, 0.0, 0.0, frame=FRAME_GLOBAL_INT, param1=2000.0),
+        item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, 300.0, 300.0, 100.0, frame=FRAME_GLOBAL_INT, param1=50.0,
+             param2=3.0, param3=4.0, param4=5.0),
+        item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, -300.0, 300.0, frame=FRAME_REL_INT, param1=50.5),
+        item(mavlink.MAV_CMD_NAV_FENCE_RETURN_POINT, 50.0, 50.0, 40.0, frame=FRAME_REL_INT),
+    ]
+    fence += [item(mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, n, e, frame=FRAME_GLOBAL_INT, param1=4.0)
+              for n, e in ((-1500.0, -1500.0), (-1500.0, 1500.0), (1500.0, 1500.0), (1500.0, -1500.0))]
+    fence += [item(mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, n, e, frame=FRAME_GLOBAL_INT, param1=3.0)
+              for n, e in ((500.0, -500.0), (500.0, -400.0), (400.0, -450.0))]
+    return numbered(fence, FENCE)
+
+
+async def test_fence_reads_back_as_storage_rules_say(vehicle) -> None:
+    fence = _fence()
+    got = await vehicle.client.upload_verified(fence, FENCE)
+    assert _difference(vehicle, fence, got, skip_home=False) is None, _difference(vehicle, fence, got, False)
+
+
+async def test_fence_circle_radius_keeps_its_fraction(vehicle, measure) -> None:
+    fence = _fence()
+    circle = 2  # the exclusion circle of radius 50.5
+    assert fence[circle].param1 == 50.5
+    got = await vehicle.client.upload_verified(fence, FENCE)
+    measure(f"fence circle radius 50.5 reads back {got[circle].param1!r}")
+    assert compare_items(vehicle.stored(fence[circle]), got[circle]) is None
+
+
+async def test_one_or_two_circles_uploaded_over_a_longer_fence_are_erased(vehicle) -> None:
+    """ArduPilot sets FENCE_TOTAL to 0 for a fence of fewer than 3 vertices (each circle counts as one), and its
+    fence loader clears the stored fence when FENCE_TOTAL goes from non-zero to 0 (AC_PolyFence_loader: "an older
+    GCS sets the fence point count to zero"). So a single circle uploaded over a longer fence is acknowledged —
+    and verified by a readback in the first ~10 ms of wall time at speed-up 10 — and then gone; the same upload
+    again stays (FENCE_TOTAL was 0 already)."""
+    single = numbered([_fence()[2]], FENCE)
+    await vehicle.client.upload(_fence(), FENCE)
+    await vehicle.client.upload(single, FENCE)
+    await asyncio.sleep(0.5)  # 5 s of the autopilot's time
+    assert await vehicle.client.download(FENCE) == []
+    await vehicle.client.upload(single, FENCE)
+    await asyncio.sleep(0.5)
+    assert len(await vehicle.client.download(FENCE)) == 1
+
+
+async def test_fence_enabled_by_parameters_as_a_user_would(vehicle) -> None:
+    """FENCE_ENABLE=1 and FENCE_TYPE = circle|polygon (bits: 1 max alt, 2 circle, 4 polygon, 8 min alt) with
+    PARAM_SET, each confirmed by PARAM_VALUE; the fence then uploads and verifies, and SYS_STATUS reports the
+    geofence enabled."""
+    await vehicle.param_set("FENCE_TYPE", 2 | 4)
+    await vehicle.param_set("FENCE_ENABLE", 1)
+    try:
+        fence = _fence()
+        got = await vehicle.client.upload_verified(fence, FENCE)
+        assert len(got) == len(fence)
+        status = await vehicle.link.wait_for("SYS_STATUS", timeout=5.0)
+        assert status.onboard_control_sensors_enabled & mavlink.MAV_SYS_STATUS_GEOFENCE
+    finally:
+        await vehicle.param_set("FENCE_ENABLE", 0)
+
+
+# ------------------------------------------------------------------------------------------------ rally
+def _rally(altitudes: tuple[float, float, float]) -> list[MissionItem]:
+    return numbered([
+        item(mavlink.MAV_CMD_NAV_RALLY_POINT, 100.0, -100.0, altitudes[0], param1=1.0, param2=2.0, param3=3.0,
+             param4=4.0),
+        item(mavlink.MAV_CMD_NAV_RALLY_POINT, -100.0, 100.0, altitudes[1], frame=FRAME_GLOBAL_INT),
+        item(mavlink.MAV_CMD_NAV_RALLY_POINT, -100.0, -100.0, altitudes[2],
+             frame=mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT),
+    ], RALLY)
+
+
+async def test_rally_points_read_back_as_storage_rules_say(vehicle) -> None:
+    rally = _rally((60.0, HOME.alt + 100.0, 80.0))
+    got = await vehicle.client.upload_verified(rally, RALLY)
+    assert _difference(vehicle, rally, got, skip_home=False) is None, _difference(vehicle, rally, got, False)
+
+
+async def test_rally_fractional_altitude_reads_back_as_storage_rules_say(vehicle, measure) -> None:
+    rally = _rally((60.5, HOME.alt + 100.25, 80.0))
+    await vehicle.client.upload(rally, RALLY)
+    got = await vehicle.client.download(RALLY)
+    measure(f"rally altitudes 60.5 / {HOME.alt + 100.25} read back {got[0].z!r} / {got[1].z!r}")
+    assert _difference(vehicle, rally, got, skip_home=False) is None, _difference(vehicle, rally, got, False)
+
+
+# ------------------------------------------------------------------------------------------------ current item
+def _six() -> list[MissionItem]:
+    return numbered([home_item(), takeoff(40.0)] + [waypoint(150.0 * i, 0.0, 40.0) for i in range(1, 5)])
+
+
+async def test_set_current_makes_that_item_current(vehicle) -> None:
+    await vehicle.client.upload(_six())
+    for seq in (3, 1, 5):
+        with vehicle.link.subscribe("MISSION_CURRENT") as sub:
+            await vehicle.client.set_current(seq)
+            current = await next_matching(sub, lambda m: m.seq == seq, timeout=2.0)
+        assert current.seq == seq
+
+
+async def test_set_current_0_makes_item_1_current(vehicle) -> None:
+    await vehicle.client.upload(_six())
+    await vehicle.client.set_current(4)
+    await vehicle.client.set_current(0)
+    current = await vehicle.link.wait_for("MISSION_CURRENT", timeout=2.0)  # sent after the COMMAND_ACK
+    assert current.seq == 1
+
+
+async def test_set_current_past_the_end_is_denied(vehicle) -> None:
+    await vehicle.client.upload(_six())
+    with pytest.raises(CommandError) as refused:
+        await vehicle.client.set_current(6)
+    assert refused.value.result == mavlink.MAV_RESULT_DENIED
+
+
+# ------------------------------------------------------------------------------------------------ arming in AUTO
+async def test_copter_refuses_to_arm_in_auto_with_a_reason(vehicle, measure) -> None:
+    if vehicle.plane:
+        pytest.skip("ArduPlane arms in AUTO: that is its start sequence (test_flight)")
+    await vehicle.client.upload(numbered([home_item(), takeoff(20.0), waypoint(150.0, 0.0, 20.0)]))
+    await vehicle.supervisor.set_mode("AUTO")
+    try:
+        with vehicle.link.subscribe("STATUSTEXT") as sub:
+            with pytest.raises(CommandError) as refused:
+                await vehicle.client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1, retries=0)
+            said = texts(sub.drain() + await collect(sub, 0.5))
+        measure(f"arming in AUTO: COMMAND_ACK result {refused.value.result}, STATUSTEXT {said}")
+        assert refused.value.result == mavlink.MAV_RESULT_FAILED
+        assert "Arm: AUTO mode not armable" in said
+    finally:
+        hb = vehicle.link.last_heartbeat_msg
+        if hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
+            await vehicle.client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196)
+        await vehicle.supervisor.set_mode("STABILIZE")
