@@ -22,7 +22,8 @@ Fixtures:
   the companion sees the boot from its first HEARTBEAT on.
 
 Telemetry: real ArduCopter streams nothing but HEARTBEAT until asked, so every connection asks for the
-companion's rates with :func:`companion.telemetry.request_rates` (the companion's own request).
+companion's rates with :func:`companion.telemetry.request_rates` (the companion's own request; REQUEST_DATA_STREAM
+for every group at 10 Hz while that module is not there).
 
 The ``measure`` fixture notes the numbers the tests measure (boot times, acceptance distances, refusal texts…);
 they are printed at the end of the run under "conformance measurements".
@@ -57,7 +58,10 @@ from companion.protocol import MissionClient
 from companion.sim import SimAutopilot
 from companion.storage import Firmware, stored
 from companion.supervisor import FlightSupervisor
-from companion.telemetry import request_rates
+try:
+    from companion.telemetry import request_rates
+except ImportError:  # companion.telemetry not there yet: ask ArduPilot for every stream group ourselves
+    request_rates = None
 from planner.scenario import Home, load_scenario
 
 STATIC = Path(__file__).resolve().parents[2] / "sitl_scenarios" / "rescue_static.toml"
@@ -211,7 +215,13 @@ class Vehicle:
         return stored(it, self.firmware)
 
     async def request_telemetry(self) -> dict[str, str]:
-        return await request_rates(self.link)
+        """The companion's own rate requests (companion.telemetry); without that module, REQUEST_DATA_STREAM
+        MAV_DATA_STREAM_ALL at 10 Hz."""
+        if request_rates is not None:
+            return await request_rates(self.link)
+        self.link.send(mavlink.MAVLink_request_data_stream_message(
+            self.link.target_system, self.link.target_component, mavlink.MAV_DATA_STREAM_ALL, 10, 1))
+        return {}
 
     async def param_set(self, name: str, value: float, timeout: float = 1.0, attempts: int = 3) -> Message:
         """PARAM_SET as a ground station sends it, confirmed by the PARAM_VALUE the autopilot answers with
