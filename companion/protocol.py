@@ -30,7 +30,7 @@ from dataclasses import replace
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.errors import CommandError, MissionTimeout, MissionUploadError, MissionVerifyError
-from companion.items import MISSION, MissionItem
+from companion.items import FENCE, MISSION, MissionItem
 from companion.storage import Firmware, mission_difference
 from companion.link import Link, Message
 
@@ -51,6 +51,7 @@ def command_name(command: int) -> str:
 
 
 DOWNLOAD_RESTARTS = 3  # a stalled download is started again this many times (the last try is patient)
+ARDUPILOT_MIN_FENCE_ITEMS = 3  # fewer fence items than this count as no fence on ArduPilot (see _upload)
 FINAL_ACK_MISSES = 3  # waits (of ``timeout``) for the final MISSION_ACK before checking by readback
 
 
@@ -117,7 +118,18 @@ class MissionClient:
             await self._upload(_numbered(items, mission_type), mission_type)
 
     async def _upload(self, items: list[MissionItem], mission_type: int) -> list[MissionItem] | None:
-        """The upload; returns the readback when one was needed to confirm it (else None)."""
+        """The upload; returns the readback when one was needed to confirm it (else None). An ArduPilot fence
+        of fewer than 3 items goes to a cleared fence: ArduPilot counts such a fence as none (FENCE_TOTAL 0),
+        and its fence loader erases the stored fence, a few milliseconds after acknowledging the upload, when
+        that count drops from non-zero to 0 (seen on 4.7 SITL: one circle over six). Cleared first, with two
+        HEARTBEATs for the loader to see the drop, the fence that follows stays."""
+        if mission_type == FENCE and 0 < len(items) < ARDUPILOT_MIN_FENCE_ITEMS and self.firmware.ardupilot:
+            await self._clear(FENCE)
+            for _ in range(2):
+                try:
+                    await self.link.wait_for("HEARTBEAT", timeout=3.0)
+                except TimeoutError:
+                    break
         ambiguous = await self._transfer(items, mission_type)
         if ambiguous is None:
             return None
@@ -321,23 +333,26 @@ class MissionClient:
     async def clear(self, mission_type: int = MISSION) -> None:
         """MISSION_CLEAR_ALL, confirmed by MISSION_ACK."""
         async with self._lock:
-            ts, tc = self._target()
-            with self.link.subscribe("MISSION_ACK", predicate=self._for(mission_type)) as sub:
-                msg = mavlink.MAVLink_mission_clear_all_message(ts, tc, mission_type)
-                self.link.send(msg)
-                misses = 0
-                while True:
-                    try:
-                        ack = await sub.get(self.timeout)
-                    except TimeoutError:
-                        misses += 1
-                        if misses > self.retries:
-                            raise MissionTimeout("clear") from None
-                        self.link.send(msg)
-                        continue
-                    if ack.type != ACCEPTED:
-                        raise MissionUploadError(ack.type, None, "clear")
-                    return
+            await self._clear(mission_type)
+
+    async def _clear(self, mission_type: int) -> None:
+        ts, tc = self._target()
+        with self.link.subscribe("MISSION_ACK", predicate=self._for(mission_type)) as sub:
+            msg = mavlink.MAVLink_mission_clear_all_message(ts, tc, mission_type)
+            self.link.send(msg)
+            misses = 0
+            while True:
+                try:
+                    ack = await sub.get(self.timeout)
+                except TimeoutError:
+                    misses += 1
+                    if misses > self.retries:
+                        raise MissionTimeout("clear") from None
+                    self.link.send(msg)
+                    continue
+                if ack.type != ACCEPTED:
+                    raise MissionUploadError(ack.type, None, "clear")
+                return
 
     async def set_current(self, seq: int, *, timeout: float = 0.5, retries: int = 2) -> None:
         """Make ``seq`` the active mission item: MAV_CMD_DO_SET_MISSION_CURRENT (ArduPilot restarts the item

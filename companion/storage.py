@@ -4,7 +4,8 @@ An autopilot does not store a MISSION_ITEM_INT as sent. ArduPilot packs each com
 (AP_Mission) and each fence or rally point into its own small record, so a readback returns only what that
 record carries: frames as their non-INT twins, commands without a position in frame GLOBAL, fence and rally
 points with autocontinue 0 and without the fields they do not use, NAV_WAYPOINT's acceptance and pass-by
-radii as whole metres up to 255 on a plane and not at all on a copter (which keeps the hold time instead).
+radii as whole metres up to 255 on a plane and not at all on a copter (which keeps the hold time instead),
+NAV_LAND's yaw as a sign. Whole-number fields are truncated toward zero, as a C cast does.
 :func:`stored` maps an item to that form; an upload is verified by comparing ``stored(sent)`` with
 ``stored(got)`` (:func:`companion.items.compare_items`), and the built-in simulator stores ``stored(item)``
 so that its readback is the real one. Every rule here was seen on ArduPilot 4.7 SITL (plane and copter) and
@@ -48,10 +49,8 @@ class Firmware(enum.Enum):
 _FIXED_WING = frozenset({mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_TYPE_VTOL_DUOROTOR,  # QuadPlane types too
                          mavlink.MAV_TYPE_VTOL_QUADROTOR, mavlink.MAV_TYPE_VTOL_TILTROTOR})
 
-# ArduPilot commands without a position: read back in frame GLOBAL whatever frame was sent
-_NO_POSITION = frozenset({mavlink.MAV_CMD_DO_CHANGE_SPEED, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH,
-                          mavlink.MAV_CMD_DO_JUMP, mavlink.MAV_CMD_DO_SET_SERVO, mavlink.MAV_CMD_DO_SET_RELAY,
-                          mavlink.MAV_CMD_CONDITION_DELAY, mavlink.MAV_CMD_DO_SET_HOME})
+# ArduPilot commands kept without a position: read back in frame GLOBAL with x = y = z = 0
+_NO_POSITION = frozenset({mavlink.MAV_CMD_DO_CHANGE_SPEED, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH})
 _BYTE_MAX = 255  # ArduPlane packs NAV_WAYPOINT's acceptance and pass-by radii in one byte each
 
 
@@ -66,7 +65,7 @@ def stored(item: MissionItem, firmware: Firmware) -> MissionItem:
         return _stored_point(item)
     cmd = item.command
     if cmd in _NO_POSITION:
-        item = replace(item, frame=mavlink.MAV_FRAME_GLOBAL)
+        item = replace(item, frame=mavlink.MAV_FRAME_GLOBAL, x=0, y=0, z=0.0)
     if cmd == mavlink.MAV_CMD_NAV_WAYPOINT:
         if firmware is Firmware.ARDUPLANE:  # radii in whole metres (truncated, as a C cast), no hold time
             return replace(item, param1=0.0, param2=_byte(item.param2), param3=_byte(item.param3), param4=0.0)
@@ -74,8 +73,11 @@ def stored(item: MissionItem, firmware: Firmware) -> MissionItem:
     if cmd == mavlink.MAV_CMD_NAV_LOITER_UNLIM:  # radius as whole metres, its sign is the direction
         return replace(item, param1=0.0, param2=0.0, param3=math.copysign(_whole(abs(item.param3)), item.param3),
                        param4=0.0)
-    if cmd in (mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_NAV_LAND):  # param1 only (pitch / abort altitude)
-        return replace(item, param2=0.0, param3=0.0, param4=0.0)
+    if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:  # minimum pitch, whole degrees
+        return replace(item, param1=_whole(item.param1), param2=0.0, param3=0.0, param4=0.0)
+    if cmd == mavlink.MAV_CMD_NAV_LAND:  # abort altitude in whole metres; param4 (yaw) as its sign only
+        return replace(item, param1=_whole(item.param1), param2=0.0, param3=0.0,
+                       param4=-1.0 if item.param4 < 0 else 1.0)
     if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
         return replace(item, param1=0.0, param2=0.0, param3=0.0, param4=0.0)
     return item
@@ -83,11 +85,12 @@ def stored(item: MissionItem, firmware: Firmware) -> MissionItem:
 
 def _stored_point(item: MissionItem) -> MissionItem:
     """An ArduPilot fence or rally point: position (and param1: a circle's radius or a polygon's vertex
-    count) only; stored without a frame for fences, with autocontinue 0 for both."""
+    count) only; stored without a frame for fences, with autocontinue 0 for both (rally: whole-metre altitude)."""
     if item.mission_type == FENCE:
         return replace(item, frame=mavlink.MAV_FRAME_GLOBAL, param2=0.0, param3=0.0, param4=0.0, z=0.0,
                        autocontinue=0)
-    return replace(item, param1=0.0, param2=0.0, param3=0.0, param4=0.0, autocontinue=0)
+    return replace(item, param1=0.0, param2=0.0, param3=0.0, param4=0.0, z=float(math.trunc(item.z)),
+                   autocontinue=0)  # rally altitude in whole metres
 
 
 def _whole(value: float) -> float:
@@ -96,7 +99,8 @@ def _whole(value: float) -> float:
 
 
 def _byte(value: float) -> float:
-    return min(float(_BYTE_MAX), _whole(value))
+    """A float param kept in one byte: whole metres up to 255; a negative one wraps and reads back 255."""
+    return float(_BYTE_MAX) if value < 0 else min(float(_BYTE_MAX), _whole(value))
 
 
 def mission_difference(sent: Sequence[MissionItem], got: Sequence[MissionItem], home_at_zero: bool = True,

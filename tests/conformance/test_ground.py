@@ -135,20 +135,18 @@ async def test_fence_circle_radius_keeps_its_fraction(vehicle, measure) -> None:
     assert compare_items(vehicle.stored(fence[circle]), got[circle]) is None
 
 
-async def test_one_or_two_circles_uploaded_over_a_longer_fence_are_erased(vehicle) -> None:
+async def test_a_single_circle_over_a_longer_fence_stays(vehicle) -> None:
     """ArduPilot sets FENCE_TOTAL to 0 for a fence of fewer than 3 vertices (each circle counts as one), and its
     fence loader clears the stored fence when FENCE_TOTAL goes from non-zero to 0 (AC_PolyFence_loader: "an older
-    GCS sets the fence point count to zero"). So a single circle uploaded over a longer fence is acknowledged —
-    and verified by a readback in the first ~10 ms of wall time at speed-up 10 — and then gone; the same upload
-    again stays (FENCE_TOTAL was 0 already)."""
+    GCS sets the fence point count to zero"): a single circle uploaded straight over a longer fence is
+    acknowledged, verified by a readback in the first ~10 ms of wall time at speed-up 10, and then gone. The
+    client clears an ArduPilot fence before uploading (companion.protocol), so the circle stays."""
     single = numbered([_fence()[2]], FENCE)
-    await vehicle.client.upload(_fence(), FENCE)
-    await vehicle.client.upload(single, FENCE)
+    await vehicle.client.upload_verified(_fence(), FENCE)
+    await vehicle.client.upload_verified(single, FENCE)
     await asyncio.sleep(0.5)  # 5 s of the autopilot's time
-    assert await vehicle.client.download(FENCE) == []
-    await vehicle.client.upload(single, FENCE)
-    await asyncio.sleep(0.5)
-    assert len(await vehicle.client.download(FENCE)) == 1
+    got = await vehicle.client.download(FENCE)
+    assert len(got) == 1 and compare_items(vehicle.stored(single[0]), got[0]) is None
 
 
 async def test_fence_enabled_by_parameters_as_a_user_would(vehicle) -> None:
