@@ -25,6 +25,7 @@ from companion.report import plot_track, write_json
 from companion.separation import min_separations
 from companion.signing import SigningKey
 from companion.supervisor import FlightOutcome, FlightSupervisor
+from companion.telemetry import TelemetryRates
 from planner.checks import obstacle_clearance
 from planner.scenario import Scenario
 
@@ -65,6 +66,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             events.log("signing", key=opts.signing_key.fingerprint)
         async with Link(url, source_system=opts.source_system, open_timeout=10.0,
                         signing_key=opts.signing_key) as link:
+            TelemetryRates(link, on_results=lambda answers: events.log("telemetry_rates", **answers)).start()
             hb = await link.wait_heartbeat(timeout=15.0)
             autopilot = "px4" if hb.autopilot == mavlink.MAV_AUTOPILOT_PX4 else "ardupilot"
             items = mission_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)

@@ -12,6 +12,12 @@ exponential back-off (0.5 s doubling to 8 s by default); subscriptions survive t
 
 Only messages from the target autopilot (system *and* component) reach subscribers unless they ask for
 ``any_source=True``: other vehicles, cameras, ground stations and our own echo are ignored for protocol purposes.
+A subscription can name further components *of the target system* per message type (``extra_components``), e.g.
+ADSB_VEHICLE from an ADS-B receiver (component 156) on the vehicle; other systems stay excluded.
+
+:meth:`Link.on_target_acquired` registers callbacks run whenever the target autopilot is (re)acquired: its first
+HEARTBEAT, the first on each new connection (after a reconnect) and the first after a heartbeat loss. Layers
+above use it to redo per-connection setup (``companion.telemetry`` asks for message rates there).
 """
 
 from __future__ import annotations
@@ -20,7 +26,7 @@ import asyncio
 import logging
 import math
 import struct
-from collections.abc import AsyncIterator, Callable
+from collections.abc import AsyncIterator, Callable, Iterable, Mapping
 from types import ModuleType
 from typing import Any
 
@@ -37,6 +43,7 @@ Predicate = Callable[[Message], bool]
 
 MAV_COMP_ID_ONBOARD_COMPUTER = ardupilotmega.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
 MAV_COMP_ID_AUTOPILOT1 = ardupilotmega.MAV_COMP_ID_AUTOPILOT1
+MAV_COMP_ID_ADSB = ardupilotmega.MAV_COMP_ID_ADSB  # 156: an ADS-B receiver on the vehicle
 MAV_AUTOPILOT_INVALID = ardupilotmega.MAV_AUTOPILOT_INVALID
 _READ_BURST = 256  # messages handled per readable event before yielding to the loop (add_reader fires again)
 
@@ -58,20 +65,26 @@ class Subscription:
     """
 
     def __init__(self, link: Link, types: frozenset[str] | None, predicate: Predicate | None,
-                 any_source: bool, maxsize: int) -> None:
+                 any_source: bool, maxsize: int,
+                 extra_components: Mapping[str, frozenset[int]] | None = None) -> None:
         self._link = link
         self.types = types
         self._predicate = predicate
         self.any_source = any_source
+        self.extra_components: Mapping[str, frozenset[int]] = extra_components or {}
         self._maxsize = maxsize
         self._queue: asyncio.Queue[Message] = asyncio.Queue()
         self.dropped = 0
         self.closed = False
 
-    def _matches(self, msg: Message, from_target: bool) -> bool:
-        if self.types is not None and msg.get_type() not in self.types:
+    def _matches(self, msg: Message, from_target: bool, sibling: int | None) -> bool:
+        """``from_target``: sent by the target autopilot; ``sibling``: the sender's component when it is another
+        component of the target system (else None)."""
+        mtype = msg.get_type()
+        if self.types is not None and mtype not in self.types:
             return False
-        if not (from_target or self.any_source):
+        if not (from_target or self.any_source
+                or (sibling is not None and sibling in self.extra_components.get(mtype, ()))):
             return False
         if self._predicate is None:
             return True
@@ -178,6 +191,8 @@ class Link:
         self.heartbeat_lost = False
         self.bad_packets = 0  # BAD_DATA / unparsable input seen
         self.reconnects = 0  # successful re-creations of the connection
+        self._target_heard = False  # the target's HEARTBEAT has been heard on the current connection
+        self._on_target: list[Callable[[Message], None]] = []
 
         self._conn: Any = None  # pymavlink mavfile
         self._fd: int | None = None
@@ -274,6 +289,7 @@ class Link:
         assert self._loop is not None
         self._loop.add_reader(fd, self._on_readable)
         self._conn, self._fd = conn, fd
+        self._target_heard = False
         log.info("link %s open (fd %d)", self.url, fd)
 
     def _disconnect(self) -> None:
@@ -373,8 +389,9 @@ class Link:
         if mtype == "HEARTBEAT":
             self._on_heartbeat(msg, src)
         from_target = self.target_system is not None and src == (self.target_system, self.target_component)
+        sibling = src[1] if not from_target and src[0] == self.target_system else None
         for sub in list(self._subscriptions):
-            if sub._matches(msg, from_target):
+            if sub._matches(msg, from_target, sibling):
                 sub._offer(msg)
         if self._expectations:
             for entry in list(self._expectations):
@@ -405,24 +422,49 @@ class Link:
         assert self._loop is not None
         self.autopilot, self.vehicle_type = msg.autopilot, msg.type
         self.last_heartbeat, self.last_heartbeat_msg = self._loop.time(), msg
+        acquired = not self._target_heard or self.heartbeat_lost
+        self._target_heard = True
         if self.heartbeat_lost:
             self.heartbeat_lost = False
             log.info("HEARTBEAT from system %d back", src[0])
+        if acquired:
+            for callback in list(self._on_target):
+                try:
+                    callback(msg)
+                except Exception:  # a callback's bug must not break the receive path
+                    log.exception("target-acquired callback %r failed", callback)
+
+    def on_target_acquired(self, callback: Callable[[Message], None]) -> Callable[[], None]:
+        """Run ``callback(heartbeat)`` each time the target autopilot is (re)acquired: its first HEARTBEAT, the
+        first one on every new connection (each reconnect), and the first one after the heartbeat was lost (an
+        autopilot that rebooted behind a UDP or serial link). It runs synchronously in the receive path, before
+        subscribers see that HEARTBEAT: it must not block (start a task for anything that waits). Returns a
+        function that unregisters it."""
+        self._on_target.append(callback)
+
+        def remove() -> None:
+            if callback in self._on_target:
+                self._on_target.remove(callback)
+        return remove
 
     # ------------------------------------------------------------------ subscribing
     def subscribe(self, *types: str, predicate: Predicate | None = None, any_source: bool = False,
-                  maxsize: int = 1000) -> Subscription:
+                  maxsize: int = 1000, extra_components: Mapping[str, Iterable[int]] | None = None) -> Subscription:
         """A :class:`Subscription` to messages of ``types`` (all types if none), live from this call on.
-        Only the target autopilot's messages unless ``any_source``."""
-        sub = Subscription(self, frozenset(types) if types else None, predicate, any_source, maxsize)
+        Only the target autopilot's messages unless ``any_source``; ``extra_components`` maps a message type to
+        further components of the *target system* whose messages of that type are delivered too (e.g.
+        ``{"ADSB_VEHICLE": [MAV_COMP_ID_ADSB]}``: an ADS-B receiver's reports, but not its HEARTBEAT; never
+        another system's)."""
+        extra = {t: frozenset(c) for t, c in (extra_components or {}).items()}
+        sub = Subscription(self, frozenset(types) if types else None, predicate, any_source, maxsize, extra)
         self._subscriptions.add(sub)
         return sub
 
-    async def messages(self, *types: str, predicate: Predicate | None = None,
-                       any_source: bool = False) -> AsyncIterator[Message]:
+    async def messages(self, *types: str, predicate: Predicate | None = None, any_source: bool = False,
+                       extra_components: Mapping[str, Iterable[int]] | None = None) -> AsyncIterator[Message]:
         """Async generator over incoming messages; unsubscribes when the consumer stops or the link closes.
         It subscribes on the first ``__anext__``: use :meth:`subscribe` when nothing may be missed before."""
-        sub = self.subscribe(*types, predicate=predicate, any_source=any_source)
+        sub = self.subscribe(*types, predicate=predicate, any_source=any_source, extra_components=extra_components)
         try:
             async for msg in sub:
                 yield msg

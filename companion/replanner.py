@@ -36,7 +36,7 @@ from companion.errors import CommandError, CompanionError, MissionUploadError, V
 from companion.events import EventLog
 from companion.geo import geodetic_to_enu
 from companion.items import MissionItem
-from companion.link import Link, Message
+from companion.link import MAV_COMP_ID_ADSB, Link, Message, Subscription
 from companion.modes import hold_mode, mode_name, mode_number, set_mode_params
 from companion.protocol import MissionClient
 from companion.restore import restore_mission
@@ -58,9 +58,18 @@ from planner.scenario import Scenario
 
 log = logging.getLogger(__name__)
 WATCHED = ("GLOBAL_POSITION_INT", "ADSB_VEHICLE", "MISSION_CURRENT", "MISSION_ITEM_REACHED", "HEARTBEAT")
+# ADS-B reports come from the autopilot (its own receiver, forwarded) or from a receiver that is a MAVLink component
+# of the same vehicle; that receiver's other messages (its HEARTBEAT) and every other system's are not ours
+ADSB_SOURCES = {"ADSB_VEHICLE": (MAV_COMP_ID_ADSB,)}
 PLANE_EARLY_SWITCH_M = 65.0  # ArduPlane counts a waypoint reached up to this far before it (AUTOPILOT_FACTS)
 BAND_INSET_M = 0.5  # a commit point is moved at least this far inside the altitude band
 GOOD = (PlanStatus.EXACT.value, PlanStatus.APPROXIMATE.value)
+
+
+def watch(link: Link) -> Subscription:
+    """The replanner's subscription: :data:`WATCHED` from the target autopilot, and ADSB_VEHICLE also from an
+    ADS-B receiver of the same vehicle (:data:`ADSB_SOURCES`)."""
+    return link.subscribe(*WATCHED, extra_components=ADSB_SOURCES)
 
 
 @dataclass(frozen=True)
@@ -321,7 +330,7 @@ class LiveReplanner:
     # -- task ---------------------------------------------------------------------------------------
     async def run(self) -> None:
         """Watch until cancelled; raises :class:`VehicleHolding` when no verified mission can be made live."""
-        with self.link.subscribe(*WATCHED) as sub:
+        with watch(self.link) as sub:
             self._sub = sub
             while True:
                 try:

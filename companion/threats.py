@@ -16,7 +16,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -61,13 +61,19 @@ def closest_approach(p1: np.ndarray, v1: np.ndarray, p2: np.ndarray,
 
 @dataclass(frozen=True)
 class Track:
-    """One ADS-B contact: ENU ``position`` (m) at ``t_contact`` (caller's clock, s), ENU ``velocity`` (m/s)."""
+    """One ADS-B contact: ENU ``position`` (m) at ``t_contact`` (caller's clock, s), ENU ``velocity`` (m/s);
+    ``t_heard``: when that same report was last received again (None: only once)."""
 
     icao: int
     callsign: str
     position: tuple[float, float, float]
     velocity: tuple[float, float, float]
     t_contact: float
+    t_heard: float | None = None
+
+    @property
+    def last_heard(self) -> float:
+        return self.t_contact if self.t_heard is None else max(self.t_contact, self.t_heard)
 
     @property
     def id(self) -> str:
@@ -121,12 +127,23 @@ class TrackPicture:
 
     def update(self, msg: mavlink.MAVLink_adsb_vehicle_message, now: float) -> Track | None:
         """Fold in one ADSB_VEHICLE received at ``now``; returns the track kept, or None if the message was
-        unusable. A report older than the track held (out-of-order delivery) is ignored."""
+        unusable. A report older than the track held (out-of-order delivery) is ignored.
+
+        A moving aircraft reported again at exactly the same position and velocity is the same report again,
+        not a new contact: ArduPilot re-sends every aircraft it knows once a second with the ``tslc`` it arrived
+        with, and the same report can come both from an ADS-B receiver on the vehicle and relayed by the
+        autopilot. The track keeps its first contact time (prediction and radius growth run from there) and
+        only counts as heard now (:meth:`expire` keeps it). A report without velocity (a point obstacle, which
+        ArduPilot's simulated ADS-B reports unchanged every second) is a fresh contact each time."""
         previous = self.tracks.get(msg.ICAO_address)
         track = track_from_adsb(msg, now, self.home, previous)
         if track is None:
             log.debug("ADSB_VEHICLE %06x without valid position ignored", msg.ICAO_address)
             return previous
+        if previous is not None and any(track.velocity) \
+                and (track.position, track.velocity) == (previous.position, previous.velocity):
+            self.tracks[track.icao] = replace(previous, t_heard=max(now, previous.last_heard))
+            return self.tracks[track.icao]
         if previous is not None and track.t_contact < previous.t_contact:
             return previous
         if previous is None:
@@ -135,8 +152,9 @@ class TrackPicture:
         return track
 
     def expire(self, now: float, max_age: float) -> list[str]:
-        """Drop tracks not heard from for more than ``max_age`` s; returns the dropped threat ids."""
-        stale = [icao for icao, t in self.tracks.items() if now - t.t_contact > max_age]
+        """Drop tracks not heard from (:attr:`Track.last_heard`) for more than ``max_age`` s; returns the dropped
+        threat ids."""
+        stale = [icao for icao, t in self.tracks.items() if now - t.last_heard > max_age]
         for icao in stale:
             log.info("track %s expired", self.tracks[icao].id)
             del self.tracks[icao]
