@@ -44,6 +44,10 @@ class ReplanConfig:
     upload_attempts: int = 3  # verified uploads tried (holding after the first failure) before giving up
     hold_retry_s: float = 3.0  # while holding: retry planning this often (vehicle s)
     check_interval_wall_s: float = 0.05  # conflict checks at most this often (wall)
+    # a plane held in LOITER circles its hold point: when it resumes it may be back on its route up to one circle
+    # later (2π r / v); resuming needs the route clear for every such delay (SITL's plane.parm: WP_LOITER_RAD 80)
+    plane_loiter_radius_m: float = 80.0
+    rejoin_step_s: float = 2.0  # delays between 0 and one circle checked this far apart
 
     def __post_init__(self) -> None:
         if not (self.budget_s > 0 and self.population >= 2 and self.upload_attempts >= 1 and self.horizon_s > 0
@@ -174,12 +178,14 @@ def warm_starts(tail: np.ndarray, offsets_m: Sequence[float], n_points: int = 10
 
 
 def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, threats: Threats,
-                   start_time: float) -> PlanningProblem:
+                   start_time: float, speed: float | None = None) -> PlanningProblem:
     """The scenario's static world with the current threat picture, from ``start`` to ``goal``, flown from
-    mission time ``start_time`` (time-aware threats, SPEC §4)."""
+    mission time ``start_time`` (time-aware threats, SPEC §4) at ``speed`` (default: the scenario's cruise
+    speed; the replanner passes the vehicle's measured pace)."""
     env = dataclasses.replace(scenario.environment, threats=threats)
     s = scenario.planner
-    return PlanningProblem(env, np.asarray(start, dtype=float), np.asarray(goal, dtype=float), scenario.vehicle,
+    vehicle = scenario.vehicle if speed is None else dataclasses.replace(scenario.vehicle, cruise_speed=speed)
+    return PlanningProblem(env, np.asarray(start, dtype=float), np.asarray(goal, dtype=float), vehicle,
                            scenario.hazard, s.weights, s.penalty, start_time)
 
 

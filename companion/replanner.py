@@ -52,6 +52,7 @@ from companion.replan import (
     warm_starts,
 )
 from companion.threats import Conflict, TrackPicture, predict_conflicts, route_separations
+
 from planner.environment import Threats
 from planner.plan import PlanStatus, plan
 from planner.scenario import Scenario
@@ -64,6 +65,7 @@ ADSB_SOURCES = {"ADSB_VEHICLE": (MAV_COMP_ID_ADSB,)}
 PLANE_EARLY_SWITCH_M = 65.0  # ArduPlane counts a waypoint reached up to this far before it (AUTOPILOT_FACTS)
 BAND_INSET_M = 0.5  # a commit point is moved at least this far inside the altitude band
 GOOD = (PlanStatus.EXACT.value, PlanStatus.APPROXIMATE.value)
+PACE_TAU_S = 8.0  # vehicle seconds over which the ground speed along the route is smoothed
 
 
 def watch(link: Link) -> Subscription:
@@ -189,12 +191,15 @@ class LiveReplanner:
         self._mission_wall: float | None = None  # wall time of the mission start
         self._mission_t0: float | None = None  # vehicle time of the mission start, once the clock is synced
         self.holding: str | None = None  # why the vehicle is held, or None
+        self._held_since: float | None = None  # mission time the current hold began
         self._last_replan = -math.inf  # mission time
         self._last_check = -math.inf  # wall
         self._upload_wall_s = 0.05  # running estimate of one verified upload (wall s)
         self._announced: set[int] = set()
         self.custom_mode: int | None = None  # the vehicle's mode, from HEARTBEAT
         self.groundspeed = 0.0
+        self.pace: float | None = None  # smoothed ground speed along the route (m/s), once measured
+        self._pace_t: float | None = None  # vehicle time of the last ground speed
         self._paused_in: int | None = None  # a mode we did not command, while replanning is paused
         self._link_down = False  # between the supervisor's link_lost and its re-sync: no telemetry, no uploads
         self._fresh_since = 0.0  # monotonic: position and active item must be newer than this to predict from
@@ -245,6 +250,7 @@ class LiveReplanner:
                                 self.scenario.home)
             self.position = np.array([p[0], p[1], msg.relative_alt / 1000.0])
             self.groundspeed = math.hypot(msg.vx, msg.vy) / 100.0
+            self._track_pace(self.groundspeed, msg.time_boot_ms / 1000.0)
         elif kind == "HEARTBEAT":
             self.custom_mode = int(msg.custom_mode)
         elif kind == "ADSB_VEHICLE" and self.mission_t0 is not None:
@@ -265,8 +271,26 @@ class LiveReplanner:
 
     @property
     def speed(self) -> float:
-        """Speed for ETAs along the route: the commanded cruise speed."""
-        return self.scenario.vehicle.cruise_speed
+        """Speed for ETAs along the route: the vehicle's own pace over the ground while it flies the route in
+        AUTO (:meth:`_track_pace`), the commanded cruise speed until that is known. ArduPlane SITL asked for
+        18 m/s airspeed flies 19.2 m/s over the ground: predicted at cruise speed, a conflict 20 s ahead
+        was 25 m out, more than the margin (measured on crossing_traffic)."""
+        return self.pace if self.pace is not None else self.scenario.vehicle.cruise_speed
+
+    def _track_pace(self, groundspeed: float, t_vehicle: float) -> None:
+        """Smooth the ground speed over :data:`PACE_TAU_S`, starting from cruise, while flying the route in AUTO
+        (not in a hold or the climb-out); each sample kept within ±30 % of cruise."""
+        cruise = self.scenario.vehicle.cruise_speed
+        flying = self.holding is None and self.on_route() and (
+            self.custom_mode is None or self.custom_mode == self._number("AUTO"))
+        last, self._pace_t = self._pace_t, t_vehicle
+        if not flying or last is None or t_vehicle <= last:
+            return
+        v = float(np.clip(groundspeed, 0.7 * cruise, 1.3 * cruise))
+        keep = math.exp(-(t_vehicle - last) / PACE_TAU_S)
+        # from cruise, not from the first sample: a plane joining its route is still levelling off and turning,
+        # and a jump of the pace would move every predicted conflict (1 m/s over 30 s: 30 m) at once
+        self.pace = keep * (cruise if self.pace is None else self.pace) + (1.0 - keep) * v
 
     def _number(self, name: str) -> int:
         return mode_number(self.link.autopilot or 0, self.link.vehicle_type or 0, name)
@@ -318,10 +342,26 @@ class LiveReplanner:
         return self.route.remaining(self.position, max(self.current_seq, int(self.route.seqs[0])))
 
     def predict(self, now: float, threats: Threats) -> list[Conflict]:
+        """Conflicts on the remaining route, flown from now; for a held vehicle, flown from any moment it may
+        be back on it after resuming (:meth:`rejoin_delays`): the earliest conflict of all."""
         route, _ = self.remaining()
         c = self.cfg
-        return predict_conflicts(route, self.speed, 0.0, now, threats, c.horizon_s, self.scenario.hazard.d_coll,
-                                 c.margin_m, c.sample_dt_s)
+        found = [predict_conflicts(route, self.speed, 0.0, now + d, threats, c.horizon_s,
+                                   self.scenario.hazard.d_coll, c.margin_m, c.sample_dt_s)
+                 for d in self.rejoin_delays()]
+        return sorted((x for f in found for x in f), key=lambda x: x.t)
+
+    def rejoin_delays(self) -> np.ndarray:
+        """Vehicle seconds a vehicle resumed now may take to be flying its route again: none when it is not
+        held or stops dead (a copter in BRAKE); for a plane circling in LOITER, anything up to one circle,
+        which is why a hold that merely delays a plane by a few seconds must not look like a cleared threat."""
+        if self.holding is None or not self.is_arduplane:
+            return np.zeros(1)
+        circle = 2.0 * math.pi * self.cfg.plane_loiter_radius_m / self.speed
+        held = self.now() - self._held_since if self._held_since is not None else circle
+        # having turned away for ``held`` seconds it needs about as long to turn back; never more than a circle
+        longest = min(circle, 2.0 * held + self.cfg.rejoin_step_s)
+        return np.arange(0.0, longest + self.cfg.rejoin_step_s, self.cfg.rejoin_step_s)
 
     def on_route(self) -> bool:
         """Flying the route (past the takeoff and the speed item): the start waypoint or later."""
@@ -395,9 +435,7 @@ class LiveReplanner:
                         separation_m=rec.sep_before_m, d_coll_m=self.scenario.hazard.d_coll)
         route, seqs = self.remaining()
         if lead_m is None:
-            lead_s = (cfg.budget_s + self._upload_wall_s + cfg.check_interval_wall_s) * self.clock.rate \
-                + cfg.lead_margin_s
-            lead_m = lead_s * self.speed
+            lead_m = self._commit_lead_m(conflict, now)
         current = max(self.current_seq, int(self.route.seqs[0]))
         departing = not self.on_route()
         if departing:  # still climbing out: the new route starts at the planned start, which stays as it is
@@ -412,7 +450,7 @@ class LiveReplanner:
                                                   ground + env.z_max - BAND_INSET_M)
         rec.commit = [round(float(v), 1) for v in cp.point]
         rec.old_route = cp.old_tail.round(1).tolist()
-        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t)
+        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed)
         settings = replan_settings(self.scenario.planner, cfg)
         t0 = time.monotonic()
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
@@ -464,8 +502,7 @@ class LiveReplanner:
             # and PX4's behaviour is not ours to assume: only ArduPlane keeps flying its copy
             await self.hold("the vehicle would re-read its items from storage during the upload")
             rec.held = True
-        elif self.holding is None and self._eta_leave_prefix(first_new_seq) < \
-                cfg.guard_s + 2.0 * self._upload_wall_s * self.clock.rate:
+        elif self.holding is None and self._eta_leave_prefix(first_new_seq) < self._guard_threshold_s():
             await self.hold("the vehicle could finish its active item before the new mission is verified")
             rec.held = True
         for attempt in range(1, cfg.upload_attempts + 1):
@@ -531,6 +568,30 @@ class LiveReplanner:
             await self.resume()
         return True
 
+    def _guard_threshold_s(self) -> float:
+        """Vehicle seconds before leaving its unchanged items below which a swap holds the vehicle first."""
+        return self.cfg.guard_s + 2.0 * self._upload_wall_s * self.clock.rate
+
+    def _switch_m(self) -> float:
+        """How far before a waypoint the vehicle may count it reached (ArduPlane switches early)."""
+        accept = self.scenario.vehicle.acceptance_radius
+        return max(accept, PLANE_EARLY_SWITCH_M) if self.is_arduplane else accept
+
+    def _commit_lead_m(self, conflict: Conflict, now: float) -> float:
+        """How far ahead of the vehicle the new route starts. Far enough that the vehicle, flying on while the
+        plan is made, cannot reach the first new item before the upload is verified: the swap's guard then
+        has no reason to hold it. A plane held in LOITER for a guard turns off its route for seconds (at SITL's
+        speed-up, for every wall second of upload, ten), which spoils the timing the new route was planned for
+        and starts the next conflict; so the lead covers the guard's own threshold and the early waypoint
+        switching it counts. Shortened to the planning-and-upload time alone when the conflict is too close
+        for that (the guard then holds if it must)."""
+        cfg = self.cfg
+        plan_s = (cfg.budget_s + cfg.check_interval_wall_s) * self.clock.rate
+        full = (plan_s + self._guard_threshold_s() + cfg.lead_margin_s) * self.speed + self._switch_m()
+        short = (plan_s + self._upload_wall_s * self.clock.rate + cfg.lead_margin_s) * self.speed
+        room = (conflict.t - now) * self.speed * 0.5  # keep the first half of the way to the conflict for the detour
+        return full if full <= room else short
+
     def _join_seq(self, first_new_seq: int) -> int:
         """The commit point's item, or the next one if the vehicle is already past the commit point (it
         would otherwise turn back for it)."""
@@ -547,15 +608,21 @@ class LiveReplanner:
         return first_new_seq
 
     def _clear_from(self, seq: int) -> bool:
-        """Whether the mission from item ``seq`` on, flown from where the vehicle is now, keeps every threat
-        at d_coll or more (the plan was checked from the commit point at its ETA; this checks the join)."""
+        """Whether the mission from item ``seq`` on, flown from where the vehicle is now (and, if it is held,
+        from whenever it may be back on it: :meth:`rejoin_delays`), keeps every threat at d_coll or more (the
+        plan was checked from the commit point at its ETA; this checks the join)."""
         if self.position is None:
             return True
         now = self.now()
         route, _ = self.route.remaining(self.position, max(seq, int(self.route.seqs[0])))
-        seps = route_separations(route, self.speed, 0.0, now, self.threats(now), self.cfg.horizon_s,
-                                 self.cfg.sample_dt_s)
-        return min((c.separation for c in seps), default=math.inf) >= self.scenario.hazard.d_coll
+        threats = self.threats(now)
+        seps = [c for d in self.rejoin_delays() for c in route_separations(
+            route, self.speed, 0.0, now + d, threats, self.cfg.horizon_s, self.cfg.sample_dt_s)]
+        worst = min(seps, key=lambda c: c.separation, default=None)
+        if worst is not None:
+            self.events.log("join_check", seq=seq, threat=worst.threat_id, separation_m=round(worst.separation, 1),
+                            in_s=round(worst.t - now, 1))
+        return worst is None or worst.separation >= self.scenario.hazard.d_coll
 
     async def set_current(self, seq: int) -> None:
         """DO_SET_MISSION_CURRENT and wait until MISSION_CURRENT shows it (the vehicle took it)."""
@@ -580,10 +647,7 @@ class LiveReplanner:
         if not hit.size:
             return math.inf
         legs = np.linalg.norm(np.diff(route[:hit[0] + 1], axis=0), axis=1)
-        switch = self.scenario.vehicle.acceptance_radius
-        if self.is_arduplane:
-            switch = max(switch, PLANE_EARLY_SWITCH_M)
-        return max(float(legs.sum()) - switch, 0.0) / max(self.speed, self.groundspeed, 1.0)
+        return max(float(legs.sum()) - self._switch_m(), 0.0) / max(self.speed, self.groundspeed, 1.0)
 
     def note_upload(self, seconds: float) -> None:
         """The initial mission's verified upload took ``seconds`` (wall): the first guess for a replan's."""
@@ -606,6 +670,7 @@ class LiveReplanner:
             return
         await self._mode(self.hold_mode)
         self.holding = reason
+        self._held_since = self.now()
         self.events.log("hold", mode=self.hold_mode, reason=reason)
 
     async def resume(self) -> None:
@@ -624,7 +689,7 @@ class LiveReplanner:
         self._last_replan = now
         conflicts = self.predict(now, threats) if len(threats) else []
         if not conflicts:
-            self.events.log("threat_cleared")
+            self.events.log("threat_cleared", rejoin_s=float(self.rejoin_delays()[-1]))
             await self.resume()
             return
         await self.replan(conflicts[0], now, threats, lead_m=0.0)
