@@ -8,7 +8,7 @@ import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -29,6 +29,9 @@ from companion.telemetry import TelemetryRates
 from planner.checks import obstacle_clearance
 from planner.scenario import Scenario
 
+if TYPE_CHECKING:
+    from companion.sim.traffic import TrafficFeed
+
 log = logging.getLogger(__name__)
 
 
@@ -46,11 +49,13 @@ class FlyOptions:
     replan: bool = True  # live replanning around dynamic threats (when the scenario has any)
     replan_config: ReplanConfig | None = None  # None: ReplanConfig() defaults
     signing_key: SigningKey | None = None  # MAVLink 2 signing (our simulator uses the same key)
+    traffic: str | None = None  # a real autopilot's spare port: fly the scenario's intruders there (TrafficFeed)
 
 
 async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, events: EventLog) -> dict[str, Any]:
     """Fly ``plan_doc`` (a PLAN.json document) and write the report; returns the flight.json document."""
     from companion.sim import SimAutopilot
+    from companion.sim.traffic import TrafficFeed
 
     sim = None
     if opts.sim:
@@ -79,8 +84,12 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             sup = FlightSupervisor(link, client, events, arm=opts.arm or opts.sim)
             length = float(plan_doc["metrics"]["length_m"])
             timeout = 120.0 + 4.0 * length / scenario.vehicle.cruise_speed / max(opts.speedup, 1e-3)
-            replanner = None
+            replanner = feed = None
             async with contextlib.AsyncExitStack() as stack:
+                if opts.traffic and scenario.intruders:
+                    feed = await stack.enter_async_context(
+                        TrafficFeed(opts.traffic, scenario, plan_doc["waypoints"], system=link.target_system or 1))
+                    events.log("traffic", url=opts.traffic, intruders=[i.id for i in scenario.intruders])
                 if opts.replan and (len(scenario.environment.threats) or scenario.intruders or opts.connect):
                     replanner = await stack.enter_async_context(LiveReplanner(
                         link, client, events, scenario, spec, items, opts.replan_config,
@@ -90,7 +99,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
     finally:
         if sim is not None:
             await sim.stop()
-    return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, len(items), replanner)
+    return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, len(items), replanner, feed)
 
 
 def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,
@@ -103,9 +112,11 @@ def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scena
 
 
 def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: Scenario, out: FlightOutcome,
-                         sim: Any, autopilot: str, n_items: int,
-                         replanner: LiveReplanner | None = None) -> dict[str, Any]:
-    """flight.json and track.png; the flown track is the simulator's truth when we ran it, else telemetry."""
+                         sim: Any, autopilot: str, n_items: int, replanner: LiveReplanner | None = None,
+                         feed: TrafficFeed | None = None) -> dict[str, Any]:
+    """flight.json and track.png; the flown track is the simulator's truth when we ran it, else telemetry.
+    Separations: the simulator's truth tracks, or a traffic feed's (the autopilot's positions against the
+    intruders' scripted tracks)."""
     if sim is not None and sim.truth:
         flown = np.array([(x, y, z) for _t, _lat, _lon, _alt, x, y, z in sim.truth])
         source = "simulator truth"
@@ -118,7 +129,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     airborne = flown[:, 2] > 1.0 if len(flown) else np.zeros(0, dtype=bool)
     clearance = obstacle_clearance(flown[airborne], None, scenario.environment) if airborne.any() else np.zeros(0)
     min_clear = float(clearance.min()) if clearance.size else math.inf
-    seps = truth_separations(sim, scenario)
+    seps = truth_separations(sim, scenario) if feed is None else feed.separations()
     records = replanner.records if replanner is not None else []
     done = [r for r in records if r.latency_s is not None]
     doc = {
@@ -135,7 +146,9 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         "replan_attempts": len(records),
         "min_separation_m": {k: round(v.separation, 2) for k, v in seps.items()},
         "min_separation_t_s": {k: round(v.t, 2) for k, v in seps.items()},
-        "separation_source": "simulator truth" if sim is not None else None,
+        "separation_source": "simulator truth" if sim is not None else (
+            "GLOBAL_POSITION_INT against the scripted intruders (traffic feed)" if feed is not None else None),
+        "pace_m_s": None if replanner is None or replanner.pace is None else round(replanner.pace, 2),
         "replan_latency_s": _stats([r.latency_s for r in done]),
         "replan_plan_s": _stats([r.plan_s for r in records]),
         "replan_log": [r.summary() for r in records],
@@ -149,7 +162,8 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         "statustexts": out.statustexts[-20:],
     }
     write_json(opts.report / "flight.json", doc)
-    intr = {k: np.array([(x, y, z) for _t, x, y, z in v]) for k, v in (sim.intruder_truth.items() if sim else [])}
+    truth = sim.intruder_truth if sim is not None else (feed.intruders if feed is not None else {})
+    intr = {k: np.array([(x, y, z) for _t, x, y, z in v]).reshape(-1, 3) for k, v in truth.items()}
     replans = [(np.array(r.old_route), np.array(r.new_route)) for r in records if r.new_route]
     plot_track(opts.report / "track.png", scenario.environment, np.asarray(plan_doc["trajectory"]["points"]),
                flown, f"{scenario.name}: planned vs flown ({'completed' if out.completed else 'not completed'}"

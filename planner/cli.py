@@ -77,6 +77,10 @@ def _parser() -> argparse.ArgumentParser:
                     help="fly the first plan whatever the threats do (no live replanning)")
     fl.add_argument("--replan-budget", type=float, default=None, metavar="S",
                     help="wall seconds the planner may use for one live replan (default 0.15)")
+    fl.add_argument("--traffic", metavar="URL",
+                    help="fly the scenario's [[intruders]] against a real autopilot: report them as an ADS-B "
+                    "receiver (component 156) on this spare MAVLink port of it, e.g. tcp:127.0.0.1:5763 (SITL "
+                    "SERIAL2), and measure separation from its positions")
     fl.add_argument("--report", type=Path, default=Path("fuseplan-report"), help="report directory")
     fl.add_argument("--scenario-file", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
     fl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
@@ -361,6 +365,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
         raise FuseplanError("--speedup must be a finite number > 0 and --sim-loss in [0, 1)")
     if not args.sim and (args.speedup != 1.0 or args.sim_loss):
         raise FuseplanError("--speedup and --sim-loss apply to the built-in simulator (--sim) only")
+    if getattr(args, "traffic", None) and args.sim:
+        raise FuseplanError("--traffic is for a real autopilot (--connect): the simulator flies the intruders itself")
     key = SigningKey.load(args.signing_key) if getattr(args, "signing_key", None) else None
     overrides = list(args.overrides) + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else [])
     try:
@@ -386,7 +392,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
                       arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report,
                       replan=not getattr(args, "no_replan", False), replan_config=replan_cfg,
-                      signing_key=key)
+                      signing_key=key, traffic=getattr(args, "traffic", None))
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
     try:
         flight = asyncio.run(fly(doc, sc, opts, events))

@@ -42,8 +42,9 @@ class Intruder:
     icao: int
     waypoints: tuple[tuple[float, float, float], ...]  # ENU metres
     speed: float  # m/s
-    start_time: float = 0.0  # s after mission start
+    start_time: float = 0.0  # s after mission start (unused with ``meet``)
     radius: float = 50.0  # m, protected radius
+    meet: tuple[float, float, float] | None = None  # on its path; timed to be there as the vehicle passes
 
 
 @dataclass(frozen=True, eq=False)
@@ -257,10 +258,12 @@ class _Intruder(_Table):
     speed: _Positive
     start_time: _NonNegative | None = None
     radius: _Positive | None = None
+    meet: _Vec3 | None = None
 
     def to_intruder(self) -> Intruder:
         optional = self.model_dump(include={"start_time", "radius"}, exclude_none=True)
-        return Intruder(self.id, self.icao, tuple(tuple(w) for w in self.waypoints), self.speed, **optional)
+        meet = {"meet": tuple(self.meet)} if self.meet is not None else {}
+        return Intruder(self.id, self.icao, tuple(tuple(w) for w in self.waypoints), self.speed, **optional, **meet)
 
 
 _TerrainTable = Annotated[_FlatTerrain | _HillsTerrain | _FileTerrain, Field(discriminator="kind")]
@@ -546,6 +549,24 @@ def _check_point(file: str, name: str, p: np.ndarray, env: Environment, obstacle
             raise ScenarioError(file, field_name, f"inside {labels[int(np.flatnonzero(inside)[0])]}")
 
 
+MEET_TOLERANCE_M = 1.0  # an intruder's meet point must lie this close to its path
+
+
+def _check_meet_points(file: str, spec: _ScenarioFile) -> None:
+    """An intruder timed by ``meet`` has no ``start_time``, and ``meet`` lies on its path."""
+    for i, it in enumerate(spec.intruders):
+        if it.meet is None:
+            continue
+        if it.start_time is not None:
+            raise ScenarioError(file, f"intruders[{i}].start_time", "give start_time or meet, not both")
+        pts, m = np.asarray(it.waypoints, dtype=float), np.asarray(it.meet, dtype=float)
+        a, ab = pts[:-1], np.diff(pts, axis=0)
+        u = np.clip(np.einsum("ij,ij->i", m - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12), 0, 1)
+        off = float(np.min(np.linalg.norm(a + u[:, None] * ab - m, axis=1)))
+        if off > MEET_TOLERANCE_M:
+            raise ScenarioError(file, f"intruders[{i}].meet", f"must lie on the intruder's path ({off:.1f} m off it)")
+
+
 def _check_unique_ids(file: str, spec: _ScenarioFile) -> None:
     """Threat and intruder ids share one namespace (the companion tracks both by id)."""
     seen: dict[str, str] = {}
@@ -600,6 +621,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
         raise ScenarioError(file, "altitude.min", f"{spec.altitude.min:g} m must be below altitude.max "
                             f"({spec.altitude.max:g} m)")
     _check_unique_ids(file, spec)
+    _check_meet_points(file, spec)
 
     start = np.array(spec.route.start, dtype=float)
     goal = np.array(spec.route.goal, dtype=float)
