@@ -3,13 +3,57 @@
 Public API: :class:`SimAutopilot` (async context manager) and :func:`serve` (``fuseplan sim``).
 
 Layers: ``transport`` (sockets, loss/latency) → ``mission_server`` (mission protocol) → ``navigator`` (mission
-execution) → ``flight_model`` (kinematics); ``intruders`` (ADS-B traffic); ``autopilot`` ties them together.
+execution) → ``flight_model`` (kinematics); ``streams`` (telemetry rates); ``intruders`` (ADS-B traffic);
+``autopilot`` ties them together.
 
-Known differences from ArduPilot SITL: kinematic flight (no wind, no airspeed/throttle, instant speed changes, a
-plane takes off at cruise speed), flat ground at home altitude (terrain frames are treated as relative and do not
-block arming), no parameters, no guided-mode position targets (SET_POSITION_TARGET_*), no geofence enforcement
-(fence items are stored only), SITL's TCP banner text and wait-for-first-client are not reproduced (time starts
-at :meth:`SimAutopilot.start`). MAVLink 2 signing is supported (``signing_key``).
+**The real autopilot is the judge.** What the simulator imitates was measured on ArduPilot 4.7.0-dev SITL
+(../shared/sitl, plane.parm / copter.parm); ``tests/companion/test_sim_conformance.py`` holds the measured numbers
+and checks the simulator against them. When the two disagree, the simulator is wrong.
+
+Imitated:
+
+- Boot (``boot_s=None``): HEARTBEAT from ~half-way through, CALIBRATING in mode 16 INITIALISING (plane) or BOOT
+  (copter); a mission upload refused with MAV_MISSION_NO_SPACE ("Only 0 items are supported"), a fence upload
+  with MAV_MISSION_UNSUPPORTED, arming with "Arm: System not initialised"; then STANDBY and "ArduPilot Ready"
+  (1.7 s plane, 2.5 s copter). Until home is set a download says count 0 (item 0 all zeros) and arming fails
+  with a pre-arm text; GPS fix (type 6, as SITL's), home, EKF flags 0x33f and the pre-arm bit come together.
+- HEARTBEAT as ArduPilot fills it (base_mode 81, + GUIDED in position-controlled modes, + ARMED; system_status
+  ACTIVE only in the air), sent at once on a mode change.
+- The mission protocol (``mission_server``), storing items as ArduPilot does (:func:`companion.storage.stored`),
+  so a readback is the real one.
+- Telemetry (``streams``): ArduPlane streams every group at 1 Hz unasked, ArduCopter only HEARTBEAT
+  (``streams_unasked=None``); MAV_CMD_SET_MESSAGE_INTERVAL, GET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM (its groups)
+  and MAV_CMD_REQUEST_MESSAGE answered and honoured as ArduPilot does. MISSION_CURRENT is streamed, and sent as
+  the answer to MISSION_SET_CURRENT / DO_SET_MISSION_CURRENT (out of range: nothing / DENIED), not on each change.
+  Long STATUSTEXTs go in 50-byte chunks.
+- ADS-B: the scripted intruders relayed by the autopilot (ADSB_VEHICLE, each aircraft at most once a second), or
+  (``adsb_receiver=True``) sent by an ADS-B receiver, component 156 of the vehicle's system, with its own
+  HEARTBEAT (MAV_TYPE_ADSB).
+
+Defaults that are *not* the real vehicle, kept so that tests of the other layers work: ``boot_s=0`` (no boot:
+they upload with a bare MissionClient at the first HEARTBEAT) and ``streams_unasked=True`` (a copter streams
+unasked: only ``fuseplan fly`` asks for rates so far). The readiness wait is 1 s after boot (SITL: ~20 s, its IMU
+consistency checks, with other pre-arm texts on the way).
+
+Left out (known differences from ArduPilot SITL): kinematic flight (no wind, no airspeed/throttle model); a plane
+takes off at cruise speed at the scenario's climb limit, pointing at the route start (ArduPlane: a ground roll
+and a 10 m/s climb straight ahead on its power-up heading, reaching the route start ~5 s later); DO commands run
+when the NAV command before them starts (ArduPilot: when it completes) and every item is reported with
+MISSION_ITEM_REACHED (ArduPilot: a NAV command followed by DO commands is not); a plane waypoint without a radius
+uses the scenario's (SITL's plane.parm WP_RADIUS is 50 m); a copter flies legs at the scenario's speed with
+instant acceleration (ArduCopter: WPNAV_SPEED 10 m/s, 2.5 m/s²), takes off at once at 2.5 m/s (ArduCopter spools
+up and slows down near the altitude) and starts its mission at MISSION_START (ArduCopter already on entering
+AUTO armed); entering AUTO disarmed, ArduPlane already makes item 1 current ("Mission: 1 Takeoff",
+MISSION_CURRENT ACTIVE), the simulator only when armed; flat ground at home
+altitude (terrain frames are treated as relative and do not block arming); no parameters; no rally list; no
+guided-mode position targets (SET_POSITION_TARGET_*); no geofence enforcement (fence items are stored only); only
+HEARTBEAT, SYS_STATUS, GPS_RAW_INT, MISSION_CURRENT, GLOBAL_POSITION_INT, LOCAL_POSITION_NED, ATTITUDE, VFR_HUD,
+SYSTEM_TIME, EKF_STATUS_REPORT, HOME_POSITION and ADSB_VEHICLE are ever sent (the other members of a group are
+accepted, never sent), one rate table for every client (ArduPilot: per link), at most 50 packets per wall second
+per message; no TIMESYNC (SITL sends one every 10 s) and no periodic HOME_POSITION (ArduPlane: every few seconds
+while disarmed); the ADS-B relay rate and the list of message ids SET_MESSAGE_INTERVAL accepts are not measured;
+SITL's TCP banner text and wait-for-first-client are not reproduced (time starts at :meth:`SimAutopilot.start`).
+MAVLink 2 signing is supported (``signing_key``).
 
 Fault injection for tests: packet loss and latency (transport), ``inject_outage`` (the link gone for a while;
 TCP half-open), ``inject_upload_stall`` (an upload abandoned part-way), ``inject_item_refusal`` (item k refused

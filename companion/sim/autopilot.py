@@ -25,12 +25,16 @@ import pymap3d
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.items import FRAME_GLOBAL, MISSION, MissionItem
-from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, bearing
-from companion.sim.intruders import IntruderTrack, heading_deg
-from companion.sim.mission_server import MissionServer, is_nav
-from companion.sim.navigator import Land, Loiter, Navigator, NavTask, ReturnHome, Takeoff, rtl_altitude
 from companion.signing import SigningKey
+from companion.sim import streams
+from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, bearing, wrap_pi
+from companion.sim.intruders import IntruderTrack, heading_deg
+from companion.sim.mission_server import MAX_ITEMS, MissionServer, is_nav
+from companion.sim.navigator import Land, Loiter, Navigator, NavTask, ReturnHome, Takeoff, rtl_altitude
+from companion.sim.streams import StreamTable
 from companion.sim.transport import SimTransport
+from companion.storage import Firmware
+from planner.config import G0
 from planner.scenario import Scenario
 
 logger = logging.getLogger(__name__)
@@ -40,7 +44,26 @@ PLANE_MODES = {"MANUAL": 0, "CIRCLE": 1, "STABILIZE": 2, "TRAINING": 3, "ACRO": 
                "CRUISE": 7, "AUTOTUNE": 8, "AUTO": 10, "RTL": 11, "LOITER": 12, "TAKEOFF": 13, "GUIDED": 15}
 COPTER_MODES = {"STABILIZE": 0, "ACRO": 1, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6,
                 "CIRCLE": 7, "LAND": 9, "POSHOLD": 16, "BRAKE": 17}
-READY_AFTER_S = 2.0  # sim s until GPS 3D fix, EKF good and pre-arm checks pass
+# Boot (ArduPilot 4.7 SITL, sim s from power-up): HEARTBEAT from ~0.9 s saying CALIBRATING + mode 16
+# INITIALISING (plane) / BOOT (copter), then STANDBY and "ArduPilot Ready" at 1.7 s (plane) / 2.5 s (copter).
+BOOT_S = {"plane": 1.7, "copter": 2.5}
+FIRST_HEARTBEAT_FRACTION = 0.5  # of the boot: nothing but STATUSTEXT before (SITL: first HEARTBEAT at 0.9 s)
+MISSION_UNSUPPORTED_S = 0.1  # sim s: any upload → MAV_MISSION_UNSUPPORTED (SITL, before its mission library is up)
+READY_AFTER_BOOT_S = 1.0  # default sim s from the end of boot to GPS fix, home, EKF good and pre-arm checks passed
+# (SITL takes ~20 s: its IMU consistency checks; short here so that tests do not wait)
+PREARM_TEXT = {"plane": "Arm: AHRS: waiting for home", "copter": "Arm: Gyros inconsistent"}  # seen on SITL
+ARDUPLANE_INITIALISING = 16
+GPS_FIX_SITL = mavlink.GPS_FIX_TYPE_RTK_FIXED  # what SITL's simulated u-blox reports once fixed
+PLANE_GUIDED_MODES = frozenset({"AUTO", "RTL", "LOITER", "GUIDED", "CIRCLE", "TAKEOFF"})  # base_mode GUIDED flag
+COPTER_MANUAL_MODES = frozenset({"STABILIZE", "ACRO", "ALT_HOLD"})  # no position control: no GUIDED flag
+ADSB_COMPONENT = mavlink.MAV_COMP_ID_ADSB
+ADSB_RECEIVER_HZ = 1.0  # sim Hz at which the ADS-B receiver reports each aircraft (and its HEARTBEAT)
+ADSB_MIN_INTERVAL_S = 1.0  # ArduPilot relays each aircraft at most once a second (AP_ADSB)
+# Rates are honoured in sim time up to a number of packets per wall second per message: the simulator and the
+# companion share one Python process, and at 20x ArduPlane's 1 Hz streams alone would be ~200 packets/s.
+MAX_WALL_HZ = {mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 25.0, mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 50.0,
+               mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE: 25.0, mavlink.MAVLINK_MSG_ID_HEARTBEAT: 10.0, "receiver": 25.0}
+MAX_WALL_HZ_OTHERS = 5.0
 PHYSICS_DT = 0.05  # s of sim time per physics step
 TRUTH_DT = 0.1  # s of sim time between truth samples
 MAX_CATCH_UP_S = 0.25  # wall s simulated per tick at most (a stalled loop does not make time jump)
@@ -54,31 +77,9 @@ ADSB_FLAGS = (mavlink.ADSB_FLAGS_VALID_COORDS | mavlink.ADSB_FLAGS_VALID_ALTITUD
               | mavlink.ADSB_FLAGS_VALID_VELOCITY | mavlink.ADSB_FLAGS_VALID_CALLSIGN)
 
 
-@dataclasses.dataclass
-class _Stream:
-    """A periodic message: ``sim_hz`` in simulated time, kept within [min_wall_hz, max_wall_hz] of wall time."""
-
-    sim_hz: float
-    min_wall_hz: float
-    max_wall_hz: float
-    next_due: float = 0.0
-
-    def wall_period(self, speedup: float) -> float:
-        if self.sim_hz <= 0.0:
-            return math.inf
-        return 1.0 / min(max(self.sim_hz * speedup, self.min_wall_hz), self.max_wall_hz)
-
-
-def _default_streams() -> dict[int, _Stream]:
-    return {
-        mavlink.MAVLINK_MSG_ID_HEARTBEAT: _Stream(1.0, 1.0, 5.0),
-        mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: _Stream(10.0, 2.0, 25.0),
-        mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: _Stream(1.0, 1.0, 2.0),
-        mavlink.MAVLINK_MSG_ID_SYS_STATUS: _Stream(1.0, 0.5, 2.0),
-        mavlink.MAVLINK_MSG_ID_GPS_RAW_INT: _Stream(1.0, 0.5, 2.0),
-        mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT: _Stream(1.0, 0.5, 2.0),
-        mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE: _Stream(2.0, 1.0, 10.0),
-    }
+PRODUCED = tuple(int(getattr(mavlink, f"MAVLINK_MSG_ID_{n}")) for n in (
+    "HEARTBEAT", "SYS_STATUS", "GPS_RAW_INT", "MISSION_CURRENT", "GLOBAL_POSITION_INT", "LOCAL_POSITION_NED",
+    "ATTITUDE", "VFR_HUD", "SYSTEM_TIME", "EKF_STATUS_REPORT", "ADSB_VEHICLE"))  # what the simulator can send
 
 
 class _Events:
@@ -87,9 +88,10 @@ class _Events:
     def __init__(self, ap: SimAutopilot) -> None:
         self._ap = ap
 
-    def reached(self, seq: int) -> None:
+    def reached(self, seq: int, report: bool = True) -> None:
         self._ap._reached.append(seq)
-        self._ap._send(mavlink.MAVLink_mission_item_reached_message(seq))
+        if report:
+            self._ap._send(mavlink.MAVLink_mission_item_reached_message(seq))
 
     def text(self, severity: int, text: str) -> None:
         self._ap._text(severity, text)
@@ -98,7 +100,6 @@ class _Events:
         ap = self._ap
         if ap._nav.active is not None:
             ap._flown.append((time.monotonic(), ap._sim_time, ap._nav.active))
-        ap._send_mission_current()
 
     def mission_complete(self) -> None:
         self._ap._on_mission_complete()
@@ -114,11 +115,21 @@ class SimAutopilot:
     SITL's port 5760); port 0 picks a free port, see :attr:`port`. ``loss`` drops each packet in either direction
     with that probability and ``latency_s`` delays outgoing packets (seeded from ``seed``). ``vehicle`` overrides
     ``scenario.vehicle.type``.
+
+    ``boot_s``: sim s of booting after :meth:`start` (None: as SITL, 1.7 plane / 2.5 copter; the default 0: none,
+    because tests of other layers upload with a bare MissionClient at the first HEARTBEAT); ready to arm
+    ``ready_after_s`` after power-up (None: 1 s after boot). ``streams_unasked``: None, telemetry as the real
+    vehicle on a link nobody asked for rates (ArduPlane streams every group at 1 Hz, ArduCopter sends only
+    HEARTBEAT); True (the default, until every companion path asks for rates), every group at 1 Hz on both;
+    False, only HEARTBEAT. ``adsb_receiver``: the scripted intruders come from an ADS-B receiver, component 156
+    of this system (as one on the companion's link), not relayed by the autopilot.
     """
 
     def __init__(self, scenario: Scenario, listen: str = "udpin:127.0.0.1:14550", speedup: float = 1.0,
                  loss: float = 0.0, latency_s: float = 0.0, seed: int = 0, system_id: int = 1,
-                 vehicle: Literal["plane", "copter"] | None = None, signing_key: SigningKey | None = None) -> None:
+                 vehicle: Literal["plane", "copter"] | None = None, signing_key: SigningKey | None = None, *,
+                 boot_s: float | None = 0.0, ready_after_s: float | None = None,
+                 streams_unasked: bool | None = True, adsb_receiver: bool = False) -> None:
         if speedup <= 0.0:
             raise ValueError(f"speedup must be > 0, got {speedup}")
         limits = scenario.vehicle
@@ -133,22 +144,29 @@ class SimAutopilot:
         self._rng = np.random.default_rng(seed)
         self._transport = SimTransport(listen, self._on_message, system_id=system_id, component_id=COMPONENT_ID,
                                        loss=loss, latency_s=latency_s, rng=self._rng, signing_key=signing_key)
+        self.boot_s = BOOT_S[limits.type] if boot_s is None else max(float(boot_s), 0.0)
+        self.ready_after_s = self.boot_s + READY_AFTER_BOOT_S if ready_after_s is None \
+            else max(float(ready_after_s), self.boot_s)
+        self.adsb_receiver = adsb_receiver
+        self._ready = False
+        self._sim_time = 0.0
         start_xy = (float(scenario.start[0]), float(scenario.start[1]))
         heading = bearing(*start_xy) if math.hypot(*start_xy) > 1.0 else 0.0  # "runway" pointing the way out
         self._model = FlightModel(limits, heading)
         self._events = _Events(self)
         self._nav = Navigator(self._model, self._item_to_enu, self._events)
+        firmware = Firmware.of(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._mav_type())
         self._server = MissionServer(self._send, self._home_item, lambda: self._nav.running,
-                                     self._set_current, self._text)
+                                     self._set_current, self._text, firmware=firmware,
+                                     capacity=self._capacity, home_set=lambda: self._ready)
         self._modes = PLANE_MODES if self.is_plane else COPTER_MODES
         self._mode_names = {v: k for k, v in self._modes.items()}
         self._custom_mode = self._modes["MANUAL" if self.is_plane else "STABILIZE"]
         self._mode_task: NavTask | None = None
         self._armed = False
-        self._ready = False
-        self._sim_time = 0.0
         self._next_truth = 0.0
         self._mission_t0: float | None = None
+        self._complete = False  # the mission ran to its end (MISSION_CURRENT says COMPLETE until restarted)
         self._tracks = [IntruderTrack(i) for i in scenario.intruders]
         self._truth: list[tuple[float, float, float, float, float, float, float]] = []
         self._intruder_truth: dict[str, list[tuple[float, float, float, float]]] = {
@@ -160,7 +178,12 @@ class SimAutopilot:
         self._stall_count = 0
         self._refusals: list[tuple[MissionItem, list[MissionItem]]] = []
         self._change_signature: tuple | None = None
-        self._streams = _default_streams()
+        unasked = self.is_plane if streams_unasked is None else streams_unasked
+        self._streams = StreamTable(limits.type, unasked)
+        self._due: dict[object, float] = {}  # message id (or "receiver") → loop time it is next due
+        self._adsb_sent: dict[str, float] = {}  # intruder id → sim time of its last relayed report
+        self._adsb_next = 0  # round robin over the intruders
+        self._text_id = 0  # STATUSTEXT id of the last text sent in chunks
         self._tasks: list[asyncio.Task[None]] = []
 
     # --- public state ---------------------------------------------------------------------------------------
@@ -219,7 +242,16 @@ class SimAutopilot:
 
     @property
     def ready(self) -> bool:
+        """GPS fix, home set, EKF good and pre-arm checks passed."""
         return self._ready
+
+    @property
+    def booted(self) -> bool:
+        return self._sim_time >= self.boot_s
+
+    def message_rate(self, msg_id: int) -> float:
+        """Hz of sim time at which message ``msg_id`` is streamed now (0: not sent)."""
+        return self._streams.hz(msg_id)
 
     @property
     def position(self) -> tuple[float, float, float]:
@@ -337,9 +369,12 @@ class SimAutopilot:
             dt = min(PHYSICS_DT, remaining)
             remaining -= dt
             self._step(dt)
+            booting = not self.booted
             self._sim_time += dt
             self._server.tick(self._sim_time)
-            if not self._ready and self._sim_time >= READY_AFTER_S:
+            if booting and self.booted:
+                self._text(mavlink.MAV_SEVERITY_INFO, "ArduPilot Ready")
+            if not self._ready and self._sim_time >= self.ready_after_s:
                 self._ready = True
                 self._text(mavlink.MAV_SEVERITY_INFO, "EKF3 IMU0 is using GPS")
                 self._send(self._home_position())
@@ -348,16 +383,41 @@ class SimAutopilot:
                 self._next_truth += TRUTH_DT
 
     async def _telemetry(self) -> None:
+        """Send each streamed message at its rate (sim Hz × speed-up, at most MAX_WALL_HZ per wall second)."""
         loop = asyncio.get_running_loop()
         while True:
             now = loop.time()
-            for msg_id, stream in self._streams.items():
-                if now >= stream.next_due:
-                    for msg in self._stream_messages(msg_id):
-                        self._send(msg)
-                    stream.next_due = max(stream.next_due + stream.wall_period(self.speedup), now)
-            next_due = min(s.next_due for s in self._streams.values())
-            await asyncio.sleep(min(max(next_due - loop.time(), 0.001), 0.2))
+            wake = now + 0.2
+            for key in (*PRODUCED, "receiver"):
+                hz = self._rate(key)
+                if hz <= 0.0:
+                    self._due.pop(key, None)
+                    continue
+                due = self._due.get(key, now)
+                if now >= due:
+                    if key == "receiver":
+                        self._send_receiver()
+                    elif key == mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE:
+                        self._relay_adsb()
+                    else:
+                        for msg in self._stream_messages(key):
+                            self._send(msg)
+                    cap = MAX_WALL_HZ.get(key, MAX_WALL_HZ_OTHERS)  # type: ignore[call-overload]
+                    due = max(due + 1.0 / min(hz * self.speedup, cap), now)
+                self._due[key] = due
+                wake = min(wake, due)
+            await asyncio.sleep(max(wake - loop.time(), 0.001))
+
+    def _rate(self, key: object) -> float:
+        """Sim Hz of a telemetry schedule entry now (0: not sent)."""
+        if key == "receiver":
+            return ADSB_RECEIVER_HZ if self.adsb_receiver else 0.0
+        assert isinstance(key, int)
+        if key == mavlink.MAVLINK_MSG_ID_HEARTBEAT:
+            on = self._sim_time >= FIRST_HEARTBEAT_FRACTION * self.boot_s
+        else:  # nothing streams before the end of boot (SITL: SYS_STATUS & co. from just after it)
+            on = self.booted and not (key == mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE and self.adsb_receiver)
+        return self._streams.hz(key) if on else 0.0
 
     # --- flight ---------------------------------------------------------------------------------------------
 
@@ -406,6 +466,15 @@ class SimAutopilot:
             self._nav.start(mission, seq)
             self._change_signature = (self._nav.current_seq, signature[1])
 
+    def _capacity(self, mission_type: int) -> int | None:
+        """Items an upload may have now: while booting a mission has room for none and the other lists do not
+        exist yet (and for the first moment not even the mission)."""
+        if self.booted:
+            return MAX_ITEMS.get(mission_type)
+        if mission_type == MISSION and self._sim_time >= MISSION_UNSUPPORTED_S:
+            return 0
+        return None
+
     def _item_to_enu(self, item: MissionItem) -> tuple[float, float, float]:
         s = self._model.state
         if item.x == 0 and item.y == 0:
@@ -426,13 +495,14 @@ class SimAutopilot:
         if self._mission_t0 is None:
             self._mission_t0 = self._sim_time
             logger.info("simulator: mission started at t=%.1f s", self._sim_time)
+        self._complete = False
         self._nav.start(self._server.mission, seq)
 
     def _on_mission_complete(self) -> None:
+        self._complete = True
         if self.is_plane:
             self._text(mavlink.MAV_SEVERITY_INFO, "Mission complete, changing mode to RTL")
             self._set_mode(PLANE_MODES["RTL"])
-        self._send_mission_current()
 
     def _on_landed(self) -> None:
         self._nav.stop()
@@ -471,7 +541,9 @@ class SimAutopilot:
         return True
 
     def _set_current(self, seq: int) -> bool:
-        """MISSION_SET_CURRENT / DO_SET_MISSION_CURRENT: restart that item now if the mission is running."""
+        """MISSION_SET_CURRENT / DO_SET_MISSION_CURRENT: restart that item now if the mission is running; a valid
+        one is answered with MISSION_CURRENT (ArduPilot's acknowledgement of MISSION_SET_CURRENT), an invalid one
+        with nothing."""
         mission = self._server.mission
         if not 0 <= seq < len(mission):
             return False
@@ -504,6 +576,10 @@ class SimAutopilot:
                     self._set_mode(msg.custom_mode)
                 self._ack(msg, mavlink.MAVLINK_MSG_ID_SET_MODE,
                           mavlink.MAV_RESULT_ACCEPTED if ok else mavlink.MAV_RESULT_FAILED)
+            elif kind == "REQUEST_DATA_STREAM":
+                if getattr(msg, "target_component", 0) in (0, COMPONENT_ID):
+                    self._streams.request_stream(msg.req_stream_id, msg.req_message_rate, bool(msg.start_stop))
+                    self._due.clear()  # new rates start now
         except Exception:  # a malformed request must not take the simulated vehicle down
             logger.exception("simulator: error handling %s", msg)
 
@@ -546,25 +622,27 @@ class SimAutopilot:
                 self._start_mission()
             return ok
         if cmd == mavlink.MAV_CMD_DO_SET_MISSION_CURRENT:
-            return ok if self._set_current(int(p[0])) else failed
+            return ok if self._set_current(int(p[0])) else mavlink.MAV_RESULT_DENIED
         if cmd == mavlink.MAV_CMD_REQUEST_MESSAGE:
-            messages = self._on_request(int(p[0]))
-            for m in messages or ():
+            if int(p[0]) not in streams.KNOWN:
+                return failed
+            for m in self._on_request(int(p[0])):  # nothing to send (no home yet, no traffic) is still ACCEPTED
                 self._send(m)
-            return ok if messages else failed
+            return ok
         if cmd == mavlink.MAV_CMD_GET_HOME_POSITION:
             if not self._ready:
                 return failed
             self._send(self._home_position())
             return ok
         if cmd == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
-            stream = self._streams.get(int(p[0]))
-            if stream is None:
-                return failed
-            interval_us = p[1]
-            default = _default_streams()[int(p[0])].sim_hz
-            stream.sim_hz = default if interval_us == 0 else (0.0 if interval_us < 0 else 1e6 / interval_us)
-            stream.next_due = 0.0
+            result, text = self._streams.set_interval(int(p[0]), p[1])
+            if text is not None:
+                self._text(mavlink.MAV_SEVERITY_WARNING, text)
+            self._due.pop(int(p[0]), None)  # the new rate starts now
+            return result
+        if cmd == mavlink.MAV_CMD_GET_MESSAGE_INTERVAL:
+            hz = self._streams.hz(int(p[0]))
+            self._send(mavlink.MAVLink_message_interval_message(int(p[0]), round(1e6 / hz) if hz > 0 else -1))
             return ok
         if cmd == mavlink.MAV_CMD_DO_CHANGE_SPEED:
             if p[1] > 0.0:
@@ -589,11 +667,14 @@ class SimAutopilot:
             return mavlink.MAV_RESULT_ACCEPTED
         if self._armed:
             return mavlink.MAV_RESULT_ACCEPTED
+        if not self.booted:
+            self._text(mavlink.MAV_SEVERITY_CRITICAL, "Arm: System not initialised")
+            return mavlink.MAV_RESULT_FAILED
         if not self.is_plane and self.mode == "AUTO":
             self._text(mavlink.MAV_SEVERITY_CRITICAL, "Arm: AUTO mode not armable")
             return mavlink.MAV_RESULT_FAILED
         if not self._ready and not force:
-            self._text(mavlink.MAV_SEVERITY_CRITICAL, "Arm: System not initialised")
+            self._text(mavlink.MAV_SEVERITY_CRITICAL, PREARM_TEXT[self.vehicle.type])
             return mavlink.MAV_RESULT_FAILED
         self._armed = True
         self._text(mavlink.MAV_SEVERITY_INFO, "Throttle armed")
@@ -614,12 +695,13 @@ class SimAutopilot:
         self._mode_task = Takeoff(float(altitude))
         return mavlink.MAV_RESULT_ACCEPTED
 
-    def _on_request(self, msg_id: int) -> list[mavlink.MAVLink_message] | None:
+    def _on_request(self, msg_id: int) -> list[mavlink.MAVLink_message]:
+        """MAV_CMD_REQUEST_MESSAGE: the message(s) now, if the simulator has them."""
         if msg_id == mavlink.MAVLINK_MSG_ID_HOME_POSITION:
-            return [self._home_position()] if self._ready else None
-        if msg_id in self._streams:
-            return self._stream_messages(msg_id) or None
-        return None
+            return [self._home_position()] if self._ready else []
+        if msg_id == mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE:
+            return [] if self.adsb_receiver else self._adsb_messages()
+        return self._stream_messages(msg_id) if msg_id in PRODUCED else []
 
     # --- outgoing -------------------------------------------------------------------------------------------
 
@@ -627,8 +709,15 @@ class SimAutopilot:
         self._transport.send(msg)
 
     def _text(self, severity: int, text: str) -> None:
+        """STATUSTEXT; a text longer than 50 bytes goes in 50-byte chunks sharing an id (as ArduPilot)."""
         logger.debug("simulator STATUSTEXT: %s", text)
-        self._send(mavlink.MAVLink_statustext_message(severity, text[:50].encode(), 0, 0))
+        data = text.encode()
+        if len(data) <= 50:
+            self._send(mavlink.MAVLink_statustext_message(severity, data, 0, 0))
+            return
+        self._text_id = self._text_id % 0xFFFF + 1
+        for n, i in enumerate(range(0, len(data), 50)):
+            self._send(mavlink.MAVLink_statustext_message(severity, data[i:i + 50], self._text_id, n))
 
     def _send_mission_current(self) -> None:
         self._send(self._mission_current())
@@ -637,6 +726,9 @@ class SimAutopilot:
         return int(self._sim_time * 1000) & 0xFFFFFFFF
 
     def _home_item(self) -> MissionItem:
+        """Item 0 as read back: home in frame GLOBAL with AMSL altitude, all zeros while home is not set."""
+        if not self._ready:
+            return MissionItem(0, FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, mission_type=MISSION)
         return MissionItem(0, FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, x=round(self._home.lat * 1e7),
                            y=round(self._home.lon * 1e7), z=float(self._home.alt), mission_type=MISSION)
 
@@ -657,18 +749,32 @@ class SimAutopilot:
             if sample is not None:
                 self._intruder_truth[track.intruder.id].append((self._sim_time, sample.x, sample.y, sample.z))
 
+    def _mav_type(self) -> int:
+        return mavlink.MAV_TYPE_FIXED_WING if self.is_plane else mavlink.MAV_TYPE_QUADROTOR
+
     def _heartbeat(self) -> mavlink.MAVLink_heartbeat_message:
-        base = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
-        if self.mode in ("MANUAL", "STABILIZE", "ACRO"):
-            base |= mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
-        else:
-            base |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        """As ArduPilot 4.7 SITL: base_mode CUSTOM|STABILIZE|MANUAL_INPUT (81), + GUIDED (89) in modes with
+        position control (plane: AUTO, RTL, LOITER, GUIDED, CIRCLE, TAKEOFF; copter: all but STABILIZE, ACRO,
+        ALT_HOLD), + SAFETY_ARMED; system_status ACTIVE only in the air (STANDBY on the ground, armed or not).
+        Booting: plane CALIBRATING in mode 16 INITIALISING with base_mode 17; copter BOOT with base_mode 89."""
+        flags = mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED | mavlink.MAV_MODE_FLAG_STABILIZE_ENABLED
+        custom = self._custom_mode
+        if not self.booted:
+            if self.is_plane:
+                custom, status = ARDUPLANE_INITIALISING, mavlink.MAV_STATE_CALIBRATING
+            else:
+                flags |= mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED | mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
+                status = mavlink.MAV_STATE_BOOT
+            return mavlink.MAVLink_heartbeat_message(self._mav_type(), mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, flags,
+                                                     custom, status, 3)
+        flags |= mavlink.MAV_MODE_FLAG_MANUAL_INPUT_ENABLED
+        if (self.mode in PLANE_GUIDED_MODES) if self.is_plane else (self.mode not in COPTER_MANUAL_MODES):
+            flags |= mavlink.MAV_MODE_FLAG_GUIDED_ENABLED
         if self._armed:
-            base |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
-        return mavlink.MAVLink_heartbeat_message(
-            mavlink.MAV_TYPE_FIXED_WING if self.is_plane else mavlink.MAV_TYPE_QUADROTOR,
-            mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, base, self._custom_mode,
-            mavlink.MAV_STATE_ACTIVE if self._armed else mavlink.MAV_STATE_STANDBY, 3)
+            flags |= mavlink.MAV_MODE_FLAG_SAFETY_ARMED
+        status = mavlink.MAV_STATE_STANDBY if self._model.state.on_ground else mavlink.MAV_STATE_ACTIVE
+        return mavlink.MAVLink_heartbeat_message(self._mav_type(), mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, flags,
+                                                 custom, status, 3)
 
     def _mission_current(self) -> mavlink.MAVLink_mission_current_message:
         total = len(self._server.mission) - 1
@@ -676,10 +782,10 @@ class SimAutopilot:
             state = mavlink.MISSION_STATE_NO_MISSION
         elif self._nav.running:
             state = mavlink.MISSION_STATE_ACTIVE
+        elif self._complete:
+            state = mavlink.MISSION_STATE_COMPLETE
         elif self._mission_t0 is None:
             state = mavlink.MISSION_STATE_NOT_STARTED
-        elif self.mode == "AUTO" and self._nav.active is None:
-            state = mavlink.MISSION_STATE_COMPLETE
         else:
             state = mavlink.MISSION_STATE_PAUSED
         return mavlink.MAVLink_mission_current_message(self._nav.current_seq, max(total, 0), state,
@@ -709,7 +815,7 @@ class SimAutopilot:
                                                        0, 0)]
         if msg_id == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:
             lat, lon = self._geodetic()
-            fix = mavlink.GPS_FIX_TYPE_3D_FIX if self._ready else mavlink.GPS_FIX_TYPE_NO_GPS
+            fix = GPS_FIX_SITL if self._ready else mavlink.GPS_FIX_TYPE_NO_GPS
             return [mavlink.MAVLink_gps_raw_int_message(
                 int(self._sim_time * 1e6), fix, round(lat * 1e7) if self._ready else 0,
                 round(lon * 1e7) if self._ready else 0, round((self._home.alt + s.z) * 1000),
@@ -718,22 +824,37 @@ class SimAutopilot:
         if msg_id == mavlink.MAVLINK_MSG_ID_EKF_STATUS_REPORT:
             flags = EKF_GOOD if self._ready else EKF_UNINITIALISED
             return [mavlink.MAVLink_ekf_status_report_message(flags, 0.01, 0.01, 0.01, 0.01, 0.0, 0.0)]
+        if msg_id == mavlink.MAVLINK_MSG_ID_LOCAL_POSITION_NED:
+            return [mavlink.MAVLink_local_position_ned_message(self._time_boot_ms(), s.y, s.x, -s.z, s.vy, s.vx,
+                                                               -s.vz)]
+        if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE:
+            roll = math.atan(s.speed * s.turn_rate / G0)
+            pitch = math.atan2(s.vz, s.speed) if self.is_plane and not s.on_ground else 0.0
+            return [mavlink.MAVLink_attitude_message(self._time_boot_ms(), roll, pitch, wrap_pi(s.heading), 0.0,
+                                                     0.0, s.turn_rate)]
+        if msg_id == mavlink.MAVLINK_MSG_ID_VFR_HUD:
+            throttle = 0 if not self._armed else 100 if isinstance(self._nav.task, Takeoff) else 50
+            return [mavlink.MAVLink_vfr_hud_message(s.speed, s.speed, round(math.degrees(s.heading)) % 360,
+                                                    throttle, self._home.alt + s.z, s.vz)]
+        if msg_id == mavlink.MAVLINK_MSG_ID_SYSTEM_TIME:
+            return [mavlink.MAVLink_system_time_message(int(time.time() * 1e6), self._time_boot_ms())]
         if msg_id == mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE:
             return self._adsb_messages()
         return []
 
-    def _adsb_messages(self) -> list[mavlink.MAVLink_message]:
+    def _adsb_messages(self, only: str | None = None) -> list[mavlink.MAVLink_message]:
+        """ADSB_VEHICLE for each scripted intruder in the air now (or just ``only``)."""
         t_mission = self.mission_time
         if t_mission is None:
             return []
         out = []
         for track in self._tracks:
+            intruder = track.intruder
             sample = track.sample(t_mission)
-            if sample is None:
+            if sample is None or only not in (None, intruder.id):
                 continue
             lat, lon, _ = pymap3d.enu2geodetic(sample.x, sample.y, 0.0, self._home.lat, self._home.lon,
                                                self._home.alt)
-            intruder = track.intruder
             out.append(mavlink.MAVLink_adsb_vehicle_message(
                 intruder.icao, round(float(lat) * 1e7), round(float(lon) * 1e7),
                 mavlink.ADSB_ALTITUDE_TYPE_GEOMETRIC, round((self._home.alt + sample.z) * 1000),
@@ -742,13 +863,40 @@ class SimAutopilot:
                 0))
         return out
 
+    def _relay_adsb(self) -> None:
+        """The autopilot's ADSB_VEHICLE stream: one aircraft per message slot, each at most once a second (sim),
+        taken in turn."""
+        n = len(self._tracks)
+        for k in range(n):
+            i = (self._adsb_next + k) % n
+            ident = self._tracks[i].intruder.id
+            if self._sim_time - self._adsb_sent.get(ident, -math.inf) < ADSB_MIN_INTERVAL_S:
+                continue
+            messages = self._adsb_messages(only=ident)
+            if messages:
+                self._send(messages[0])
+                self._adsb_sent[ident] = self._sim_time
+                self._adsb_next = i + 1
+                return
+
+    def _send_receiver(self) -> None:
+        """An ADS-B receiver (component 156 of this system, on the companion's link): its HEARTBEAT and every
+        aircraft it hears, whatever rates the autopilot was asked for."""
+        send = self._transport.send
+        send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_ADSB, mavlink.MAV_AUTOPILOT_INVALID, 0, 0,
+                                               mavlink.MAV_STATE_ACTIVE, 3), ADSB_COMPONENT)
+        for msg in self._adsb_messages():
+            send(msg, ADSB_COMPONENT)
+
 
 async def serve(scenario: Scenario, listen: str = "udpin:127.0.0.1:14550", speedup: float = 1.0,
                 loss: float = 0.0, latency_s: float = 0.0, until: float | asyncio.Event | None = None,
-                seed: int = 0, signing_key: SigningKey | None = None) -> None:
+                seed: int = 0, signing_key: SigningKey | None = None, **options: object) -> None:
     """Run a :class:`SimAutopilot` until cancelled, until ``until`` seconds of simulated time have passed (a
-    number), or until ``until`` is set (an :class:`asyncio.Event`). Used by ``fuseplan sim``."""
-    async with SimAutopilot(scenario, listen, speedup, loss, latency_s, seed, signing_key=signing_key) as sim:
+    number), or until ``until`` is set (an :class:`asyncio.Event`). Used by ``fuseplan sim``. ``options``: the
+    keyword-only options of :class:`SimAutopilot` (boot_s, streams_unasked, adsb_receiver…)."""
+    async with SimAutopilot(scenario, listen, speedup, loss, latency_s, seed, signing_key=signing_key,
+                            **options) as sim:  # type: ignore[arg-type]
         logger.info("simulated %s serving on %s (port %d), speed-up %g", sim.vehicle.type, listen, sim.port,
                     speedup)
         if until is None:

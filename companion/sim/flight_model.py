@@ -43,6 +43,7 @@ class VehicleState:
     speed: float = 0.0  # horizontal ground speed, m/s
     vz: float = 0.0  # up, m/s
     on_ground: bool = True
+    turn_rate: float = 0.0  # rad/s, clockwise, of the last step (a plane's bank follows from it)
 
     @property
     def vx(self) -> float:
@@ -75,7 +76,9 @@ class FlightModel:
         s = self.state
         rate = G0 * math.tan(self.vehicle.max_bank) / max(s.speed, 1.0)
         err = wrap_pi(desired - s.heading)
-        s.heading = wrap_pi(s.heading + max(-rate * dt, min(rate * dt, err)))
+        turn = max(-rate * dt, min(rate * dt, err))
+        s.heading = wrap_pi(s.heading + turn)
+        s.turn_rate = turn / dt
 
     def _hold_altitude(self, z_target: float, dt: float) -> None:
         s = self.state
@@ -84,8 +87,10 @@ class FlightModel:
         if abs(z_target - s.z) < abs(s.vz * dt):
             s.vz = (z_target - s.z) / dt
 
-    def _advance(self, dt: float) -> None:
+    def _advance(self, dt: float, turning: bool = False) -> None:
         s = self.state
+        if not turning:
+            s.turn_rate = 0.0
         s.x += s.vx * dt
         s.y += s.vy * dt
         s.z += s.vz * dt
@@ -100,6 +105,7 @@ class FlightModel:
         s = self.state
         s.speed = 0.0
         s.vz = 0.0
+        s.turn_rate = 0.0
 
     def straight(self, z_target: float, dt: float) -> None:
         """Plane: fly on, wings level, holding ``z_target``; copter: hover."""
@@ -152,7 +158,7 @@ class FlightModel:
                     aim_x, aim_y = ox + ux * ahead, oy + uy * ahead
             self._turn_towards(bearing(aim_x - s.x, aim_y - s.y), dt)
             self._hold_altitude(tz, dt)
-            self._advance(dt)
+            self._advance(dt, turning=True)
             return
         dx, dy = tx - s.x, ty - s.y
         dist = math.hypot(dx, dy)
@@ -179,7 +185,7 @@ class FlightModel:
         desired = theta + math.pi / 2 + correction if clockwise else theta - math.pi / 2 - correction
         self._turn_towards(desired, dt)
         self._hold_altitude(z_target, dt)
-        self._advance(dt)
+        self._advance(dt, turning=True)
 
     def touch_down(self) -> None:
         s = self.state

@@ -26,6 +26,13 @@ ArduPilot behaviour reproduced (../shared/AUTOPILOT_FACTS.md, ``libraries/GCS_MA
   INVALID_PARAM5_X / INVALID_PARAM6_Y; unknown commands → MAV_MISSION_UNSUPPORTED. A failed item ends the upload.
 - MISSION_WRITE_PARTIAL_LIST (start ≤ end ≤ count) re-requests and overwrites that range in place.
 - MISSION_CLEAR_ALL is refused (MAV_MISSION_ERROR) during an upload or while the mission is running.
+- Items are kept as ArduPilot stores them: :func:`companion.storage.stored` for the vehicle's firmware (fence
+  points in frame GLOBAL with autocontinue 0 and only param1, NAV_WAYPOINT's radii on a plane / hold time on a
+  copter, commands without a position in frame GLOBAL…), so a readback is the real one.
+- While booting (``capacity`` says so) an upload is refused at MISSION_COUNT: a mission with
+  MAV_MISSION_NO_SPACE and STATUSTEXT "Only 0 items are supported", a fence or rally list with
+  MAV_MISSION_UNSUPPORTED (and in the first ~0.1 s a mission too). Until home is set (``home_set``) an
+  untouched mission reads back with count 0, and item 0 as all zeros.
 """
 
 from __future__ import annotations
@@ -38,6 +45,7 @@ from dataclasses import dataclass, replace
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.items import FENCE, MISSION, MissionItem, normalise_frame
+from companion.storage import Firmware, stored
 
 logger = logging.getLogger(__name__)
 
@@ -127,17 +135,25 @@ class MissionServer:
 
     ``mission[0]`` is always the home item; ``home_item()`` supplies the live one for downloads.
     ``running()`` tells whether the mission is executing (MISSION_CLEAR_ALL is refused then).
-    ``on_set_current(seq)`` handles MISSION_SET_CURRENT.
+    ``on_set_current(seq)`` handles MISSION_SET_CURRENT. Items are stored as ``firmware`` stores them.
+    ``capacity(mission_type)``: how many items an upload may have now (None: that list is not available yet);
+    ``home_set()``: False until the vehicle has a home (an untouched mission reads back empty until then).
     """
 
     def __init__(self, send: Callable[[mavlink.MAVLink_message], None], home_item: Callable[[], MissionItem],
                  running: Callable[[], bool], on_set_current: Callable[[int], bool],
-                 text: Callable[[int, str], None]) -> None:
+                 text: Callable[[int, str], None], firmware: Firmware = Firmware.GENERIC,
+                 capacity: Callable[[int], int | None] | None = None,
+                 home_set: Callable[[], bool] = lambda: True) -> None:
         self._send = send
         self._home_item = home_item
         self._running = running
         self._on_set_current = on_set_current
         self._text = text
+        self.firmware = firmware
+        self._capacity = capacity if capacity is not None else MAX_ITEMS.get
+        self._home_set = home_set
+        self._written = False  # a mission was uploaded since power-up
         self.lists: dict[int, list[MissionItem]] = {MISSION: [home_item()], FENCE: []}
         self._uploads: dict[int, _Upload] = {}
         self.completed_uploads = 0
@@ -229,12 +245,17 @@ class MissionServer:
                 self._ack(msg, mavlink.MAV_MISSION_DENIED, mission_type)
                 return
             del self._uploads[mission_type]  # the same uploader restarts
-        if msg.count > MAX_ITEMS[mission_type]:
+        capacity = self._capacity(mission_type)
+        if capacity is None:  # still booting: that list does not exist yet
+            self._ack(msg, mavlink.MAV_MISSION_UNSUPPORTED, mission_type)
+            return
+        if msg.count > capacity:
             self._ack(msg, mavlink.MAV_MISSION_NO_SPACE, mission_type)
-            self._text(mavlink.MAV_SEVERITY_WARNING, f"Only {MAX_ITEMS[mission_type]} items are supported")
+            self._text(mavlink.MAV_SEVERITY_WARNING, f"Only {capacity} items are supported")
             return
         staged = None
         if mission_type == MISSION:
+            self._written = True
             del self.mission[max(msg.count, 1):]  # truncate now; items are written as they arrive
         else:
             staged = self.lists[mission_type][:msg.count]
@@ -281,7 +302,7 @@ class MissionServer:
             if result == mavlink.MAV_MISSION_ACCEPTED and self.refuse is not None:
                 result = self.refuse(item)
             if result == mavlink.MAV_MISSION_ACCEPTED:
-                result = self._store(mission_type, up, replace(item, current=0))
+                result = self._store(mission_type, up, replace(stored(item, self.firmware), current=0))
         if result != mavlink.MAV_MISSION_ACCEPTED:
             del self._uploads[mission_type]
             self._ack(msg, result, mission_type)
@@ -318,7 +339,13 @@ class MissionServer:
         if not self._download_allowed(msg):
             return
         self._send(mavlink.MAVLink_mission_count_message(
-            msg.get_srcSystem(), msg.get_srcComponent(), len(self.lists[mission_type]), mission_type))
+            msg.get_srcSystem(), msg.get_srcComponent(), self._count_of(mission_type), mission_type))
+
+    def _count_of(self, mission_type: int) -> int:
+        """What a download says: a fresh vehicle's mission is empty (no home item either) until home is set."""
+        if mission_type == MISSION and not self._written and not self._home_set():
+            return 0
+        return len(self.lists[mission_type])
 
     def _request(self, msg: mavlink.MAVLink_message, now: float) -> None:
         mission_type = msg.mission_type

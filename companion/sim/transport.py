@@ -2,8 +2,9 @@
 
 Pure asyncio: a :class:`asyncio.DatagramProtocol` (UDP) or an :func:`asyncio.start_server` (TCP) feeds bytes to
 pymavlink's parser (``MAVLink(file=None).parse_buffer``); no threads, no polling. Outgoing messages are packed with
-the autopilot's system/component id and go to the last UDP sender, or to every connected TCP client (as
-ArduPilot SITL's serial-over-TCP port does).
+the autopilot's system/component id (or another component of the same system, e.g. an ADS-B receiver, with its
+own sequence numbers) and go to the last UDP sender, or to every connected TCP client (as ArduPilot SITL's
+serial-over-TCP port does).
 
 Fault injection: each incoming datagram (TCP: each parsed message) and each outgoing packet is dropped with
 probability ``loss`` (one seeded ``numpy.random.Generator``); outgoing packets are delayed by ``latency_s`` with
@@ -74,6 +75,7 @@ class SimTransport:
         self._rng = rng if rng is not None else np.random.default_rng(0)
         self._signing_key = signing_key
         self._packer = self._mavlink(system_id, component_id)
+        self._packers = {component_id: self._packer}  # one per sending component (own sequence numbers)
         self._udp: asyncio.DatagramTransport | None = None
         self._udp_parser = self._mavlink(system_id, component_id)
         self._peer: tuple[str, int] | None = None
@@ -168,10 +170,15 @@ class SimTransport:
 
     # --- outgoing -------------------------------------------------------------------------------------------
 
-    def send(self, msg: mavlink.MAVLink_message) -> None:
-        """Pack and send one message (subject to loss and latency); silently nothing if no peer yet."""
-        buf = msg.pack(self._packer)
-        self._packer.seq = (self._packer.seq + 1) % 256
+    def send(self, msg: mavlink.MAVLink_message, component_id: int | None = None) -> None:
+        """Pack and send one message (subject to loss and latency); silently nothing if no peer yet.
+        ``component_id``: send as that component of our system instead of the autopilot."""
+        packer = self._packer
+        if component_id is not None:
+            packer = self._packers.get(component_id) or self._packers.setdefault(
+                component_id, self._mavlink(self._packer.srcSystem, component_id))
+        buf = msg.pack(packer)
+        packer.seq = (packer.seq + 1) % 256
         if not self.connected or self._silent():
             return
         if self._loss and self._rng.random() < self._loss:

@@ -13,13 +13,22 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.items import FRAME_REL_ALT_INT, MissionItem, compare_items
 from companion.sim import COPTER_MODES, PLANE_MODES, SimAutopilot, serve
+from companion.sim.autopilot import PREARM_TEXT
 from companion.sim.transport import new_mavlink
+from companion.storage import Firmware, stored
 from planner.scenario import Scenario, load_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "sitl_scenarios"
 ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
 MISSION_ACCEPTED = mavlink.MAV_MISSION_ACCEPTED
 ERROR_AFTER_FINAL = -1  # Client.upload: final ACK lost, the repeated item got MAV_MISSION_ERROR
+BOOTING = (mavlink.MAV_STATE_UNINIT, mavlink.MAV_STATE_BOOT, mavlink.MAV_STATE_CALIBRATING)
+PLANE = Firmware.ARDUPLANE  # how the simulated plane stores items (its readback)
+
+
+def booted(msg: mavlink.MAVLink_message) -> bool:
+    """A HEARTBEAT of the autopilot (not of another component, e.g. an ADS-B receiver) done booting."""
+    return msg.get_srcComponent() == mavlink.MAV_COMP_ID_AUTOPILOT1 and msg.system_status not in BOOTING
 
 
 @pytest.fixture(scope="module")
@@ -33,10 +42,12 @@ def dynamic() -> Scenario:
 
 
 class Client:
-    """A small asyncio MAVLink 2 client (a GCS/companion stand-in) with an inbox it can wait on."""
+    """A small asyncio MAVLink 2 client (a GCS/companion stand-in) with an inbox it can wait on. Like a companion
+    it waits, on entry, for the autopilot to have finished booting (unless ``wait_booted`` is False)."""
 
-    def __init__(self, port: int, sysid: int = 1, compid: int = 191) -> None:
+    def __init__(self, port: int, sysid: int = 1, compid: int = 191, wait_booted: bool = True) -> None:
         self.port = port
+        self.wait_booted = wait_booted
         self.mav = new_mavlink(sysid, compid)
         self.inbox: list[mavlink.MAVLink_message] = []
         self.cursor = 0
@@ -56,7 +67,9 @@ class Client:
             Proto, remote_addr=("127.0.0.1", self.port))
         self.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_ONBOARD_CONTROLLER,
                                                     mavlink.MAV_AUTOPILOT_INVALID, 0, 0, 0, 3))
-        await self.expect("HEARTBEAT")
+        await self.expect("HEARTBEAT", timeout=5.0)
+        if self.wait_booted:
+            await self.expect("HEARTBEAT", timeout=5.0, where=booted, after=0)
         return self
 
     async def __aexit__(self, *exc: object) -> None:
@@ -107,7 +120,10 @@ class Client:
                                   custom_mode)
 
     async def wait_ready(self, timeout: float = 5.0) -> None:
-        await self.expect("EKF_STATUS_REPORT", timeout, lambda m: m.flags == 0x33F, after=self.mark())
+        """Ask for every stream at 2 Hz (an ArduCopter sends nothing unasked), then wait for a good EKF."""
+        mark = self.mark()
+        self.send(mavlink.MAVLink_request_data_stream_message(1, 1, mavlink.MAV_DATA_STREAM_ALL, 2, 1))
+        await self.expect("EKF_STATUS_REPORT", timeout, lambda m: m.flags == 0x33F, after=mark)
 
     async def upload(self, items: list[MissionItem], mission_type: int = 0, retry_s: float = 0.25,
                      max_retries: int = 40) -> int:
@@ -201,7 +217,7 @@ THREE_WPS = [(200.0, 200.0, 50.0), (500.0, 450.0, 80.0), (800.0, 800.0, 50.0)]
 async def test_heartbeat_identifies_an_ardupilot_vehicle(static: Scenario, vehicle: str, mav_type: int,
                                                          mode: int) -> None:
     async with SimAutopilot(static, "udpin:127.0.0.1:0", vehicle=vehicle) as sim, Client(sim.port) as gcs:
-        hb = await gcs.expect("HEARTBEAT", after=0)
+        hb = await gcs.expect("HEARTBEAT", where=booted, after=0)
         assert (hb.type, hb.autopilot, hb.custom_mode) == (mav_type, mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, mode)
         assert hb.base_mode & mavlink.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED
         assert not hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED
@@ -246,15 +262,16 @@ async def test_upload_uses_legacy_requests_and_download_normalises_frames(static
         assert await gcs.upload(items) == MISSION_ACCEPTED
         requests = [m.get_type() for m in gcs.inbox[mark:] if m.get_type().startswith("MISSION_REQUEST")]
         assert requests and set(requests) == {"MISSION_REQUEST"}
+        await gcs.wait_ready()  # home is set (item 0 reads back as zeros before)
         got = await gcs.download()
         assert len(got) == len(items)
         home = got[0]
         assert home.frame == mavlink.MAV_FRAME_GLOBAL
         assert (home.x, home.y) == (round(static.home.lat * 1e7), round(static.home.lon * 1e7))
         assert home.z == pytest.approx(static.home.alt)
-        for sent, msg in zip(items[1:], got[1:]):
-            assert msg.frame in (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink.MAV_FRAME_MISSION)
-            assert compare_items(sent, MissionItem.from_message(msg)) is None
+        for sent, msg in zip(items[1:], got[1:]):  # as ArduPlane stores them: DO_CHANGE_SPEED in frame GLOBAL
+            assert msg.frame in (mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT, mavlink.MAV_FRAME_GLOBAL)
+            assert compare_items(stored(sent, PLANE), MissionItem.from_message(msg)) is None
         legacy = await gcs.download(legacy=True)
         assert [m.get_type() for m in legacy] == ["MISSION_ITEM"] * len(items)
         assert legacy[3].x == pytest.approx(items[3].lat, abs=1e-6)
@@ -339,11 +356,12 @@ async def test_lossy_link_still_lets_a_patient_client_upload(static: Scenario) -
             if await gcs.upload(items, retry_s=0.1, max_retries=60) in (MISSION_ACCEPTED, ERROR_AFTER_FINAL):
                 readback = [MissionItem.from_message(m) for m in await gcs.download(retry_s=0.1, max_retries=60)]
                 if len(readback) == len(items) and all(
-                        compare_items(a, b) is None for a, b in zip(items[1:], readback[1:])):
+                        compare_items(stored(a, PLANE), b) is None for a, b in zip(items[1:], readback[1:])):
                     break
         else:
             pytest.fail("no verified upload in 5 attempts")
-        assert [compare_items(a, b) for a, b in zip(items[1:], sim.mission[1:])] == [None] * (len(items) - 1)
+        assert [compare_items(stored(a, PLANE), b) for a, b in zip(items[1:], sim.mission[1:])] \
+            == [None] * (len(items) - 1)
 
 
 @pytest.mark.asyncio
@@ -366,7 +384,7 @@ async def test_partial_write_and_atomic_fence(static: Scenario) -> None:
         bad = [fence[0], MissionItem(**{**fence[1].__dict__, "frame": mavlink.MAV_FRAME_LOCAL_NED})]
         result = await gcs.upload(bad, mission_type=mavlink.MAV_MISSION_TYPE_FENCE)
         assert result == mavlink.MAV_MISSION_UNSUPPORTED_FRAME
-        assert sim.fence == fence  # the fence is replaced only by a complete upload
+        assert sim.fence == [stored(f, PLANE) for f in fence]  # replaced only by a complete upload
         assert len(await gcs.download(mavlink.MAV_MISSION_TYPE_FENCE)) == 2
 
 
@@ -387,11 +405,11 @@ async def test_arming_is_refused_until_the_vehicle_is_ready(static: Scenario) ->
     async with SimAutopilot(static, "udpin:127.0.0.1:0", speedup=2.0) as sim, Client(sim.port) as gcs:
         mark = gcs.mark()
         assert await gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_FAILED
-        await gcs.expect("STATUSTEXT", where=lambda m: m.text == "Arm: System not initialised", after=mark)
+        await gcs.expect("STATUSTEXT", where=lambda m: m.text == PREARM_TEXT["plane"], after=mark)
         gps = await gcs.expect("GPS_RAW_INT", after=0)
         assert gps.fix_type == 0
         await gcs.wait_ready()
-        await gcs.expect("GPS_RAW_INT", where=lambda m: m.fix_type == 3, after=gcs.mark())
+        await gcs.expect("GPS_RAW_INT", where=lambda m: m.fix_type >= 3, after=gcs.mark())
         await gcs.expect("SYS_STATUS", where=lambda m: m.onboard_control_sensors_health & 0x10000000,
                          after=gcs.mark())
         assert await gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACCEPTED
