@@ -7,6 +7,10 @@ a MAVSDK server, SITL) and drops, duplicates, reorders, delays and corrupts data
 Replies go to the last address that sent to the front. Every random choice comes from a seeded generator per
 direction, so a given seed and traffic order (per direction) give the same faults. :meth:`outage` drops
 everything for a while (link loss).
+
+:class:`TcpOutageProxy` is the same idea for a TCP link (ArduPilot SITL's serial ports): a plain forwarder, one
+onward connection per accepted client, whose :meth:`~TcpOutageProxy.outage` drops the bytes both ways while the
+connections stay open, as a radio link that goes silent.
 """
 
 from __future__ import annotations
@@ -155,3 +159,144 @@ class FaultProxy:
                 self._loop.call_later(delay, self._send, direction, item)
             else:
                 self._send(direction, item)
+
+
+@dataclass
+class TcpSession:
+    """One accepted client and its onward connection; times are the proxy loop's clock."""
+
+    number: int  # 1, 2, ... in order of acceptance
+    accepted_at: float
+    onward: bool = False  # the onward connection to the target was made
+    closed_at: float | None = None
+    closed_by: str | None = None  # "client", "target", "onward connect failed: ...", "proxy stopped"
+
+
+@dataclass
+class TcpCounters:
+    """Bytes per direction ("up": client -> target, "down": target -> client)."""
+
+    forwarded: dict[str, int] = field(default_factory=lambda: {"up": 0, "down": 0})
+    dropped: dict[str, int] = field(default_factory=lambda: {"up": 0, "down": 0})
+
+
+class TcpOutageProxy:
+    """TCP forwarder from ``host:listen_port`` (0 = any free port) to ``target`` (host, port), for tests.
+
+    Every client it accepts gets its own connection onward to the target; bytes are copied both ways until one
+    side closes, and then the other side is closed too (so the target sees its client go, and a later client is
+    a new connection to it). :meth:`outage` makes the link silent for a while: whatever arrives from either side
+    is read and dropped, and both connections stay open; a close still passes (an outage silences the bytes, not
+    the ends of the connections), and a client that connects meanwhile is accepted and connected onward as
+    usual, and hears nothing until the outage ends. ``sessions`` and ``counters`` record what happened.
+    """
+
+    def __init__(self, target: tuple[str, int], listen_port: int = 0, host: str = "127.0.0.1") -> None:
+        self.target = target
+        self.sessions: list[TcpSession] = []
+        self.counters = TcpCounters()
+        self.outages: list[tuple[float, float]] = []  # (start, end) of each outage, loop time
+        self._bind = (host, listen_port)
+        self._server: asyncio.Server | None = None
+        self._handlers: set[asyncio.Task] = set()
+        self._outage_until = 0.0
+        self._loop: asyncio.AbstractEventLoop | None = None
+
+    @property
+    def port(self) -> int:
+        assert self._server is not None
+        return self._server.sockets[0].getsockname()[1]
+
+    @property
+    def url(self) -> str:
+        """The pymavlink connection string of the listening side."""
+        return f"tcp:{self._bind[0]}:{self.port}"
+
+    async def start(self) -> TcpOutageProxy:
+        self._loop = asyncio.get_running_loop()
+        self._server = await asyncio.start_server(self._serve, *self._bind)
+        return self
+
+    async def stop(self) -> None:
+        """Stop listening and close every connection (both sides) still open."""
+        if self._server is not None:
+            self._server.close()
+            await self._server.wait_closed()
+            self._server = None
+        handlers = list(self._handlers)
+        for task in handlers:
+            task.cancel()
+        await asyncio.gather(*handlers, return_exceptions=True)
+
+    async def __aenter__(self) -> TcpOutageProxy:
+        return await self.start()
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.stop()
+
+    def outage(self, seconds: float) -> None:
+        """Drop every byte both ways for ``seconds`` from now; the connections stay open."""
+        assert self._loop is not None
+        now = self._loop.time()
+        self._outage_until = now + seconds
+        self.outages.append((now, now + seconds))
+        log.info("tcp proxy: outage for %.1f s", seconds)
+
+    @property
+    def in_outage(self) -> bool:
+        return self._loop is not None and self._loop.time() < self._outage_until
+
+    # -- forwarding ------------------------------------------------------------------------------------
+    async def _serve(self, client_r: asyncio.StreamReader, client_w: asyncio.StreamWriter) -> None:
+        assert self._loop is not None
+        task = asyncio.current_task()
+        assert task is not None
+        self._handlers.add(task)
+        session = TcpSession(len(self.sessions) + 1, self._loop.time())
+        self.sessions.append(session)
+        writers = [client_w]
+        pumps: list[asyncio.Task] = []
+        try:
+            try:
+                target_r, target_w = await asyncio.open_connection(*self.target)
+            except OSError as e:
+                session.closed_by = f"onward connect failed: {e}"
+                return
+            writers.append(target_w)
+            session.onward = True
+            pumps = [asyncio.create_task(self._pump(client_r, target_w, "up"), name=f"tcp-proxy up {session.number}"),
+                     asyncio.create_task(self._pump(target_r, client_w, "down"),
+                                         name=f"tcp-proxy down {session.number}")]
+            done, _ = await asyncio.wait(pumps, return_when=asyncio.FIRST_COMPLETED)
+            session.closed_by = "client" if pumps[0] in done else "target"
+        except asyncio.CancelledError:
+            # stop(): end quietly (asyncio's server logs a handler task that ends cancelled as an error)
+            session.closed_by = session.closed_by or "proxy stopped"
+        finally:
+            for pump in pumps:
+                pump.cancel()
+            for w in writers:
+                w.close()  # before any await: the sockets close even if stop() cancels the waits below
+            try:
+                await asyncio.gather(*pumps, return_exceptions=True)
+                for w in writers:
+                    await w.wait_closed()
+            except (OSError, asyncio.CancelledError):
+                pass
+            session.closed_at = self._loop.time()
+            self._handlers.discard(task)
+            log.info("tcp proxy: session %d closed by %s", session.number, session.closed_by)
+
+    async def _pump(self, reader: asyncio.StreamReader, writer: asyncio.StreamWriter, direction: str) -> None:
+        """Copy ``reader`` to ``writer`` (dropping during an outage) until EOF or a socket error."""
+        assert self._loop is not None
+        try:
+            while data := await reader.read(65536):
+                if self._loop.time() < self._outage_until:
+                    self.counters.dropped[direction] += len(data)
+                    continue
+                writer.write(data)
+                await writer.drain()
+                self.counters.forwarded[direction] += len(data)
+        except OSError as e:
+            log.info("tcp proxy: %s side: %s", direction, e)
