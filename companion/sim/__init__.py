@@ -19,40 +19,58 @@ Imitated:
   with a pre-arm text; GPS fix (type 6, as SITL's), home, EKF flags 0x33f and the pre-arm bit come together.
 - HEARTBEAT as ArduPilot fills it (base_mode 81, + GUIDED in position-controlled modes, + ARMED; system_status
   ACTIVE only in the air), sent at once on a mode change.
-- The mission protocol (``mission_server``), storing items as ArduPilot does (:func:`companion.storage.stored`),
-  so a readback is the real one.
+- The mission protocol (``mission_server``) for the mission, fence and rally lists, storing items as ArduPilot
+  does (:func:`companion.storage.stored`), so a readback is the real one.
+- A few parameters (FENCE_ENABLE, FENCE_TYPE, FENCE_ACTION, RALLY_TOTAL, RALLY_LIMIT_KM, SITL's values):
+  PARAM_SET echoed with PARAM_VALUE (other names ignored, as ArduPilot does), PARAM_REQUEST_READ / _LIST;
+  SYS_STATUS says the geofence is enabled once FENCE_ENABLE is set and a fence is stored.
+- ``wait_for_client=True``: time starts with the first client, as SITL's clock does on SERIAL0.
 - Telemetry (``streams``): ArduPlane streams every group at 1 Hz unasked, ArduCopter only HEARTBEAT
   (``streams_unasked=None``); MAV_CMD_SET_MESSAGE_INTERVAL, GET_MESSAGE_INTERVAL, REQUEST_DATA_STREAM (its groups)
   and MAV_CMD_REQUEST_MESSAGE answered and honoured as ArduPilot does. MISSION_CURRENT is streamed, and sent as
   the answer to MISSION_SET_CURRENT / DO_SET_MISSION_CURRENT (out of range: nothing / DENIED), not on each change.
   Long STATUSTEXTs go in 50-byte chunks.
+- Mission execution (``navigator``): DO commands run when the NAV command before them completes; "Mission: <seq>
+  <name>" for each command started; one pending MISSION_ITEM_REACHED (a NAV command followed by DO commands is
+  not reported); ArduPlane's "Takeoff complete at …m", "Reached waypoint #n dist …m", "Mission complete,
+  changing mode to RTL"; ArduCopter's "Reached command #n", holding at the end.
+- Plane take-off and climb-out as measured flying fuseplan's rescue_static mission: a ground roll on the heading
+  it powered up with (``heading_deg``, SITL's --home heading, 0 = north), lift-off after ~3.9 s, a 10 m/s climb at
+  ~27 m/s straight ahead, done at the take-off altitude ~8.9 s after arming, overshooting it by ~13 m, speed kept
+  until over the top, then slowing at ~2 m/s²; the DO_CHANGE_SPEED after it runs only then. Copter take-off: a
+  1 s spool-up, then 2.5 m/s with a slow approach to the altitude.
 - ADS-B: the scripted intruders relayed by the autopilot (ADSB_VEHICLE, each aircraft at most once a second), or
   (``adsb_receiver=True``) sent by an ADS-B receiver, component 156 of the vehicle's system, with its own
   HEARTBEAT (MAV_TYPE_ADSB).
 
 Defaults that are *not* the real vehicle, kept so that tests of the other layers work: ``boot_s=0`` (no boot:
 they upload with a bare MissionClient at the first HEARTBEAT) and ``streams_unasked=True`` (a copter streams
-unasked: only ``fuseplan fly`` asks for rates so far). The readiness wait is 1 s after boot (SITL: ~20 s, its IMU
-consistency checks, with other pre-arm texts on the way).
+unasked: only ``fuseplan fly`` asks for rates, tests driving a FlightSupervisor themselves do not). Readiness
+comes 1 s after boot (SITL: ~20 s, its IMU consistency checks, with other pre-arm texts on the way).
 
-Left out (known differences from ArduPilot SITL): kinematic flight (no wind, no airspeed/throttle model); a plane
-takes off at cruise speed at the scenario's climb limit, pointing at the route start (ArduPlane: a ground roll
-and a 10 m/s climb straight ahead on its power-up heading, reaching the route start ~5 s later); DO commands run
-when the NAV command before them starts (ArduPilot: when it completes) and every item is reported with
-MISSION_ITEM_REACHED (ArduPilot: a NAV command followed by DO commands is not); a plane waypoint without a radius
-uses the scenario's (SITL's plane.parm WP_RADIUS is 50 m); a copter flies legs at the scenario's speed with
-instant acceleration (ArduCopter: WPNAV_SPEED 10 m/s, 2.5 m/s²), takes off at once at 2.5 m/s (ArduCopter spools
-up and slows down near the altitude) and starts its mission at MISSION_START (ArduCopter already on entering
-AUTO armed); entering AUTO disarmed, ArduPlane already makes item 1 current ("Mission: 1 Takeoff",
-MISSION_CURRENT ACTIVE), the simulator only when armed; flat ground at home
-altitude (terrain frames are treated as relative and do not block arming); no parameters; no rally list; no
-guided-mode position targets (SET_POSITION_TARGET_*); no geofence enforcement (fence items are stored only); only
-HEARTBEAT, SYS_STATUS, GPS_RAW_INT, MISSION_CURRENT, GLOBAL_POSITION_INT, LOCAL_POSITION_NED, ATTITUDE, VFR_HUD,
-SYSTEM_TIME, EKF_STATUS_REPORT, HOME_POSITION and ADSB_VEHICLE are ever sent (the other members of a group are
-accepted, never sent), one rate table for every client (ArduPilot: per link), at most 50 packets per wall second
-per message; no TIMESYNC (SITL sends one every 10 s) and no periodic HOME_POSITION (ArduPlane: every few seconds
-while disarmed); the ADS-B relay rate and the list of message ids SET_MESSAGE_INTERVAL accepts are not measured;
-SITL's TCP banner text and wait-for-first-client are not reproduced (time starts at :meth:`SimAutopilot.start`).
+Left out (known differences from ArduPilot SITL):
+
+- Kinematic flight: no wind, no airspeed/throttle model. Plane turns are limited by the scenario's max bank
+  (SITL's first turn after take-off is wider, ~17°/s at 26 m/s against ~21°/s here: the climb-out reaches 235 m
+  north instead of 270 m and the route start ~1.5 s earlier). A plane waypoint without a radius uses the
+  scenario's (SITL's plane.parm WP_RADIUS is 50 m). A copter flies legs at the scenario's speed with instant
+  acceleration (ArduCopter: WPNAV_SPEED 10 m/s, 2.5 m/s²).
+- A copter starts its mission at MISSION_START (ArduCopter already on entering AUTO armed); entering AUTO
+  disarmed, ArduPlane already makes item 1 current ("Mission: 1 Takeoff", MISSION_CURRENT ACTIVE), the
+  simulator only when armed.
+- Flat ground at home altitude (terrain frames are treated as relative and do not block arming); no other
+  parameters (those it has change nothing in how it flies); no guided-mode position targets
+  (SET_POSITION_TARGET_*); no geofence enforcement (fence items are stored only).
+- Only HEARTBEAT, SYS_STATUS, GPS_RAW_INT, MISSION_CURRENT, GLOBAL_POSITION_INT, LOCAL_POSITION_NED, ATTITUDE,
+  VFR_HUD, SYSTEM_TIME, EKF_STATUS_REPORT, HOME_POSITION and ADSB_VEHICLE are ever sent (the other members of a
+  stream group are accepted, never sent); no TIMESYNC (SITL sends one every 10 s), no periodic HOME_POSITION
+  (ArduPlane: every few seconds while disarmed). One rate table for every client (ArduPilot: one per link). At
+  most 100 GLOBAL_POSITION_INT, 50 MISSION_CURRENT, 25 ADSB_VEHICLE, 10 HEARTBEAT and 5 of any other message per
+  wall second: at high speed-ups the slower rates are not honoured (the simulator and the companion share one
+  process).
+- Not measured: the ADS-B relay rate, the list of message ids SET_MESSAGE_INTERVAL accepts, the rally capacity.
+- SITL's TCP banner text; by default time starts at :meth:`SimAutopilot.start` (``wait_for_client``).
+
 MAVLink 2 signing is supported (``signing_key``).
 
 Fault injection for tests: packet loss and latency (transport), ``inject_outage`` (the link gone for a while;

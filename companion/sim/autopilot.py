@@ -24,11 +24,11 @@ import numpy as np
 import pymap3d
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.items import FRAME_GLOBAL, MISSION, MissionItem
+from companion.items import FENCE, FRAME_GLOBAL, MISSION, RALLY, MissionItem
 from companion.signing import SigningKey
 from companion.sim import streams
-from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, bearing, wrap_pi
-from companion.sim.intruders import IntruderTrack, heading_deg
+from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, wrap_pi
+from companion.sim.intruders import IntruderTrack, adsb_report
 from companion.sim.mission_server import MAX_ITEMS, MissionServer, is_nav
 from companion.sim.navigator import Land, Loiter, Navigator, NavTask, ReturnHome, Takeoff, rtl_altitude
 from companion.sim.streams import StreamTable
@@ -61,9 +61,16 @@ ADSB_RECEIVER_HZ = 1.0  # sim Hz at which the ADS-B receiver reports each aircra
 ADSB_MIN_INTERVAL_S = 1.0  # ArduPilot relays each aircraft at most once a second (AP_ADSB)
 # Rates are honoured in sim time up to a number of packets per wall second per message: the simulator and the
 # companion share one Python process, and at 20x ArduPlane's 1 Hz streams alone would be ~200 packets/s.
-MAX_WALL_HZ = {mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 25.0, mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 50.0,
+MAX_WALL_HZ = {mavlink.MAVLINK_MSG_ID_GLOBAL_POSITION_INT: 100.0, mavlink.MAVLINK_MSG_ID_MISSION_CURRENT: 50.0,
                mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE: 25.0, mavlink.MAVLINK_MSG_ID_HEARTBEAT: 10.0, "receiver": 25.0}
 MAX_WALL_HZ_OTHERS = 5.0
+# The few parameters the simulator has (SITL's values; name → (plane, copter), MAV_PARAM_TYPE): none of them
+# changes how it flies. RALLY_TOTAL follows the rally list, as ArduPilot's does.
+PARAMS = {"FENCE_ENABLE": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
+          "FENCE_TYPE": ((4.0, 7.0), mavlink.MAV_PARAM_TYPE_INT8),
+          "FENCE_ACTION": ((1.0, 1.0), mavlink.MAV_PARAM_TYPE_INT8),
+          "RALLY_TOTAL": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
+          "RALLY_LIMIT_KM": ((5.0, 0.3), mavlink.MAV_PARAM_TYPE_REAL32)}
 PHYSICS_DT = 0.05  # s of sim time per physics step
 TRUTH_DT = 0.1  # s of sim time between truth samples
 MAX_CATCH_UP_S = 0.25  # wall s simulated per tick at most (a stalled loop does not make time jump)
@@ -73,8 +80,6 @@ EKF_UNINITIALISED = 0x400
 SENSORS = (mavlink.MAV_SYS_STATUS_SENSOR_3D_GYRO | mavlink.MAV_SYS_STATUS_SENSOR_3D_ACCEL
            | mavlink.MAV_SYS_STATUS_SENSOR_3D_MAG | mavlink.MAV_SYS_STATUS_SENSOR_ABSOLUTE_PRESSURE
            | mavlink.MAV_SYS_STATUS_SENSOR_GPS | mavlink.MAV_SYS_STATUS_AHRS | mavlink.MAV_SYS_STATUS_PREARM_CHECK)
-ADSB_FLAGS = (mavlink.ADSB_FLAGS_VALID_COORDS | mavlink.ADSB_FLAGS_VALID_ALTITUDE | mavlink.ADSB_FLAGS_VALID_HEADING
-              | mavlink.ADSB_FLAGS_VALID_VELOCITY | mavlink.ADSB_FLAGS_VALID_CALLSIGN)
 
 
 PRODUCED = tuple(int(getattr(mavlink, f"MAVLINK_MSG_ID_{n}")) for n in (
@@ -122,14 +127,18 @@ class SimAutopilot:
     vehicle on a link nobody asked for rates (ArduPlane streams every group at 1 Hz, ArduCopter sends only
     HEARTBEAT); True (the default, until every companion path asks for rates), every group at 1 Hz on both;
     False, only HEARTBEAT. ``adsb_receiver``: the scripted intruders come from an ADS-B receiver, component 156
-    of this system (as one on the companion's link), not relayed by the autopilot.
+    of this system (as one on the companion's link), not relayed by the autopilot. ``heading_deg``: where the
+    vehicle points at power-up (SITL's --home heading; start.sh uses 0, north): a plane takes off that way.
+    ``wait_for_client``: simulated time starts only when the first client connects (TCP) or sends (UDP), as
+    SITL's clock waits for its first client on SERIAL0 (so that client sees the whole boot).
     """
 
     def __init__(self, scenario: Scenario, listen: str = "udpin:127.0.0.1:14550", speedup: float = 1.0,
                  loss: float = 0.0, latency_s: float = 0.0, seed: int = 0, system_id: int = 1,
                  vehicle: Literal["plane", "copter"] | None = None, signing_key: SigningKey | None = None, *,
                  boot_s: float | None = 0.0, ready_after_s: float | None = None,
-                 streams_unasked: bool | None = True, adsb_receiver: bool = False) -> None:
+                 streams_unasked: bool | None = True, adsb_receiver: bool = False,
+                 heading_deg: float = 0.0, wait_for_client: bool = False) -> None:
         if speedup <= 0.0:
             raise ValueError(f"speedup must be > 0, got {speedup}")
         limits = scenario.vehicle
@@ -148,11 +157,11 @@ class SimAutopilot:
         self.ready_after_s = self.boot_s + READY_AFTER_BOOT_S if ready_after_s is None \
             else max(float(ready_after_s), self.boot_s)
         self.adsb_receiver = adsb_receiver
+        self.wait_for_client = wait_for_client
+        self._params = {name: value[0 if limits.type == "plane" else 1] for name, (value, _) in PARAMS.items()}
         self._ready = False
         self._sim_time = 0.0
-        start_xy = (float(scenario.start[0]), float(scenario.start[1]))
-        heading = bearing(*start_xy) if math.hypot(*start_xy) > 1.0 else 0.0  # "runway" pointing the way out
-        self._model = FlightModel(limits, heading)
+        self._model = FlightModel(limits, math.radians(heading_deg))
         self._events = _Events(self)
         self._nav = Navigator(self._model, self._item_to_enu, self._events)
         firmware = Firmware.of(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._mav_type())
@@ -167,7 +176,8 @@ class SimAutopilot:
         self._next_truth = 0.0
         self._mission_t0: float | None = None
         self._complete = False  # the mission ran to its end (MISSION_CURRENT says COMPLETE until restarted)
-        self._tracks = [IntruderTrack(i) for i in scenario.intruders]
+        # intruders timed by a meet point are scheduled at mission start, along the route then stored
+        self._tracks = [IntruderTrack(i) for i in scenario.intruders if i.meet is None]
         self._truth: list[tuple[float, float, float, float, float, float, float]] = []
         self._intruder_truth: dict[str, list[tuple[float, float, float, float]]] = {
             i.id: [] for i in scenario.intruders}
@@ -359,6 +369,9 @@ class SimAutopilot:
         while True:
             await asyncio.sleep(tick)
             now = loop.time()
+            if self.wait_for_client and not self._transport.connected:
+                last = now  # SITL: the clock waits for the first client
+                continue
             self.advance(min(now - last, MAX_CATCH_UP_S) * self.speedup)
             last = now
 
@@ -495,8 +508,28 @@ class SimAutopilot:
         if self._mission_t0 is None:
             self._mission_t0 = self._sim_time
             logger.info("simulator: mission started at t=%.1f s", self._sim_time)
+            self._schedule_meet_intruders()
         self._complete = False
         self._nav.start(self._server.mission, seq)
+
+    def _schedule_meet_intruders(self) -> None:
+        """Intruders with a ``meet`` point follow the vehicle's progress along the route it starts with (the
+        stored mission's waypoints), as :class:`companion.sim.traffic.TrafficFeed` does on a real autopilot."""
+        meet = [i for i in self.scenario.intruders if i.meet is not None]
+        if not meet:
+            return
+        route = np.array([self._item_to_enu(it) for it in self._server.mission[1:]
+                          if it.command in (mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_SPLINE_WAYPOINT)])
+        for intruder in meet:
+            try:
+                try:
+                    track = IntruderTrack(intruder, route)
+                except ValueError:  # an IntruderTrack that also wants the cruise speed
+                    track = IntruderTrack(intruder, route, self.vehicle.cruise_speed)  # type: ignore[call-arg]
+            except (ValueError, TypeError) as exc:  # no route to meet it on: it never flies
+                logger.warning("simulator: intruder %s not scheduled: %s", intruder.id, exc)
+                continue
+            self._tracks.append(track)
 
     def _on_mission_complete(self) -> None:
         self._complete = True
@@ -580,8 +613,36 @@ class SimAutopilot:
                 if getattr(msg, "target_component", 0) in (0, COMPONENT_ID):
                     self._streams.request_stream(msg.req_stream_id, msg.req_message_rate, bool(msg.start_stop))
                     self._due.clear()  # new rates start now
+            elif kind in ("PARAM_SET", "PARAM_REQUEST_READ", "PARAM_REQUEST_LIST"):
+                if getattr(msg, "target_component", 0) in (0, COMPONENT_ID):
+                    self._param(msg)
         except Exception:  # a malformed request must not take the simulated vehicle down
             logger.exception("simulator: error handling %s", msg)
+
+    def _param(self, msg: mavlink.MAVLink_message) -> None:
+        """PARAM_SET of a parameter the simulator has → stored and echoed with PARAM_VALUE (another name: ignored,
+        as ArduPilot does); PARAM_REQUEST_READ by name (index 65535 in the answer) or index; PARAM_REQUEST_LIST."""
+        self._params["RALLY_TOTAL"] = float(len(self._server.lists[RALLY]))
+        names = list(self._params)
+        kind = msg.get_type()
+        if kind == "PARAM_REQUEST_LIST":
+            for i, name in enumerate(names):
+                self._send_param(name, i)
+            return
+        name = msg.param_id.rstrip("\x00") if isinstance(msg.param_id, str) else msg.param_id.decode().rstrip("\x00")
+        if kind == "PARAM_REQUEST_READ" and msg.param_index >= 0:
+            if msg.param_index < len(names):
+                self._send_param(names[msg.param_index], msg.param_index)
+            return
+        if name not in self._params:
+            return
+        if kind == "PARAM_SET":
+            self._params[name] = float(msg.param_value)
+        self._send_param(name, 0xFFFF)
+
+    def _send_param(self, name: str, index: int) -> None:
+        self._send(mavlink.MAVLink_param_value_message(name.encode(), self._params[name], PARAMS[name][1],
+                                                       len(self._params), index))
 
     def _stalled(self, msg: mavlink.MAVLink_message) -> bool:
         """Count mission uploads and lose the items :meth:`inject_upload_stall` asked for."""
@@ -745,6 +806,7 @@ class SimAutopilot:
         if t_mission is None:
             return
         for track in self._tracks:
+            track.follow(t_mission, np.array([s.x, s.y, s.z]))
             sample = track.sample(t_mission)
             if sample is not None:
                 self._intruder_truth[track.intruder.id].append((self._sim_time, sample.x, sample.y, sample.z))
@@ -811,8 +873,10 @@ class SimAutopilot:
                 round(s.z * 1000), round(s.vy * 100), round(s.vx * 100), round(-s.vz * 100), hdg)]
         if msg_id == mavlink.MAVLINK_MSG_ID_SYS_STATUS:
             health = SENSORS if self._ready else SENSORS & ~mavlink.MAV_SYS_STATUS_PREARM_CHECK
-            return [mavlink.MAVLink_sys_status_message(SENSORS, SENSORS, health, 100, 12600, -1, 100, 0, 0, 0, 0,
-                                                       0, 0)]
+            fence = mavlink.MAV_SYS_STATUS_GEOFENCE
+            enabled = SENSORS | (fence if self._params["FENCE_ENABLE"] and self._server.lists[FENCE] else 0)
+            return [mavlink.MAVLink_sys_status_message(enabled, enabled, health | fence, 100, 12600, -1, 100, 0, 0,
+                                                       0, 0, 0, 0)]
         if msg_id == mavlink.MAVLINK_MSG_ID_GPS_RAW_INT:
             lat, lon = self._geodetic()
             fix = GPS_FIX_SITL if self._ready else mavlink.GPS_FIX_TYPE_NO_GPS
@@ -853,14 +917,7 @@ class SimAutopilot:
             sample = track.sample(t_mission)
             if sample is None or only not in (None, intruder.id):
                 continue
-            lat, lon, _ = pymap3d.enu2geodetic(sample.x, sample.y, 0.0, self._home.lat, self._home.lon,
-                                               self._home.alt)
-            out.append(mavlink.MAVLink_adsb_vehicle_message(
-                intruder.icao, round(float(lat) * 1e7), round(float(lon) * 1e7),
-                mavlink.ADSB_ALTITUDE_TYPE_GEOMETRIC, round((self._home.alt + sample.z) * 1000),
-                round(heading_deg(sample) * 100) % 36000, round(math.hypot(sample.vx, sample.vy) * 100),
-                round(sample.vz * 100), intruder.id[:9].encode(), mavlink.ADSB_EMITTER_TYPE_UAV, 0, ADSB_FLAGS,
-                0))
+            out.append(adsb_report(intruder, sample, self._home))
         return out
 
     def _relay_adsb(self) -> None:

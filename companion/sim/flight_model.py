@@ -4,9 +4,13 @@ No aerodynamics: a point with a compass heading (0 = north, clockwise, radians),
 vertical rate. The limits come from :class:`planner.config.VehicleLimits`:
 
 - plane: turn rate ≤ g·tan(max bank)/v, climb/descent ≤ v·tan(max climb), never hovers (it circles instead);
+  speed changes at most 1.3 m/s² and vertical rate at most 3.7 m/s² (so it overshoots a level-off as ArduPlane
+  does). Take-off as measured on ArduPlane SITL: a ground roll on the current heading, then a full-throttle
+  climb straight ahead (see :meth:`FlightModel.takeoff_roll` and :meth:`FlightModel.climb_straight`);
 - copter: points straight at its target, moves at most ``speed`` horizontally, climbs/descends at most
   v·tan(max climb) on legs and at fixed vertical rates (2.5 m/s up, 1.5 m/s down, 0.5 m/s for the last 10 m of
-  a landing; ArduCopter's WPNAV/LAND defaults) on take-off and landing.
+  a landing; ArduCopter's WPNAV/LAND defaults) on take-off and landing; a climb accelerates at 1 m/s² and slows
+  down on the last metres (ArduCopter's position controller, measured on SITL).
 
 Each guidance primitive advances the state by ``dt`` seconds of simulated time; the caller keeps ``dt`` small.
 """
@@ -21,12 +25,30 @@ from planner.config import G0, VehicleLimits
 COPTER_CLIMB_RATE = 2.5  # m/s, WPNAV_SPEED_UP
 COPTER_DESCENT_RATE = 1.5  # m/s, WPNAV_SPEED_DN / LAND_SPEED_HIGH
 COPTER_LAND_RATE = 0.5  # m/s below 10 m, LAND_SPEED
-PLANE_LOITER_RADIUS = 60.0  # m, WP_LOITER_RAD default
+COPTER_CLIMB_ACCEL = 1.0  # m/s², vertical acceleration of a copter climb (SITL: 0 → 2.5 m/s in ~2.5 s)
+COPTER_CLIMB_DECEL = 0.55  # m/s², the slow-down before the target altitude (SITL: 2.15 m/s 4 m below it)
+COPTER_MIN_CLIMB = 0.3  # m/s, the slowest final approach of a climb
+PLANE_LOITER_RADIUS = 80.0  # m, WP_LOITER_RAD of SITL's plane.parm (ArduPlane's own default is 60)
 ALT_GAIN = 0.5  # 1/s, altitude error → commanded vertical rate (then limited)
+PLANE_SPEED_ACCEL = 2.0  # m/s², SITL: 27.4 → 21.0 m/s in 3.3 s, once over the top of the take-off overshoot
+PLANE_CLIMBING_VZ = 1.0  # m/s: still climbing this fast after take-off, a plane does not slow down yet
+PLANE_VERTICAL_ACCEL = 3.7  # m/s², SITL: +10 → 0 m/s in 2.7 s after take-off, peaking 13 m above its altitude
+# ArduPlane SITL take-off (plane.parm, TKOFF_* defaults), measured flying fuseplan's rescue_static mission:
+PLANE_ROLL_ACCEL = 6.9  # m/s², ground roll (0 → 20 m/s ground speed between 0.6 and 3.5 s after arming)
+PLANE_ROTATE_SPEED = 20.0  # m/s ground speed at lift-off (~30 m down the runway)
+PLANE_TAKEOFF_CLIMB_RATE = 10.0  # m/s, full-throttle climb (pitch ~17°, TKOFF level-off does not slow it)
+PLANE_TAKEOFF_SPEED = 27.0  # m/s, ground speed reached in the take-off climb
+PLANE_TAKEOFF_ACCEL = 2.0  # m/s², 20 → 27 m/s during the climb
+PLANE_LIFTOFF_VERTICAL_ACCEL = 12.0  # m/s², rotation: full climb rate within ~1 s of lift-off
 
 
 def wrap_pi(angle: float) -> float:
     return (angle + math.pi) % (2.0 * math.pi) - math.pi
+
+
+def _approach(value: float, target: float, step: float) -> float:
+    """``value`` moved towards ``target`` by at most ``step``."""
+    return value + max(-step, min(step, target - value))
 
 
 def bearing(dx: float, dy: float) -> float:
@@ -62,6 +84,7 @@ class FlightModel:
         self.is_plane = vehicle.type == "plane"
         self.state = VehicleState(heading=heading)
         self.target_speed = vehicle.cruise_speed
+        self._after_takeoff = False  # climbing on after a take-off: no slowing down yet
 
     # --- limits ---------------------------------------------------------------------------------------------
 
@@ -83,9 +106,21 @@ class FlightModel:
     def _hold_altitude(self, z_target: float, dt: float) -> None:
         s = self.state
         limit = self._max_vz()
-        s.vz = max(-limit, min(limit, ALT_GAIN * (z_target - s.z)))
-        if abs(z_target - s.z) < abs(s.vz * dt):
-            s.vz = (z_target - s.z) / dt
+        vz = max(-limit, min(limit, ALT_GAIN * (z_target - s.z)))
+        if abs(z_target - s.z) < abs(vz * dt):
+            vz = (z_target - s.z) / dt
+        s.vz = _approach(s.vz, vz, PLANE_VERTICAL_ACCEL * dt) if self.is_plane else vz
+
+    def _cruise(self, dt: float) -> None:
+        """Plane: speed towards the target airspeed at a limited rate (copters change speed at once). After the
+        take-off climb it keeps its speed until over the top of the overshoot (SITL: 27-28 m/s held for ~2 s)."""
+        s = self.state
+        target = self.airborne_speed
+        self._after_takeoff = self._after_takeoff and s.vz > PLANE_CLIMBING_VZ
+        if s.speed <= 0.0:
+            s.speed = target
+        elif target > s.speed or not self._after_takeoff:
+            s.speed = _approach(s.speed, target, PLANE_SPEED_ACCEL * dt)
 
     def _advance(self, dt: float, turning: bool = False) -> None:
         s = self.state
@@ -112,28 +147,42 @@ class FlightModel:
         if not self.is_plane:
             self.stay()
             return
-        self.state.speed = self.airborne_speed
+        self._cruise(dt)
         self._hold_altitude(z_target, dt)
         self._advance(dt)
 
-    def climb_straight(self, z_target: float, dt: float) -> None:
-        """Plane take-off: straight ahead on the current heading at the maximum climb angle."""
+    def takeoff_roll(self, dt: float) -> None:
+        """Plane take-off, on the runway: accelerate straight ahead on the current heading; airborne once at
+        the rotation speed."""
+        s = self.state
+        s.vz = 0.0
+        s.speed = min(s.speed + PLANE_ROLL_ACCEL * dt, PLANE_ROTATE_SPEED)
+        self._advance(dt)
+        if s.speed >= PLANE_ROTATE_SPEED:
+            s.on_ground = False
+
+    def climb_straight(self, dt: float) -> None:
+        """Plane take-off, airborne: climb straight ahead on the current heading at full throttle (ArduPlane's
+        take-off climb rate and speed, not the planner's limits), until the caller sees the altitude reached."""
         s = self.state
         s.on_ground = False
-        s.speed = self.airborne_speed
-        s.vz = min(s.speed * math.tan(self.vehicle.max_climb), max(0.0, (z_target - s.z) / dt))
+        s.speed = _approach(max(s.speed, PLANE_ROTATE_SPEED), PLANE_TAKEOFF_SPEED, PLANE_TAKEOFF_ACCEL * dt)
+        s.vz = _approach(s.vz, PLANE_TAKEOFF_CLIMB_RATE, PLANE_LIFTOFF_VERTICAL_ACCEL * dt)
+        self._after_takeoff = True
         self._advance(dt)
 
     def vertical(self, z_target: float, dt: float) -> None:
         """Copter: climb or descend in place to ``z_target``."""
         s = self.state
         s.speed = 0.0
-        if z_target > s.z:
+        dz = z_target - s.z
+        if dz > 0.0:
             s.on_ground = False
-            rate = COPTER_CLIMB_RATE
+            rate = min(COPTER_CLIMB_RATE, max(COPTER_MIN_CLIMB, math.sqrt(2.0 * COPTER_CLIMB_DECEL * dz)))
+            s.vz = min(_approach(max(s.vz, 0.0), rate, COPTER_CLIMB_ACCEL * dt), dz / dt)
         else:
             rate = COPTER_LAND_RATE if s.z < 10.0 else COPTER_DESCENT_RATE
-        s.vz = max(-rate, min(rate, (z_target - s.z) / dt))
+            s.vz = max(-rate, dz / dt)
         self._advance(dt)
 
     def fly_to(self, target: tuple[float, float, float], origin: tuple[float, float] | None, dt: float) -> None:
@@ -143,7 +192,7 @@ class FlightModel:
         s.on_ground = False
         tx, ty, tz = target
         if self.is_plane:
-            s.speed = self.airborne_speed
+            self._cruise(dt)
             aim_x, aim_y = tx, ty
             if origin is not None:
                 ox, oy = origin
@@ -176,7 +225,7 @@ class FlightModel:
         if not self.is_plane:
             self.fly_to((centre[0], centre[1], z_target), None, dt)
             return
-        s.speed = self.airborne_speed
+        self._cruise(dt)
         radius = max(radius, self.vehicle.min_turn_radius)
         cx, cy = centre
         d = math.hypot(s.x - cx, s.y - cy)

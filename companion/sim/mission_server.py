@@ -15,7 +15,8 @@ ArduPilot behaviour reproduced (../shared/AUTOPILOT_FACTS.md, ``libraries/GCS_MA
 - Mission uploads are **not atomic**. MISSION_COUNT truncates the stored mission to ``count`` items at once; each
   accepted item is then written into place (replacing, or appending at the end), so an upload that fails part-way
   leaves the new items 1..k followed by the old items k+1..count-1 (as far as the old mission reached).
-  Fence uploads are staged and replace the fence only when complete (ArduPilot's polyfence loader does that).
+  Fence uploads are staged and replace the fence only when complete (ArduPilot's polyfence loader does that);
+  rally points are written in place as the mission is (AP_Rally).
 - Item 0 of the mission is home: an uploaded item 0 is acknowledged and ignored; a download of item 0 returns
   the live home in MAV_FRAME_GLOBAL with AMSL altitude; downloads answer with the non-INT frame numbers
   (5→0, 6→3, 11→10). MISSION_REQUEST_INT is answered with MISSION_ITEM_INT, the legacy MISSION_REQUEST with a
@@ -44,14 +45,14 @@ from dataclasses import dataclass, replace
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.items import FENCE, MISSION, MissionItem, normalise_frame
+from companion.items import FENCE, MISSION, RALLY, MissionItem, normalise_frame
 from companion.storage import Firmware, stored
 
 logger = logging.getLogger(__name__)
 
 REQUEST_RESEND_S = 1.0  # ArduPilot: 1000 ms (+ stream slow-down) without an item → request again
 UPLOAD_TIMEOUT_S = 8.0  # ArduPilot upload_timeout_ms
-MAX_ITEMS = {MISSION: 724, FENCE: 84}  # what a 16 kB-storage board holds
+MAX_ITEMS = {MISSION: 724, FENCE: 84, RALLY: 20}  # what a 16 kB-storage board holds (rally: not measured)
 
 GLOBAL_FRAMES = frozenset({
     mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT,
@@ -93,8 +94,9 @@ def is_nav(command: int) -> bool:
 
 def validate_item(item: MissionItem) -> int:
     """MAV_MISSION_RESULT for one uploaded item: ACCEPTED or the error ArduPilot would give."""
-    if item.mission_type == FENCE:
-        if item.command not in _FENCE_COMMANDS:
+    if item.mission_type in (FENCE, RALLY):
+        allowed = _FENCE_COMMANDS if item.mission_type == FENCE else {mavlink.MAV_CMD_NAV_RALLY_POINT}
+        if item.command not in allowed:
             return mavlink.MAV_MISSION_UNSUPPORTED
         if item.frame not in GLOBAL_FRAMES:
             return mavlink.MAV_MISSION_UNSUPPORTED_FRAME
@@ -109,7 +111,7 @@ def validate_item(item: MissionItem) -> int:
             return getattr(mavlink, f"MAV_MISSION_INVALID_PARAM{n}")
     if math.isnan(item.z):
         return mavlink.MAV_MISSION_INVALID_PARAM7
-    if item.command in _WITH_LOCATION or item.mission_type == FENCE:
+    if item.command in _WITH_LOCATION or item.mission_type in (FENCE, RALLY):
         if not -900_000_000 <= item.x <= 900_000_000:
             return mavlink.MAV_MISSION_INVALID_PARAM5_X
         if not -1_800_000_000 <= item.y <= 1_800_000_000:
@@ -154,7 +156,7 @@ class MissionServer:
         self._capacity = capacity if capacity is not None else MAX_ITEMS.get
         self._home_set = home_set
         self._written = False  # a mission was uploaded since power-up
-        self.lists: dict[int, list[MissionItem]] = {MISSION: [home_item()], FENCE: []}
+        self.lists: dict[int, list[MissionItem]] = {MISSION: [home_item()], FENCE: [], RALLY: []}
         self._uploads: dict[int, _Upload] = {}
         self.completed_uploads = 0
         self.abandoned: list[list[MissionItem]] = []  # the mission as left by each abandoned upload
@@ -257,6 +259,8 @@ class MissionServer:
         if mission_type == MISSION:
             self._written = True
             del self.mission[max(msg.count, 1):]  # truncate now; items are written as they arrive
+        elif mission_type == RALLY:
+            del self.lists[RALLY][msg.count:]  # AP_Rally: truncated, then each point written as it arrives
         else:
             staged = self.lists[mission_type][:msg.count]
         if msg.count == 0:
@@ -275,7 +279,7 @@ class MissionServer:
             self._text(mavlink.MAV_SEVERITY_WARNING, "Flight plan update rejected")
             self._ack(msg, mavlink.MAV_MISSION_ERROR, mission_type)
             return
-        staged = None if mission_type == MISSION else list(self.lists[mission_type])
+        staged = list(self.lists[mission_type]) if mission_type == FENCE else None
         self._start_upload(msg, mission_type, msg.start_index, msg.end_index, now, staged)
 
     def _item(self, msg: mavlink.MAVLink_message, now: float) -> None:

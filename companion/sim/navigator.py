@@ -3,10 +3,17 @@
 One NAV command is active at a time, as a :class:`NavTask` built from a *copy* of the stored item, so a mission
 re-uploaded in flight does not change it: the vehicle keeps flying the old target until the task ends (then the
 next NAV command is taken from the stored mission as it is now) or until :meth:`Navigator.start` restarts an
-item (MAV_CMD_DO_SET_MISSION_CURRENT, MISSION_SET_CURRENT or re-entering AUTO). As in ArduPilot, the DO commands
-that follow a NAV command run (instantly here) when that NAV command starts, and every completed command is
-reported with MISSION_ITEM_REACHED. DO_JUMP repeats param2 times (-1: for ever) when the search for the next NAV
-command passes it.
+item (MAV_CMD_DO_SET_MISSION_CURRENT, MISSION_SET_CURRENT or re-entering AUTO). DO_JUMP repeats param2 times
+(-1: for ever) when the search for the next NAV command passes it.
+
+As ArduPilot 4.7 does (SITL, plane and copter, a mission TAKEOFF, DO, WP, DO, WP, DO, DO, WP):
+
+- DO commands run (instantly here) when the search for the next NAV command passes them: those between two NAV
+  commands run when the first one *completes*, not while it is flown (a DO_CHANGE_SPEED after the TAKEOFF does
+  not change the take-off; "Mission: 2 ChangeSpeed" comes with "Takeoff complete");
+- each command started is announced with STATUSTEXT "Mission: <seq> <name>";
+- MISSION_ITEM_REACHED is one pending slot per link, written by each completed command: a NAV command followed
+  by DO commands is not reported (the first DO, completed in the same loop, replaces it); each DO is.
 
 The tasks are also used by the flight modes (RTL, LOITER, LAND, TAKEOFF).
 """
@@ -30,6 +37,20 @@ Point = tuple[float, float, float]
 MAX_ACCEPTANCE = 255.0  # m, ArduPlane caps the per-item acceptance radius
 PLANE_RTL_ALT = 100.0  # m, ALT_HOLD_RTL default
 COPTER_RTL_ALT = 15.0  # m, RTL_ALT default
+COPTER_WP_RADIUS = 2.0  # m, WPNAV_RADIUS: ArduCopter does not store a waypoint's own radius (param2)
+PLANE_TAKEOFF_DELAY_S = 0.6  # s from arming to the ground roll (TKOFF_THR_DELAY 0.2 s, then throttle up)
+COPTER_SPOOL_S = 1.0  # s from the start of a take-off to lift-off (motor spool-up), ArduCopter SITL
+COPTER_TAKEOFF_DONE_M = 0.3  # m below the take-off altitude at which ArduCopter counts it reached
+# AP_Mission's short names for the STATUSTEXT "Mission: <seq> <name>" (WP, Takeoff, ChangeSpeed seen on SITL)
+COMMAND_NAMES = {
+    mavlink.MAV_CMD_NAV_WAYPOINT: "WP", mavlink.MAV_CMD_NAV_TAKEOFF: "Takeoff",
+    mavlink.MAV_CMD_DO_CHANGE_SPEED: "ChangeSpeed", mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH: "RTL",
+    mavlink.MAV_CMD_NAV_LAND: "Land", mavlink.MAV_CMD_NAV_LOITER_UNLIM: "LoitUnlim",
+    mavlink.MAV_CMD_NAV_LOITER_TIME: "LoitTime", mavlink.MAV_CMD_NAV_LOITER_TURNS: "LoitTurns",
+    mavlink.MAV_CMD_NAV_SPLINE_WAYPOINT: "SplineWP", mavlink.MAV_CMD_DO_JUMP: "Jump",
+    mavlink.MAV_CMD_DO_SET_SERVO: "SetServo", mavlink.MAV_CMD_DO_SET_RELAY: "SetRelay",
+    mavlink.MAV_CMD_CONDITION_DELAY: "CondDelay", mavlink.MAV_CMD_DO_SET_HOME: "SetHome",
+}
 
 
 class NavTask:
@@ -42,16 +63,33 @@ class NavTask:
 
 
 class Takeoff(NavTask):
-    """Plane: climb straight ahead on the current heading; copter: climb vertically."""
+    """Plane: a ground roll and a climb straight ahead on the current heading, done at the altitude ("Takeoff
+    complete at 50.43m"); copter: spool up, then climb vertically."""
 
     def __init__(self, z: float) -> None:
         self.z = z
+        self._t = 0.0
 
     def step(self, model: FlightModel, dt: float) -> bool:
-        if model.state.z >= self.z - 0.5:
-            return True
+        s = model.state
         if model.is_plane:
-            model.climb_straight(self.z, dt)
+            if s.z >= self.z and not s.on_ground:
+                self.note = f"Takeoff complete at {s.z:.2f}m"
+                return True
+            self._t += dt
+            if s.on_ground:
+                if self._t < PLANE_TAKEOFF_DELAY_S:
+                    model.stay()
+                else:
+                    model.takeoff_roll(dt)
+            else:
+                model.climb_straight(dt)
+            return False
+        if s.z >= self.z - COPTER_TAKEOFF_DONE_M:
+            return True
+        self._t += dt
+        if s.on_ground and self._t < COPTER_SPOOL_S:
+            model.stay()
         else:
             model.vertical(self.z, dt)
         return False
@@ -176,7 +214,7 @@ def rtl_altitude(model: FlightModel) -> float:
 
 
 class NavigatorEvents(Protocol):
-    def reached(self, seq: int) -> None: ...
+    def reached(self, seq: int, report: bool = True) -> None: ...
     def text(self, severity: int, text: str) -> None: ...
     def current_changed(self, seq: int) -> None: ...
     def mission_complete(self) -> None: ...
@@ -208,7 +246,7 @@ class Navigator:
             self._jumps.clear()
         self.running = True
         self._last_target = None
-        self._begin(mission, first, run_dos=True)
+        self._begin(mission, first)
 
     def stop(self) -> None:
         """Leave AUTO: the active task is dropped; :meth:`start` resumes at the current item."""
@@ -224,7 +262,10 @@ class Navigator:
         done, task = self.active, self.task
         if task.note:
             self._events.text(mavlink.MAV_SEVERITY_INFO, task.note)
-        self._events.reached(done.seq)
+        following = mission[done.seq + 1] if done.seq + 1 < len(mission) else None
+        do_follows = following is not None and not is_nav(following.command) \
+            and following.command != mavlink.MAV_CMD_DO_JUMP
+        self._events.reached(done.seq, report=not do_follows)  # else the DO's REACHED replaces it
         if isinstance(task, (Land, ReturnHome)) and self.model.state.on_ground:
             self.running = False
             self.task = None
@@ -232,12 +273,13 @@ class Navigator:
             return
         if isinstance(task, Waypoint):
             self._last_target = (task.target[0], task.target[1])
-        self._begin(mission, done.seq + 1, run_dos=False)
+        self._begin(mission, done.seq + 1)
 
     # --- internals ------------------------------------------------------------------------------------------
 
-    def _begin(self, mission: list[MissionItem], seq: int, run_dos: bool) -> None:
-        """Find the next NAV command from ``seq`` (following DO_JUMPs) and start it, then its DO commands."""
+    def _begin(self, mission: list[MissionItem], seq: int) -> None:
+        """Find the next NAV command from ``seq`` (following DO_JUMPs), running the DO commands on the way, and
+        start it."""
         for _ in range(10 * len(mission) + 10):
             if seq >= len(mission):
                 self._complete()
@@ -254,20 +296,20 @@ class Navigator:
                 continue
             if is_nav(item.command):
                 break
-            if run_dos:
-                self._do(item)
+            self._do(item)
             seq += 1
         else:
             self._complete()
             return
+        self._announce(item)
         self.active = item
         self.task = self._task_for(item)
         self.current_seq = seq
         self._events.current_changed(seq)
-        for follower in mission[seq + 1:]:
-            if is_nav(follower.command) or follower.command == mavlink.MAV_CMD_DO_JUMP:
-                break
-            self._do(follower)
+
+    def _announce(self, item: MissionItem) -> None:
+        name = COMMAND_NAMES.get(item.command) or mavlink.enums["MAV_CMD"][item.command].name.split("_")[-1].title()
+        self._events.text(mavlink.MAV_SEVERITY_INFO, f"Mission: {item.seq} {name}")
 
     def _complete(self) -> None:
         self.running = False
@@ -277,8 +319,11 @@ class Navigator:
         self._events.mission_complete()
 
     def _do(self, item: MissionItem) -> None:
+        self._announce(item)
         if item.command == mavlink.MAV_CMD_DO_CHANGE_SPEED and item.param2 > 0.0:
             self.model.target_speed = float(item.param2)
+            self._events.text(mavlink.MAV_SEVERITY_INFO, f"Set airspeed {item.param2:g} m/s" if item.param1 == 0
+                              else f"Set groundspeed {item.param2:g}")
         self._events.reached(item.seq)
 
     def _task_for(self, item: MissionItem) -> NavTask:
@@ -286,8 +331,11 @@ class Navigator:
         here = (s.x, s.y)
         origin = self._last_target or here
         x, y, z = self._to_enu(item)
-        radius = item.param2 if item.param2 > 0.0 else self.model.vehicle.acceptance_radius
-        radius = min(radius, MAX_ACCEPTANCE)
+        if self.model.is_plane:  # the item's own radius (whole metres, ≤ 255), else WP_RADIUS
+            radius = item.param2 if item.param2 > 0.0 else self.model.vehicle.acceptance_radius
+            radius = min(radius, MAX_ACCEPTANCE)
+        else:
+            radius = COPTER_WP_RADIUS
         cmd = item.command
         if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
             return Takeoff(z)

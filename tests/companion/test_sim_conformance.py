@@ -8,12 +8,17 @@ Real UDP sockets on 127.0.0.1 through the test client of test_sim.py.
 
 from __future__ import annotations
 
+import asyncio
 import collections
+import dataclasses
+import math
+from collections.abc import Callable
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.items import FENCE, MissionItem, compare_items
+from companion.builder import mission_from_plan_json
+from companion.items import FENCE, RALLY, MissionItem, compare_items
 from companion.sim import SimAutopilot
 from companion.sim.autopilot import BOOT_S, PREARM_TEXT
 from companion.storage import Firmware, stored
@@ -116,13 +121,18 @@ async def test_readback_is_what_ardupilot_stores(static: Scenario, vehicle: str)
     fence = [MissionItem(0, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION,
                          param1=50.0, param2=7.0, param3=8.0, param4=9.0, x=base.x, y=base.y, z=33.0,
                          mission_type=FENCE)]
+    rally = [MissionItem(i, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, mavlink.MAV_CMD_NAV_RALLY_POINT,
+                         param1=1.0, param2=2.0, param3=3.0, param4=4.0, x=base.x + 1000 * i, y=base.y, z=60.0 + i,
+                         mission_type=RALLY) for i in range(3)]
     async with (SimAutopilot(static, "udpin:127.0.0.1:0", speedup=5.0, vehicle=vehicle, boot_s=None) as sim,
                 Client(sim.port) as gcs):
         await gcs.wait_ready()
         assert await gcs.upload(items) == mavlink.MAV_MISSION_ACCEPTED
         assert await gcs.upload(fence, mission_type=FENCE) == mavlink.MAV_MISSION_ACCEPTED
+        assert await gcs.upload(rally, mission_type=RALLY) == mavlink.MAV_MISSION_ACCEPTED
         got = [MissionItem.from_message(m) for m in await gcs.download()]
         got_fence = [MissionItem.from_message(m) for m in await gcs.download(FENCE)]
+        got_rally = [MissionItem.from_message(m) for m in await gcs.download(RALLY)]
     firmware = FIRMWARE[vehicle]
     for sent, back in zip(items[1:], got[1:]):
         assert compare_items(stored(sent, firmware), back) is None
@@ -135,6 +145,48 @@ async def test_readback_is_what_ardupilot_stores(static: Scenario, vehicle: str)
     f = got_fence[0]
     assert (f.frame, f.autocontinue, f.param1, f.param2, f.param3, f.param4, f.z) == (
         mavlink.MAV_FRAME_GLOBAL, 0, 50.0, 0.0, 0.0, 0.0, 0.0)
+    assert len(got_rally) == 3
+    for sent, back in zip(rally, got_rally):
+        assert compare_items(stored(sent, firmware), back) is None
+        assert back.autocontinue == 0
+
+
+@pytest.mark.asyncio
+@pytest.mark.parametrize("vehicle", ["plane", "copter"])
+async def test_parameters_as_ardupilot(static: Scenario, vehicle: str) -> None:  # noqa: F811
+    """SITL: FENCE_TYPE reads 4 (plane) / 7 (copter) as MAV_PARAM_TYPE_INT8 with index 65535 when asked by name;
+    PARAM_SET FENCE_ENABLE 1 is echoed with PARAM_VALUE; PARAM_SET of a name it does not have gets no answer;
+    with a fence stored and FENCE_ENABLE set, SYS_STATUS reports the geofence enabled."""
+    async with (SimAutopilot(static, "udpin:127.0.0.1:0", speedup=5.0, vehicle=vehicle) as sim,
+                Client(sim.port) as gcs):
+        mark = gcs.mark()
+        gcs.send(mavlink.MAVLink_param_request_read_message(1, 1, b"FENCE_TYPE", -1))
+        value = await gcs.expect("PARAM_VALUE", after=mark)
+        assert (value.param_id, value.param_value, value.param_type, value.param_index) == (
+            "FENCE_TYPE", {"plane": 4.0, "copter": 7.0}[vehicle], mavlink.MAV_PARAM_TYPE_INT8, 65535)
+        mark = gcs.mark()
+        gcs.send(mavlink.MAVLink_param_set_message(1, 1, b"NO_SUCH_PARAM", 3.0, mavlink.MAV_PARAM_TYPE_REAL32))
+        gcs.send(mavlink.MAVLink_param_set_message(1, 1, b"FENCE_ENABLE", 1.0, mavlink.MAV_PARAM_TYPE_INT8))
+        value = await gcs.expect("PARAM_VALUE", after=mark)
+        assert (value.param_id, value.param_value) == ("FENCE_ENABLE", 1.0)
+        assert [m.param_id for m in gcs.inbox[mark:] if m.get_type() == "PARAM_VALUE"] == ["FENCE_ENABLE"]
+        base = route(static, [(300.0, 300.0, 60.0)])[3]
+        fence = [MissionItem(0, mavlink.MAV_FRAME_GLOBAL_INT, mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION,
+                             param1=50.0, x=base.x, y=base.y, mission_type=FENCE)]
+        assert await gcs.upload(fence, mission_type=FENCE) == mavlink.MAV_MISSION_ACCEPTED
+        status = await gcs.expect("SYS_STATUS", after=gcs.mark())
+        assert status.onboard_control_sensors_enabled & mavlink.MAV_SYS_STATUS_GEOFENCE
+
+
+@pytest.mark.asyncio
+async def test_time_waits_for_the_first_client_as_sitl(static: Scenario) -> None:  # noqa: F811
+    """SITL's clock starts with its first client on SERIAL0, so that client sees the whole boot."""
+    async with SimAutopilot(static, "udpin:127.0.0.1:0", speedup=10.0, boot_s=None, wait_for_client=True) as sim:
+        await asyncio.sleep(0.5)  # 5 s of simulated time, were the clock running
+        assert sim.sim_time == 0.0
+        async with Client(sim.port, wait_booted=False) as gcs:
+            first = await gcs.expect("HEARTBEAT", after=0)
+            assert first.system_status == mavlink.MAV_STATE_CALIBRATING
 
 
 # --- telemetry streams --------------------------------------------------------------------------------------
@@ -308,3 +360,86 @@ async def test_intruders_from_the_autopilot_or_an_adsb_receiver(dynamic: Scenari
                                                                  mavlink.MAV_AUTOPILOT_INVALID)
     else:
         assert sources == {(1, mavlink.MAV_COMP_ID_AUTOPILOT1)}
+
+
+@pytest.mark.asyncio
+async def test_a_meet_intruder_meets_the_simulated_vehicle(dynamic: Scenario) -> None:  # noqa: F811
+    """An intruder timed by a ``meet`` point (as TrafficFeed flies it against SITL) is scheduled from the
+    vehicle's progress along the mission it started with, so it crosses the route as the vehicle passes."""
+    wps = [(200.0, 200.0, 50.0), (500.0, 450.0, 80.0), (800.0, 800.0, 50.0)]
+    meet = (607.7, 592.3, 120.0)  # on the intruder's path (x + y = 1200), where the route crosses it
+    intruder = dataclasses.replace(dynamic.intruders[0], meet=meet)
+    scenario = dataclasses.replace(dynamic, intruders=(intruder,))
+    async with (SimAutopilot(scenario, "udpin:127.0.0.1:0", speedup=20.0) as sim, Client(sim.port) as gcs):
+        assert await gcs.upload(route(scenario, wps)) == mavlink.MAV_MISSION_ACCEPTED
+        await gcs.wait_ready()
+        assert await gcs.set_mode(PLANE_MODES["AUTO"]) == ACCEPTED
+        assert await gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACCEPTED
+        await gcs.expect("MISSION_ITEM_REACHED", timeout=10.0, where=lambda m: m.seq == 5, after=0)
+        await gcs.expect("ADSB_VEHICLE", after=0)
+    track = {round(t, 1): (x, y) for t, x, y, _z in sim.intruder_truth[intruder.id]}
+    miss = min(math.hypot(x - track[round(t, 1)][0], y - track[round(t, 1)][1])
+               for t, _lat, _lon, _alt, x, y, _z in sim.truth if round(t, 1) in track)
+    assert miss < 30.0
+
+
+# --- plane take-off and climb-out ---------------------------------------------------------------------------
+# ArduPlane SITL (plane.parm, heading 0), the rescue_static mission fuseplan builds (TAKEOFF param1 10° to 50 m,
+# DO_CHANGE_SPEED 18 m/s, first route waypoint (200, 200, 50) with a 20 m radius), armed in AUTO: sim s after
+# arming / ENU m from home. Two runs (pymavlink, and `fuseplan fly --connect`) agreed within 0.05 s.
+SITL_LIFTOFF_S = 3.9  # first ≥ 1 m above home, after a ground roll north
+SITL_LIFTOFF_NORTH = 40.0
+SITL_CLIMB_RATE = 10.06  # m/s between 10 and 40 m
+SITL_TAKEOFF_COMPLETE_S = 8.88  # "Takeoff complete at 50.43m"; the DO_CHANGE_SPEED runs (and is REACHED) then
+SITL_TAKEOFF_COMPLETE_NORTH = 166.0  # m north of home, 0 east: straight ahead on the runway heading
+SITL_PEAK_ALT = 63.6  # m: the climb overshoots the take-off altitude while turning
+SITL_MAX_NORTH = 270.0  # m: how far north it gets before turning back towards the route start
+SITL_WP3_REACHED_S = 20.77  # "Reached waypoint #3 dist 18m", at about (189, 215)
+SITL_PATH_TO_WP3 = 437.0  # m flown (horizontally) from arming to reaching the route start
+TOLERANCE = 0.15
+
+
+def _within(got: float, want: float) -> bool:
+    return abs(got - want) <= TOLERANCE * abs(want)
+
+
+@pytest.mark.asyncio
+async def test_plane_climb_out_matches_arduplane_sitl(static_plan_doc: Callable[..., dict],
+                                                      static: Scenario) -> None:  # noqa: F811
+    items = mission_from_plan_json(static_plan_doc(), static, "ardupilot")
+    assert [it.command for it in items[1:4]] == [mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_DO_CHANGE_SPEED,
+                                                 mavlink.MAV_CMD_NAV_WAYPOINT]
+    async with (SimAutopilot(static, "udpin:127.0.0.1:0", speedup=20.0, boot_s=None, streams_unasked=None) as sim,
+                Client(sim.port) as gcs):
+        assert await gcs.upload(items) == mavlink.MAV_MISSION_ACCEPTED
+        await gcs.wait_ready()
+        assert await gcs.set_mode(PLANE_MODES["AUTO"]) == ACCEPTED
+        mark = gcs.mark()
+        assert await gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACCEPTED
+        done = await gcs.expect("STATUSTEXT", timeout=5.0, after=mark,
+                                where=lambda m: m.text.startswith("Takeoff complete at"))
+        reached = await gcs.expect("MISSION_ITEM_REACHED", after=mark)
+        assert reached.seq == 2  # the DO_CHANGE_SPEED, in place of the take-off
+        await gcs.expect("MISSION_ITEM_REACHED", timeout=5.0, where=lambda m: m.seq == 3, after=mark)
+        t0 = sim.mission_start_time
+        assert t0 is not None
+        flown = {it.seq: t - t0 for _, t, it in sim.flown_items}
+        track = [(t - t0, x, y, z) for t, _, _, _, x, y, z in sim.truth if t >= t0]
+    assert 50.0 <= float(done.text.split("at ")[1].rstrip("m")) < 51.0
+    t_takeoff, t_wp3 = flown[3], flown[4]  # when the next NAV item began
+    liftoff = next(r for r in track if r[3] >= 1.0)
+    climb = [r for r in track if 10.0 <= r[3] <= 40.0 and r[0] < t_takeoff]
+    climb_rate = (climb[-1][3] - climb[0][3]) / (climb[-1][0] - climb[0][0])
+    at_takeoff = min(track, key=lambda r: abs(r[0] - t_takeoff))
+    before_wp3 = [r for r in track if r[0] <= t_wp3]
+    path = sum(math.hypot(b[1] - a[1], b[2] - a[2]) for a, b in zip(before_wp3, before_wp3[1:]))
+    got = {"liftoff_s": liftoff[0], "liftoff_north": liftoff[2], "climb_rate": climb_rate,
+           "takeoff_s": t_takeoff, "takeoff_north": at_takeoff[2],
+           "peak_alt": max(r[3] for r in track if t_takeoff <= r[0] <= t_takeoff + 10.0),
+           "max_north": max(r[2] for r in before_wp3), "wp3_s": t_wp3, "path_to_wp3": path}
+    want = {"liftoff_s": SITL_LIFTOFF_S, "liftoff_north": SITL_LIFTOFF_NORTH, "climb_rate": SITL_CLIMB_RATE,
+            "takeoff_s": SITL_TAKEOFF_COMPLETE_S, "takeoff_north": SITL_TAKEOFF_COMPLETE_NORTH,
+            "peak_alt": SITL_PEAK_ALT, "max_north": SITL_MAX_NORTH, "wp3_s": SITL_WP3_REACHED_S,
+            "path_to_wp3": SITL_PATH_TO_WP3}
+    assert {k: _within(got[k], want[k]) for k in want} == dict.fromkeys(want, True), (got, want)
+    assert abs(at_takeoff[1]) < 2.0  # straight ahead, north: no turn before the take-off is complete
