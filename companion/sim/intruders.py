@@ -51,34 +51,36 @@ def _cumulative(points: np.ndarray) -> np.ndarray:
     return np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(points, axis=0), axis=1))])
 
 
-SPEED_RANGE = (0.6, 1.4)  # a meet intruder that must take off at once flies this much slower or faster than nominal
-JOIN_M = 30.0  # the vehicle has joined the route once it comes this close to it
-PACE_WINDOW_S = 3.0  # the vehicle's pace along the route is measured over at least this long
+SPEED_RANGE = (0.6, 2.0)  # a meet intruder that must take off at once flies this much slower or faster than nominal
+JOIN_M = 30.0  # the vehicle is on its route while it is this close to it
+SETTLE_S = 4.0  # ... and settled on it this long after joining it (turning onto it, speeding up)
+PACE_WINDOW_S = 4.0  # ... and its pace along the route is measured over the last this long
 
 
 class IntruderTrack:
     """Position of one intruder as a function of mission time. With a ``meet`` point, pass the vehicle's planned
-    route (ENU (K, 3), from the route's start) and cruise speed, and call :meth:`follow` with its positions in
-    mission-time order. Once the vehicle has joined the route (its takeoff and climb-out differ from one
-    autopilot to the next), its arrival at the meeting point is estimated from its pace along the route, and the
-    intruder takes off at the time that brings it to ``meet`` then at its nominal speed; if that time has passed
-    already, it takes off at once at the speed that keeps the appointment (within :data:`SPEED_RANGE`). From its
-    take-off on it flies its script at a constant speed, whatever the vehicle does."""
+    route (ENU (K, 3), from the route's start) and call :meth:`follow` with the vehicle's positions in
+    mission-time order. The vehicle's takeoff and climb-out differ from one autopilot to the next (ArduPlane
+    overshoots the route start and turns back; a copter climbs, then accelerates), so nothing is decided until it
+    has flown :data:`SETTLE_S` + :data:`PACE_WINDOW_S` on its route: its arrival at the meeting point is then
+    estimated from its pace over the last :data:`PACE_WINDOW_S`, and the intruder takes off at the time that brings it to ``meet`` at its nominal speed;
+    if that time has passed already, it takes off at once at the speed that keeps the appointment (within
+    :data:`SPEED_RANGE`). From its take-off on it flies its script at a constant speed, whatever the vehicle
+    does."""
 
-    def __init__(self, intruder: Intruder, route: np.ndarray | None = None, cruise_speed: float = 0.0) -> None:
+    def __init__(self, intruder: Intruder, route: np.ndarray | None = None) -> None:
         self.intruder = intruder
         self._points = np.asarray(intruder.waypoints, dtype=float)  # (n, 3) ENU m
         self._cumulative = _cumulative(self._points)
         self.start_time: float | None = intruder.start_time  # None: not scheduled yet (a meet intruder)
         self.speed = intruder.speed  # m/s
         if intruder.meet is not None:
-            if route is None or len(route) < 2 or not cruise_speed > 0:
-                raise ValueError(f"intruder {intruder.id} meets the vehicle: its route and cruise speed are needed")
+            if route is None or len(route) < 2:
+                raise ValueError(f"intruder {intruder.id} meets the vehicle: the vehicle's route is needed")
             self.start_time = None
             self._route = np.asarray(route, dtype=float)
             self._route_cumulative = _cumulative(self._route)
-            self._cruise = cruise_speed
-            self._pace: list[tuple[float, float]] = []  # (mission s, m along the route) since the vehicle joined
+            self._pace: list[tuple[float, float]] = []  # (mission s, m along the route) while on the route
             meet = np.asarray(intruder.meet, dtype=float)
             self._meet_on_route, _ = _arc_length_at(self._route, self._route_cumulative, meet)
             self._meet_on_path = _arc_length_at(self._points, self._cumulative, meet)[0]
@@ -95,11 +97,14 @@ class IntruderTrack:
             return
         t = mission_time
         along, off = _arc_length_at(self._route, self._route_cumulative, np.asarray(position, dtype=float))
-        if not self._pace and off > JOIN_M:
-            return  # not on the route yet
+        if off > JOIN_M:
+            self._pace.clear()  # not on the route (yet, or overshooting its start): measure again once it is
+            return
         self._pace.append((t, max(along, self._pace[-1][1] if self._pace else along)))
-        t0, s0 = next((p for p in reversed(self._pace) if t - p[0] >= PACE_WINDOW_S), self._pace[0])
-        pace = (self._pace[-1][1] - s0) / (t - t0) if t - t0 >= PACE_WINDOW_S else self._cruise
+        if t - self._pace[0][0] < SETTLE_S + PACE_WINDOW_S:
+            return  # no pace yet: the first seconds on the route it is still turning onto it and speeding up
+        t0, s0 = next(p for p in reversed(self._pace) if t - p[0] >= PACE_WINDOW_S)
+        pace = (self._pace[-1][1] - s0) / (t - t0)
         left = self._meet_on_route - self._pace[-1][1]
         if left <= 0 or pace <= 0:
             return

@@ -43,8 +43,7 @@ class TrafficFeed:
     def __init__(self, url: str, scenario: Scenario, route: Sequence[Sequence[float]] | None = None, *,
                  system: int = 1, component: int = MAV_COMP_ID_ADSB, report_hz: float = REPORT_HZ) -> None:
         self.scenario = scenario
-        cruise = scenario.vehicle.cruise_speed
-        self.tracks = [IntruderTrack(i, None if route is None else np.asarray(route, float), cruise)
+        self.tracks = [IntruderTrack(i, None if route is None else np.asarray(route, float))
                        for i in scenario.intruders]
         self.link = Link(url, source_system=system, source_component=component, open_timeout=10.0)
         self.report_hz = report_hz

@@ -9,12 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.sim.intruders import JOIN_M, SPEED_RANGE, IntruderTrack, adsb_report
+from companion.sim.intruders import JOIN_M, PACE_WINDOW_S, SETTLE_S, SPEED_RANGE, IntruderTrack, adsb_report
 from planner.errors import ScenarioError
 from planner.scenario import Home, Intruder, load_scenario
 
 ROUTE = np.array([[0.0, 0.0, 100.0], [1000.0, 0.0, 100.0]])  # due east along y = 0
-CRUISE = 20.0
 # crosses the route at (600, 0) heading north: 300 m from its first waypoint
 CROSSER = Intruder("x", 0xABCDEF, ((600.0, -300.0, 100.0), (600.0, 300.0, 100.0)), 15.0, meet=(600.0, 0.0, 100.0))
 
@@ -36,9 +35,9 @@ def _miss(track: IntruderTrack, flown) -> float:
     return float(min(d))
 
 
-@pytest.mark.parametrize("pace", [16.0, 20.0, 24.0], ids=["slower", "cruise", "faster"])
+@pytest.mark.parametrize("pace", [10.0, 16.0, 20.0, 24.0], ids=["copter", "slower", "cruise", "faster"])
 def test_a_meet_intruder_arrives_with_the_vehicle_whatever_its_pace(pace: float) -> None:
-    track = IntruderTrack(CROSSER, ROUTE, CRUISE)
+    track = IntruderTrack(CROSSER, ROUTE)
     flown = _fly(track, 0.0, pace, 60.0)
     arrival = 600.0 / pace
     assert track.start_time is not None
@@ -58,19 +57,29 @@ def test_a_fixed_start_intruder_ignores_the_vehicle() -> None:
 
 def test_it_waits_until_the_vehicle_has_joined_the_route() -> None:
     """During the climb-out (off the route) nothing is scheduled: the arrival estimate would be a guess."""
-    track = IntruderTrack(CROSSER, ROUTE, CRUISE)
+    track = IntruderTrack(CROSSER, ROUTE)
     _fly(track, 0.0, 20.0, 5.0, off_y=JOIN_M + 50.0)
     assert track.waiting and track.sample(4.9) is None
 
 
 def test_late_join_speeds_it_up_within_its_range_and_then_it_flies_straight_on() -> None:
-    """Joining 200 m before the meeting point at 20 m/s leaves 10 s: 300 m needs 30 m/s, capped at 1.4 × 15."""
-    track = IntruderTrack(CROSSER, ROUTE, CRUISE)
-    _fly(track, 400.0, 20.0, 1.0)
-    assert track.start_time == 0.0 and track.speed == pytest.approx(SPEED_RANGE[1] * 15.0)
+    """Joining 300 m before the meeting point at 20 m/s: once its pace is known (8 s, 160 m on) 7 s are left, and
+    300 m in 7 s needs 43 m/s, capped at twice its 15 m/s."""
+    track = IntruderTrack(CROSSER, ROUTE)
+    _fly(track, 300.0, 20.0, 9.0)
+    assert track.start_time == pytest.approx(SETTLE_S + PACE_WINDOW_S)
+    assert track.speed == pytest.approx(SPEED_RANGE[1] * 15.0)
     speed = track.speed
     _fly(track, 0.0, 5.0, 30.0)  # whatever the vehicle does next, the intruder keeps its speed
     assert track.speed == speed
+
+
+def test_leaving_the_route_starts_the_pace_again() -> None:
+    """A plane overshooting the route start and turning back: its pace counts only once it is back on it."""
+    track = IntruderTrack(CROSSER, ROUTE)
+    _fly(track, 0.0, 20.0, 5.0)  # on the route, not long enough
+    _fly(track, 0.0, 20.0, 2.0, off_y=JOIN_M + 10.0)  # off it
+    assert track.waiting and not track._pace
 
 
 def test_meet_needs_the_route() -> None:

@@ -114,7 +114,7 @@ def test_rescue_dynamic_threats_keep_paper_ratios() -> None:
     assert threats["patrol"].p0 == (900.0, 650.0, 150.0) and threats["patrol"].p1 == (200.0, 200.0, 150.0)
     assert s.goal.tolist() == [800, 800, 150]
     (intruder,) = s.intruders
-    assert intruder.speed == 15.0 and intruder.start_time == 10.0 and intruder.radius == 40.0
+    assert intruder.speed == 15.0 and intruder.meet == (471.0, 729.0, 120.0) and intruder.radius == 40.0
 
 
 def test_minimal_scenario_takes_dataclass_defaults(tmp_path: Path) -> None:
