@@ -522,11 +522,8 @@ class SimAutopilot:
                           if it.command in (mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_SPLINE_WAYPOINT)])
         for intruder in meet:
             try:
-                try:
-                    track = IntruderTrack(intruder, route)
-                except ValueError:  # an IntruderTrack that also wants the cruise speed
-                    track = IntruderTrack(intruder, route, self.vehicle.cruise_speed)  # type: ignore[call-arg]
-            except (ValueError, TypeError) as exc:  # no route to meet it on: it never flies
+                track = IntruderTrack(intruder, route)
+            except ValueError as exc:  # no route to meet it on: it never flies
                 logger.warning("simulator: intruder %s not scheduled: %s", intruder.id, exc)
                 continue
             self._tracks.append(track)
