@@ -65,8 +65,8 @@ class IntruderTrack:
     has flown :data:`SETTLE_S` + :data:`PACE_WINDOW_S` on its route: its arrival at the meeting point is then
     estimated from its pace over the last :data:`PACE_WINDOW_S`, and the intruder takes off at the time that brings it to ``meet`` at its nominal speed;
     if that time has passed already, it takes off at once at the speed that keeps the appointment (within
-    :data:`SPEED_RANGE`). From its take-off on it flies its script at a constant speed, whatever the vehicle
-    does."""
+    :data:`SPEED_RANGE`). A vehicle that leaves the route after that (it replanned) keeps the appointment as last
+    estimated. From its take-off on it flies its script at a constant speed, whatever the vehicle does."""
 
     def __init__(self, intruder: Intruder, route: np.ndarray | None = None) -> None:
         self.intruder = intruder
@@ -81,6 +81,7 @@ class IntruderTrack:
             self._route = np.asarray(route, dtype=float)
             self._route_cumulative = _cumulative(self._route)
             self._pace: list[tuple[float, float]] = []  # (mission s, m along the route) while on the route
+            self._eta: float | None = None  # the vehicle's last estimated arrival at the meeting point
             meet = np.asarray(intruder.meet, dtype=float)
             self._meet_on_route, _ = _arc_length_at(self._route, self._route_cumulative, meet)
             self._meet_on_path = _arc_length_at(self._points, self._cumulative, meet)[0]
@@ -98,17 +99,20 @@ class IntruderTrack:
         t = mission_time
         along, off = _arc_length_at(self._route, self._route_cumulative, np.asarray(position, dtype=float))
         if off > JOIN_M:
-            self._pace.clear()  # not on the route (yet, or overshooting its start): measure again once it is
-            return
-        self._pace.append((t, max(along, self._pace[-1][1] if self._pace else along)))
-        if t - self._pace[0][0] < SETTLE_S + PACE_WINDOW_S:
-            return  # no pace yet: the first seconds on the route it is still turning onto it and speeding up
-        t0, s0 = next(p for p in reversed(self._pace) if t - p[0] >= PACE_WINDOW_S)
-        pace = (self._pace[-1][1] - s0) / (t - t0)
-        left = self._meet_on_route - self._pace[-1][1]
-        if left <= 0 or pace <= 0:
-            return
-        eta = t + left / pace
+            if self._eta is None:
+                self._pace.clear()  # not on the route yet (or overshooting its start): measure again once it is
+                return
+            eta = self._eta  # it left the route (it replanned): the appointment stands as last estimated
+        else:
+            self._pace.append((t, max(along, self._pace[-1][1] if self._pace else along)))
+            if t - self._pace[0][0] < SETTLE_S + PACE_WINDOW_S:
+                return  # no pace yet: the first seconds on the route it is still turning onto it and speeding up
+            t0, s0 = next(p for p in reversed(self._pace) if t - p[0] >= PACE_WINDOW_S)
+            pace = (self._pace[-1][1] - s0) / (t - t0)
+            left = self._meet_on_route - self._pace[-1][1]
+            if left <= 0 or pace <= 0:
+                return
+            eta = self._eta = t + left / pace
         if t < eta - self._meet_on_path / self.intruder.speed:
             return
         lo, hi = SPEED_RANGE
