@@ -54,7 +54,10 @@ Left out (known differences from ArduPilot SITL):
   (SITL's first turn after take-off is wider, ~17°/s at 26 m/s against ~21°/s here: the climb-out reaches 235 m
   north instead of 270 m and the route start ~1.5 s earlier). A plane waypoint without a radius uses the
   scenario's (SITL's plane.parm WP_RADIUS is 50 m). A copter flies legs at the scenario's speed with instant
-  acceleration (ArduCopter: WPNAV_SPEED 10 m/s, 2.5 m/s²).
+  acceleration (ArduCopter: WPNAV_SPEED 10 m/s, 2.5 m/s²), braking at 2.5 m/s² only for the waypoint ahead.
+- Boot, plane: with ``wait_for_client`` the first HEARTBEAT a companion on the simulator's TCP port receives
+  already says STANDBY, mode MANUAL (SITL's comes while CALIBRATING, mode 16); the conformance test of the boot
+  is a strict expected failure on this backend.
 - A copter starts its mission at MISSION_START (ArduCopter already on entering AUTO armed); entering AUTO
   disarmed, ArduPlane already makes item 1 current ("Mission: 1 Takeoff", MISSION_CURRENT ACTIVE), the
   simulator only when armed.

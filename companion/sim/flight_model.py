@@ -7,7 +7,8 @@ vertical rate. The limits come from :class:`planner.config.VehicleLimits`:
   speed changes at most 1.3 m/s² and vertical rate at most 3.7 m/s² (so it overshoots a level-off as ArduPlane
   does). Take-off as measured on ArduPlane SITL: a ground roll on the current heading, then a full-throttle
   climb straight ahead (see :meth:`FlightModel.takeoff_roll` and :meth:`FlightModel.climb_straight`);
-- copter: points straight at its target, moves at most ``speed`` horizontally, climbs/descends at most
+- copter: points straight at its target, moves at most ``speed`` horizontally (braking at 2.5 m/s² for the
+  waypoint ahead, so it reaches it within 1-2 m as ArduCopter does), climbs/descends at most
   v·tan(max climb) on legs and at fixed vertical rates (2.5 m/s up, 1.5 m/s down, 0.5 m/s for the last 10 m of
   a landing; ArduCopter's WPNAV/LAND defaults) on take-off and landing; a climb accelerates at 1 m/s² and slows
   down on the last metres (ArduCopter's position controller, measured on SITL).
@@ -25,6 +26,7 @@ from planner.config import G0, VehicleLimits
 COPTER_CLIMB_RATE = 2.5  # m/s, WPNAV_SPEED_UP
 COPTER_DESCENT_RATE = 1.5  # m/s, WPNAV_SPEED_DN / LAND_SPEED_HIGH
 COPTER_LAND_RATE = 0.5  # m/s below 10 m, LAND_SPEED
+COPTER_WP_DECEL = 2.5  # m/s², a copter's braking for a waypoint (ArduCopter WPNAV_ACCEL 250 cm/s²)
 COPTER_CLIMB_ACCEL = 1.0  # m/s², vertical acceleration of a copter climb (SITL: 0 → 2.5 m/s in ~2.5 s)
 COPTER_CLIMB_DECEL = 0.55  # m/s², the slow-down before the target altitude (SITL: 2.15 m/s 4 m below it)
 COPTER_MIN_CLIMB = 0.3  # m/s, the slowest final approach of a climb
@@ -211,7 +213,8 @@ class FlightModel:
             return
         dx, dy = tx - s.x, ty - s.y
         dist = math.hypot(dx, dy)
-        step = min(self.airborne_speed * dt, dist)
+        # slowing for the waypoint as ArduCopter does (WPNAV_ACCEL): it reaches it at a walk, within 1-2 m
+        step = min(self.airborne_speed * dt, math.sqrt(2.0 * COPTER_WP_DECEL * dist) * dt, dist)
         if dist > 0.5:
             s.heading = bearing(dx, dy)
         s.speed = step / dt
