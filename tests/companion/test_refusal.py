@@ -19,22 +19,16 @@ import pytest
 from companion.builder import mission_from_plan_json
 from companion.errors import UploadAborted
 from companion.events import EventLog
-from companion.items import compare_items
-from companion.storage import mission_difference
 from companion.link import Link
 from companion.protocol import MissionClient
 from companion.restore import restore_mission
 from companion.sim import SimAutopilot
 from companion.supervisor import FlightSupervisor
 from planner.scenario import load_scenario
+from readback import same_item, same_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
-
-
-def same_mission(a: list, b: list) -> bool:
-    """Equal missions, item 0 (ArduPilot's home) aside."""
-    return mission_difference(a, b) is None
 
 
 @pytest.fixture
@@ -70,7 +64,7 @@ def test_refusal_before_the_flight_restores_the_previous_mission(static_doc: dic
     error, readback, previous, items, records, refused, flown, armed = asyncio.run(
         _refused_before_flight(static_doc, k))
     assert [it.seq for it, _ in refused] == [k]  # the fault happened once, on item k of our upload
-    assert compare_items(refused[0][0], replace(items[k], current=0)) is None
+    assert same_item(refused[0][0], replace(items[k], current=0))
     mixed = refused[0][1]  # what the refusal left stored: neither mission
     assert not same_mission(mixed, previous) and not same_mission(mixed, items)
     # one clear line naming the item, the autopilot's answer and what the vehicle was left with

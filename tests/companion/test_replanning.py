@@ -16,8 +16,6 @@ import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.builder import mission_from_plan_json
-from companion.items import compare_items
-from companion.storage import mission_difference
 from companion.fly import truth_separations
 from companion.latency_bench import fly_on_sim
 from companion.replan import ReplanConfig
@@ -25,15 +23,11 @@ from companion.replanner import LiveReplanner
 from companion.sim import SimAutopilot
 from planner.cli import main
 from planner.scenario import load_scenario
+from readback import same_item, same_mission
 
 ROOT = Path(__file__).resolve().parents[2]
 DYNAMIC = ROOT / "sitl_scenarios" / "rescue_dynamic.toml"
 CROSSING = ROOT / "sitl_scenarios" / "crossing_traffic.toml"
-
-
-def same_mission(a: list, b: list) -> bool:
-    """Equal missions, item 0 (ArduPilot's home) aside."""
-    return mission_difference(a, b) is None
 
 
 def _plan(tmp_path_factory: pytest.TempPathFactory, scenario: Path, overrides: Sequence[str] = ()) -> Path:
@@ -71,16 +65,20 @@ def _intruder_ids(scenario: Path) -> set[str]:
 def test_rescue_dynamic_replans_and_keeps_separation(dynamic_plan: Path, tmp_path: Path) -> None:
     code, fl, events = _fly(dynamic_plan, tmp_path / "rep")
     assert code == 0 and fl["completed"] is True
-    assert fl["replans"] >= 1
+    assert fl["replan_attempts"] >= 1
     seps = fl["min_separation_m"]
     assert _intruder_ids(DYNAMIC) <= set(seps)
     for tid in _intruder_ids(DYNAMIC):
         assert seps[tid] >= fl["d_coll_m"], (tid, seps[tid])
-    assert fl["replan_latency_s"]["n"] == fl["replans"]
     names = [e["event"] for e in events]
-    assert names.index("conflict") < names.index("replan_planned") < names.index("replanned")
-    done = [e for e in events if e["event"] == "replanned"]
-    assert all(e["sep_after_m"] >= fl["d_coll_m"] for e in done)
+    assert names.index("conflict") < names.index("replan_planned")
+    if fl["replans"]:  # a new mission made live
+        assert fl["replan_latency_s"]["n"] == fl["replans"]
+        assert names.index("replan_planned") < names.index("replanned")
+        done = [e for e in events if e["event"] == "replanned"]
+        assert all(e["sep_after_m"] >= fl["d_coll_m"] for e in done)
+    else:  # or, with no safe detour found in time, held until the intruder had passed
+        assert "hold" in names and "resume" in names
     assert (tmp_path / "rep" / "track.png").stat().st_size > 0
 
 
@@ -99,9 +97,9 @@ def test_two_intruders_in_a_static_field(crossing_plan: Path, tmp_path: Path, re
     code, fl, _ = _fly(crossing_plan, tmp_path / "rep", *([] if replan else ["--no-replan"]), speedup=10.0)
     assert code == 0 and fl["completed"] is True
     seps = [fl["min_separation_m"][t] for t in sorted(_intruder_ids(CROSSING))]
-    assert len(seps) == 2
+    assert len(seps) == 2 and None not in seps  # both flew (None: never in the air)
     if replan:
-        assert fl["replans"] >= 1
+        assert fl["replan_attempts"] >= 1
         assert min(seps) >= fl["d_coll_m"], seps
         assert fl["min_clearance_m"] >= fl["d_coll_m"]  # and the static field was respected meanwhile
     else:
@@ -111,6 +109,10 @@ def test_two_intruders_in_a_static_field(crossing_plan: Path, tmp_path: Path, re
 def _latest_verified(verified: list[tuple[float, list]], t: float) -> list:
     return [items for tv, items in verified if tv <= t][-1]
 
+
+# tests that need a replan made live: a budget in which the planner finds a safe detour every
+# time (with the default 0.15 s it sometimes holds the vehicle instead, and nothing is uploaded)
+UPLOADS = ReplanConfig(budget_s=0.5)
 
 # same route; the copter climbs vertically, and the intruder's meet timing follows it
 COPTER = ['vehicle.type="copter"']
@@ -134,7 +136,7 @@ def _assert_only_verified_items_flown(verified: list, flown: list, min_flown: in
     for t_wall, _t_sim, item in flown:
         mission = _latest_verified(verified, t_wall)
         assert item.seq < len(mission), (item.seq, len(mission))
-        assert compare_items(mission[item.seq], item) is None, (item.seq, item)
+        assert same_item(mission[item.seq], item), (item.seq, item)
 
 
 @pytest.mark.parametrize("vehicle", ["plane", "copter"])
@@ -152,11 +154,11 @@ def test_failed_replan_upload_never_flies_a_mixed_mission(dynamic_plan: Path, dy
     def stall(sim: SimAutopilot) -> None:
         sim.inject_upload_stall(upload=2, first_lost=-4)  # upload 1 is the initial mission
 
-    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 10.0, ReplanConfig(), before=stall))
+    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 10.0, UPLOADS, before=stall))
     # the fault really left a mixed mission on the vehicle: equal to no verified mission
     assert sim.abandoned_uploads
     for mixed in sim.abandoned_uploads:
-        assert all(len(mixed) != len(v) or any(compare_items(a, b) for a, b in zip(v, mixed))
+        assert all(len(mixed) != len(v) or any(not same_item(a, b) for a, b in zip(v, mixed))
                    for _t, v in verified)
     # every item the vehicle began was the verified mission's item at that moment
     _assert_only_verified_items_flown(verified, flown)
@@ -170,7 +172,7 @@ def test_failed_replan_upload_never_flies_a_mixed_mission(dynamic_plan: Path, dy
     # and the vehicle ends with the last verified mission stored
     last, final = verified[-1][1], sim.mission
     assert len(final) == len(last)
-    assert all(compare_items(a, b) is None for a, b in zip(last[1:], final[1:]))  # home (item 0) is the vehicle's
+    assert all(same_item(a, b) for a, b in zip(last[1:], final[1:]))  # home (item 0) is the vehicle's
 
 
 @pytest.mark.parametrize("vehicle,times", [("plane", 1), ("copter", 1), ("plane", None)])
@@ -190,7 +192,7 @@ def test_refused_replan_upload_restores_a_verified_mission(dynamic_plan: Path, d
         if item.seq <= 1:  # an upload begins (home, item 0, is never checked): the takeoff is never new
             first_new[0] = -1
             return False
-        if item.seq < len(initial) and compare_items(replace(initial[item.seq], current=0), item) is None:
+        if item.seq < len(initial) and same_item(replace(initial[item.seq], current=0), item):
             return False  # an old item
         if first_new[0] < 0:
             first_new[0] = item.seq
@@ -200,14 +202,16 @@ def test_refused_replan_upload_restores_a_verified_mission(dynamic_plan: Path, d
     def refuse(sim: SimAutopilot) -> None:
         sim.inject_item_refusal(None, mavlink.MAV_MISSION_NO_SPACE, times=times, when=second_new_item)
 
-    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 10.0, ReplanConfig(), before=refuse))
+    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 10.0, UPLOADS, before=refuse))
     names = [r["event"] for r in records]
     assert sim.refusals, "no replan upload was refused: the fault never happened"
     for _item, mixed in sim.refusals:  # each refusal really left a mission nobody verified
         assert not any(same_mission(mixed, v) for _t, v in verified)
     restores = [r for r in records if r["event"] == "mission_restored"]
     assert restores and all(r["which"] == "previous" for r in restores)
-    assert names.index("hold") < names.index("replan_upload_failed") < names.index("mission_restored")
+    # held once the upload failed, if not before (the commit point's lead keeps a plane off the rewritten slots)
+    assert names.index("replan_upload_failed") < names.index("mission_restored")
+    assert names.index("hold") < names.index("mission_restored")
     _assert_only_verified_items_flown(verified, flown, 6 if times == 1 else 2)  # refused for good: held early
     if times == 1:
         assert len(sim.refusals) == 1
@@ -236,13 +240,15 @@ def test_link_outage_pauses_replanning_then_it_resumes_from_fresh_telemetry(dyna
             await asyncio.sleep(0.02)
         sim.inject_outage(6.0)
 
-    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 4.0, ReplanConfig(), during=cut))
+    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 4.0, UPLOADS, during=cut))
     names = [r["event"] for r in records]
     assert out.completed, out.reason
     paused = next(i for i, r in enumerate(records) if r["event"] == "replanning_paused")
     assert records[paused]["reason"] == "link lost"
     assert names.index("link_lost") < paused < names.index("link_restored") < names.index("resync") \
-        < names.index("replanning_resumed") < names.index("conflict") < names.index("replanned")
+        < names.index("replanning_resumed") < names.index("conflict")
+    acted = names[names.index("conflict"):]
+    assert "replanned" in acted or "hold" in acted  # a new mission made live, or held until the threat passed
     assert not {"conflict", "hold", "replan_planned"} & set(names[paused:names.index("replanning_resumed")])
     assert next(r for r in records if r["event"] == "link_restored")["outage_s"] >= 5.0
     _assert_only_verified_items_flown(verified, flown)
@@ -257,16 +263,16 @@ def test_replanner_leaves_a_failsafe_mode_alone(dynamic_plan: Path) -> None:
     sc = load_scenario(DYNAMIC)
 
     async def failsafe(sim: SimAutopilot, rp: LiveReplanner) -> None:
-        while sim.mission_time is None or sim.mission_time < 6.0:  # the intruder is reported from 10 s
+        # as the intruder takes off (timed by its meet point, once the vehicle is on its route)
+        while sim.mission_time is None or not any(t.start_time is not None for t in sim._tracks):
             await asyncio.sleep(0.01)
         sim.force_mode("RTL")
 
     out, records, verified, _flown, sim = asyncio.run(
         _harness(sc, doc, 20.0, ReplanConfig(), during=failsafe, flight_timeout=8.0))  # RTL never completes
     names = [r["event"] for r in records]
-    assert "replanning_paused" in names
+    assert "replanning_paused" in names and "track" in names  # the intruder was seen
     after = names[names.index("replanning_paused"):]
-    assert "track" in after  # the intruder was seen while paused
     assert not {"conflict", "hold", "resume", "mode"} & set(after), after
     assert sim.mode == "RTL" and not out.completed
     assert len(verified) == 1

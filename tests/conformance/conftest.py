@@ -35,7 +35,6 @@ path); fixtures come, as usual, by name.
 from __future__ import annotations
 
 import contextlib
-import inspect
 import math
 import os
 import threading
@@ -242,12 +241,12 @@ class Vehicle:
 # The simulator's options that make it behave as SITL rather than as the other layers' tests want it (a boot
 # phase, readiness after boot, telemetry only when asked, SITL's runway heading); passed only where its
 # constructor has them, as the simulator grows them.
-SIM_AS_SITL = {"boot_s": None, "ready_after_s": None, "streams_unasked": None, "heading_deg": 0.0}
+SIM_AS_SITL = {"boot_s": None, "ready_after_s": None, "streams_unasked": None, "heading_deg": 0.0,
+               "wait_for_client": True}
 
 
 def _sim_as_sitl() -> dict[str, Any]:
-    accepted = inspect.signature(SimAutopilot).parameters
-    return {k: v for k, v in SIM_AS_SITL.items() if k in accepted}
+    return dict(SIM_AS_SITL)
 
 
 @contextlib.asynccontextmanager
@@ -370,3 +369,16 @@ async def no_leaks() -> AsyncIterator[None]:
     pytest.fail("test leaked " + "; ".join(problems))
 
 
+
+
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """``@pytest.mark.xfail_backends({backend: reason})``: a known difference of that backend from the real
+    autopilot, expected to fail (strict: it is reported the day it passes)."""
+    for item in items:
+        marker = item.get_closest_marker("xfail_backends")
+        callspec = getattr(item, "callspec", None)
+        if marker is None or callspec is None:
+            continue
+        reason = marker.args[0].get(callspec.params.get("backend"))
+        if reason:
+            item.add_marker(pytest.mark.xfail(reason=reason, strict=True))

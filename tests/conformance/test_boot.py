@@ -22,6 +22,9 @@ def _mission() -> list:
     return numbered([home_item(), takeoff(40.0), waypoint(200.0, 0.0, 40.0)])
 
 
+@pytest.mark.xfail_backends(
+    {"sim-plane": "simulator: its plane's first HEARTBEAT reaches a companion after its boot has ended "
+                  "(SITL's comes while CALIBRATING in mode 16); listed in companion.sim's docstring"})
 async def test_upload_refused_while_booting_then_accepted_once_booted(fresh, measure) -> None:
     async with fresh() as v:
         t0 = time.monotonic()

@@ -14,6 +14,7 @@ from planner.cli import main
 from planner.scenario import load_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "sitl_scenarios"
+FAST = 20.0  # SITL speed-up of the flights without replanning (the replanning ones fly at 10: wall-clock budgets)
 
 
 def _fly(scenario: Path, url: str, report: Path, *extra: str) -> tuple[int, dict, list[dict]]:
@@ -51,7 +52,7 @@ def test_plane_scenarios_fly_on_arduplane_with_default_options(sitl_factory_fn, 
     scenario = SCENARIOS / f"{name}.toml"
     sc = load_scenario(scenario)
     assert sc.vehicle.type == "plane"
-    sitl = sitl_factory_fn("plane", sc.home)
+    sitl = sitl_factory_fn("plane", sc.home, speedup=FAST)
     code, flight, events = _fly(scenario, sitl.serial0_url, tmp_path / "rep")
     assert code == 0, flight
     assert flight["completed"] is True and flight["fence_items"] > 0
@@ -67,7 +68,7 @@ def test_copter_scenario_flies_on_arducopter(sitl_factory_fn, tmp_path: Path) ->
     scenario = SCENARIOS / "mountain_rescue.toml"
     sc = load_scenario(scenario)
     assert sc.vehicle.type == "copter"
-    sitl = sitl_factory_fn("copter", sc.home)
+    sitl = sitl_factory_fn("copter", sc.home, speedup=FAST)
     code, flight, events = _fly(scenario, sitl.serial0_url, tmp_path / "rep")
     assert code == 0, flight
     assert flight["completed"] is True
