@@ -6,54 +6,23 @@ from __future__ import annotations
 
 import asyncio
 import copy
-import os
 import socket
-import threading
 from collections.abc import Callable
 from pathlib import Path
 
 import pytest
 import pytest_asyncio
+from leaks import Snapshot, fail_on_leaks
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-
-
-def _socket_fds() -> set[str]:
-    found = set()
-    for fd in os.listdir("/proc/self/fd"):
-        try:
-            target = os.readlink(f"/proc/self/fd/{fd}")
-        except OSError:
-            continue
-        if target.startswith("socket:"):
-            found.add(f"{fd}->{target}")
-    return found
 
 
 @pytest_asyncio.fixture(autouse=True)
 async def no_leaks():
     """Fail a test that leaves asyncio tasks, threads or open sockets behind (after a short grace period
     for things already closing)."""
-    me = asyncio.current_task()
-    tasks_before = {t for t in asyncio.all_tasks() if t is not me}
-    threads_before = set(threading.enumerate())
-    sockets_before = _socket_fds()
+    before = Snapshot.take()
     yield
-    me = asyncio.current_task()
-    for _ in range(40):
-        tasks = {t for t in asyncio.all_tasks() if t is not me and not t.done()} - tasks_before
-        threads = {t for t in threading.enumerate() if t.is_alive()} - threads_before
-        sockets = _socket_fds() - sockets_before
-        if not (tasks or threads or sockets):
-            return
-        await asyncio.sleep(0.05)
-    problems = []
-    if tasks:
-        problems.append(f"tasks: {sorted(t.get_name() for t in tasks)}")
-    if threads:
-        problems.append(f"threads: {sorted(t.name for t in threads)}")
-    if sockets:
-        problems.append(f"sockets: {sorted(sockets)}")
-    pytest.fail("test leaked " + "; ".join(problems))
+    await fail_on_leaks(before)
 
 
 class RawPeer:

@@ -36,8 +36,6 @@ from __future__ import annotations
 
 import contextlib
 import math
-import os
-import threading
 import time
 from collections.abc import AsyncIterator, Callable, Iterable
 from dataclasses import dataclass, replace
@@ -48,6 +46,7 @@ import pymap3d
 import pytest
 import pytest_asyncio
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from leaks import Snapshot, fail_on_leaks
 from sitl_harness import SitlInstance, unavailable
 
 from companion.events import EventLog
@@ -334,39 +333,13 @@ def launch(request: pytest.FixtureRequest, backend: str) -> Callable[[], context
 
 
 # --------------------------------------------------------------------------------------------- leaks
-def _socket_fds() -> set[str]:
-    found = set()
-    for fd in os.listdir("/proc/self/fd"):
-        with contextlib.suppress(OSError):
-            target = os.readlink(f"/proc/self/fd/{fd}")
-            if target.startswith("socket:"):
-                found.add(f"{fd}->{target}")
-    return found
-
-
 @pytest_asyncio.fixture(autouse=True, loop_scope="module")
 async def no_leaks() -> AsyncIterator[None]:
     """As tests/companion's: a test leaves no asyncio task, thread or socket of its own behind (the module-shared
     vehicle's exist before and after)."""
-    import asyncio
-
-    me = asyncio.current_task()
-    tasks_before = {t for t in asyncio.all_tasks() if t is not me}
-    threads_before = set(threading.enumerate())
-    sockets_before = _socket_fds()
+    before = Snapshot.take()
     yield
-    me = asyncio.current_task()
-    for _ in range(40):
-        tasks = {t for t in asyncio.all_tasks() if t is not me and not t.done()} - tasks_before
-        threads = {t for t in threading.enumerate() if t.is_alive()} - threads_before
-        sockets = _socket_fds() - sockets_before
-        if not (tasks or threads or sockets):
-            return
-        await asyncio.sleep(0.05)
-    problems = [f"tasks: {sorted(t.get_name() for t in tasks)}"] if tasks else []
-    problems += [f"threads: {sorted(t.name for t in threads)}"] if threads else []
-    problems += [f"sockets: {sorted(sockets)}"] if sockets else []
-    pytest.fail("test leaked " + "; ".join(problems))
+    await fail_on_leaks(before)
 
 
 

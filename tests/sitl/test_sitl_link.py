@@ -10,15 +10,14 @@ from __future__ import annotations
 
 import asyncio
 import json
-import os
 import socket
-import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
 import pytest
+from leaks import Snapshot, fail_on_leaks_sync
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -61,31 +60,13 @@ def plan_doc() -> dict:
     return doc
 
 
-def _socket_fds() -> set[str]:
-    found = set()
-    for fd in os.listdir("/proc/self/fd"):
-        try:
-            target = os.readlink(f"/proc/self/fd/{fd}")
-        except OSError:
-            continue
-        if target.startswith("socket:"):
-            found.add(f"{fd}->{target}")
-    return found
-
-
 @pytest.fixture(autouse=True)
 def no_leaks():
     """Fail a test that leaves a thread or a socket of this process open (as tests/companion's ``no_leaks``;
     SITL processes and their ports are checked by the SITL fixture's own stop)."""
-    threads, sockets = set(threading.enumerate()), _socket_fds()
+    before = Snapshot.take(with_tasks=False)
     yield
-    for _ in range(40):
-        left_threads = {t for t in threading.enumerate() if t.is_alive()} - threads
-        left_sockets = _socket_fds() - sockets
-        if not (left_threads or left_sockets):
-            return
-        time.sleep(0.05)
-    pytest.fail(f"test leaked threads {sorted(t.name for t in left_threads)}, sockets {sorted(left_sockets)}")
+    fail_on_leaks_sync(before)
 
 
 def _port(url: str) -> int:
