@@ -24,6 +24,7 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from companion.geo import geodetic_to_enu
 from companion.link import MAV_COMP_ID_ADSB, Link, Message
+from companion.modes import mode_number
 from companion.separation import Separation, min_separations
 from companion.sim.intruders import IntruderTrack, adsb_report
 from companion.telemetry import Rate, TelemetryRates
@@ -33,7 +34,6 @@ log = logging.getLogger(__name__)
 
 REPORT_HZ = 2.0  # ADS-B reports per second of vehicle time (a receiver hears each aircraft about once a second)
 FEED_RATES = (Rate("GLOBAL_POSITION_INT", 10.0, mavlink.MAV_DATA_STREAM_POSITION, "vehicle clock and truth"),)
-AUTO_MODES = {(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, True): 10, (mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, False): 3}
 
 
 class TrafficFeed:
@@ -75,9 +75,8 @@ class TrafficFeed:
         with self.link.subscribe("GLOBAL_POSITION_INT", "HEARTBEAT") as sub:
             async for msg in sub:
                 if msg.get_type() == "HEARTBEAT":
-                    auto = AUTO_MODES.get((msg.autopilot, msg.type == mavlink.MAV_TYPE_FIXED_WING))
                     self._in_auto = bool(msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED) and \
-                        msg.custom_mode == auto
+                        msg.custom_mode == mode_number(msg.autopilot, msg.type, "AUTO")
                 else:
                     self._position(msg)
 
