@@ -304,7 +304,7 @@ def test_replan_latency_bench_writes_its_report(dynamic_plan: Path, tmp_path: Pa
     from companion.latency_bench import run_latency_bench
 
     runs = run_latency_bench([(json.loads(dynamic_plan.read_text()), load_scenario(DYNAMIC))], runs=1,
-                             speedup=10.0, output=tmp_path)
+                             speedup=10.0, output=tmp_path, cfg=UPLOADS)
     assert len(runs) == 1 and runs[0].status in ("exact", "approximate")
     assert 0 < runs[0].plan_s <= runs[0].latency_s and runs[0].sep_after_m >= 10.0
     rows = list(csv.DictReader((tmp_path / "replan.csv").open()))
