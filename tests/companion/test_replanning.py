@@ -301,13 +301,21 @@ def test_replan_latency_bench_writes_its_report(dynamic_plan: Path, tmp_path: Pa
     targets live in the bench's report, not in tests)."""
     import csv
 
-    from companion.latency_bench import run_latency_bench
+    from companion.latency_bench import NO_CONFLICT, NOT_LIVE, run_latency_bench
 
     runs = run_latency_bench([(json.loads(dynamic_plan.read_text()), load_scenario(DYNAMIC))], runs=1,
                              speedup=10.0, output=tmp_path, cfg=UPLOADS)
-    assert len(runs) == 1 and runs[0].status in ("exact", "approximate")
-    assert 0 < runs[0].plan_s <= runs[0].latency_s and runs[0].sep_after_m >= 10.0
+    assert len(runs) == 1
+    run = runs[0]
     rows = list(csv.DictReader((tmp_path / "replan.csv").open()))
-    assert len(rows) == 1 and rows[0]["scenario"] == "rescue_dynamic"
+    assert len(rows) == 1 and rows[0]["scenario"] == "rescue_dynamic" and rows[0]["status"] == run.status
     md = (tmp_path / "replan.md").read_text()
-    assert "| rescue_dynamic | 10× | 1 | 1 |" in md
+    # The conflict is always seen; whether a detour goes live before the guard's deadline depends on how much
+    # search the machine affords in the budget. Either way the run is reported as what happened.
+    assert run.status != NO_CONFLICT
+    if run.status == NOT_LIVE:
+        assert run.held and "| rescue_dynamic | 10× | 1 | 0 |" in md and "MISSES" in md
+    else:
+        assert run.status in ("exact", "approximate")
+        assert 0 < run.plan_s <= run.latency_s and run.sep_after_m >= 10.0
+        assert "| rescue_dynamic | 10× | 1 | 1 |" in md
