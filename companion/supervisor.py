@@ -104,7 +104,8 @@ class FlightSupervisor:
 
     def _refused_while_booting(self, e: Exception) -> bool:
         """An upload refused with MAV_MISSION_NO_SPACE by an autopilot that is booting or has just booted
-        (its mission storage is not ready yet): worth doing again, unlike a real lack of space."""
+        (its mission storage is not ready yet): worth doing again, unlike a real lack of space. (A fence or
+        rally upload during the boot is not refused: ArduPilot answers it once booted.)"""
         if not (isinstance(e, MissionUploadError) and e.result == mavlink.MAV_MISSION_NO_SPACE):
             return False
         hb = self.link.last_heartbeat_msg

@@ -13,8 +13,9 @@ and checks the simulator against them. When the two disagree, the simulator is w
 Imitated:
 
 - Boot (``boot_s=None``): HEARTBEAT from ~half-way through, CALIBRATING in mode 16 INITIALISING (plane) or BOOT
-  (copter); a mission upload refused with MAV_MISSION_NO_SPACE ("Only 0 items are supported"), a fence upload
-  with MAV_MISSION_UNSUPPORTED, arming with "Arm: System not initialised"; then STANDBY and "ArduPilot Ready"
+  (copter), and what a client sent before it lost; a mission upload refused with MAV_MISSION_NO_SPACE ("Only 0
+  items are supported"), a fence or rally upload answered only once booted, arming with "Arm: System not
+  initialised"; then STANDBY and "ArduPilot Ready"
   (1.7 s plane, 2.5 s copter). Until home is set a download says count 0 (item 0 all zeros) and arming fails
   with a pre-arm text; GPS fix (type 6, as SITL's), home, EKF flags 0x33f and the pre-arm bit come together.
 - HEARTBEAT as ArduPilot fills it (base_mode 81, + GUIDED in position-controlled modes, + ARMED; system_status
@@ -55,9 +56,6 @@ Left out (known differences from ArduPilot SITL):
   north instead of 270 m and the route start ~1.5 s earlier). A plane waypoint without a radius uses the
   scenario's (SITL's plane.parm WP_RADIUS is 50 m). A copter flies legs at the scenario's speed with instant
   acceleration (ArduCopter: WPNAV_SPEED 10 m/s, 2.5 m/s²), braking at 2.5 m/s² only for the waypoint ahead.
-- Boot, plane: with ``wait_for_client`` the first HEARTBEAT a companion on the simulator's TCP port receives
-  already says STANDBY, mode MANUAL (SITL's comes while CALIBRATING, mode 16); the conformance test of the boot
-  is a strict expected failure on this backend.
 - A copter starts its mission at MISSION_START (ArduCopter already on entering AUTO armed); entering AUTO
   disarmed, ArduPlane already makes item 1 current ("Mission: 1 Takeoff", MISSION_CURRENT ACTIVE), the
   simulator only when armed.

@@ -48,7 +48,6 @@ COPTER_MODES = {"STABILIZE": 0, "ACRO": 1, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4
 # INITIALISING (plane) / BOOT (copter), then STANDBY and "ArduPilot Ready" at 1.7 s (plane) / 2.5 s (copter).
 BOOT_S = {"plane": 1.7, "copter": 2.5}
 FIRST_HEARTBEAT_FRACTION = 0.5  # of the boot: nothing but STATUSTEXT before (SITL: first HEARTBEAT at 0.9 s)
-MISSION_UNSUPPORTED_S = 0.1  # sim s: any upload → MAV_MISSION_UNSUPPORTED (SITL, before its mission library is up)
 READY_AFTER_BOOT_S = 1.0  # default sim s from the end of boot to GPS fix, home, EKF good and pre-arm checks passed
 # (SITL takes ~20 s: its IMU consistency checks; short here so that tests do not wait)
 PREARM_TEXT = {"plane": "Arm: AHRS: waiting for home", "copter": "Arm: Gyros inconsistent"}  # seen on SITL
@@ -384,9 +383,9 @@ class SimAutopilot:
             self._step(dt)
             booting = not self.booted
             self._sim_time += dt
-            self._server.tick(self._sim_time)
             if booting and self.booted:
                 self._text(mavlink.MAV_SEVERITY_INFO, "ArduPilot Ready")
+            self._server.tick(self._sim_time)
             if not self._ready and self._sim_time >= self.ready_after_s:
                 self._ready = True
                 self._text(mavlink.MAV_SEVERITY_INFO, "EKF3 IMU0 is using GPS")
@@ -400,7 +399,8 @@ class SimAutopilot:
         loop = asyncio.get_running_loop()
         while True:
             now = loop.time()
-            wake = now + 0.2
+            # while booting, look often: the first HEARTBEAT (and the end of boot) is a matter of sim tenths
+            wake = now + (0.2 if self.booted else min(0.2, 0.02 / self.speedup + 0.002))
             for key in (*PRODUCED, "receiver"):
                 hz = self._rate(key)
                 if hz <= 0.0:
@@ -480,13 +480,11 @@ class SimAutopilot:
             self._change_signature = (self._nav.current_seq, signature[1])
 
     def _capacity(self, mission_type: int) -> int | None:
-        """Items an upload may have now: while booting a mission has room for none and the other lists do not
-        exist yet (and for the first moment not even the mission)."""
+        """Items an upload may have now: while booting a mission has room for none and the other lists are not
+        loaded yet."""
         if self.booted:
             return MAX_ITEMS.get(mission_type)
-        if mission_type == MISSION and self._sim_time >= MISSION_UNSUPPORTED_S:
-            return 0
-        return None
+        return 0 if mission_type == MISSION else None
 
     def _item_to_enu(self, item: MissionItem) -> tuple[float, float, float]:
         s = self._model.state
@@ -591,6 +589,8 @@ class SimAutopilot:
         target = getattr(msg, "target_system", 0)
         if target not in (0, self.system_id):
             return
+        if self._sim_time < FIRST_HEARTBEAT_FRACTION * self.boot_s:
+            return  # SITL: what a client sends before the first HEARTBEAT is lost
         try:
             if self._stalled(msg):
                 return

@@ -7,7 +7,7 @@ ArduPilot behaviour reproduced (../shared/AUTOPILOT_FACTS.md, ``libraries/GCS_MA
 
 - Uploads are requested with the legacy MISSION_REQUEST (id 40); MISSION_ITEM_INT and MISSION_ITEM are accepted.
 - A request is repeated after 1 s without an item; after 8 s without progress the upload is abandoned with
-  STATUSTEXT "Mission upload timeout" and MISSION_ACK MAV_MISSION_OPERATION_CANCELLED.
+  MISSION_ACK MAV_MISSION_OPERATION_CANCELLED, then STATUSTEXT "Mission upload timeout" ("Fence …", "Rally …").
 - An item whose seq is not the one requested → MISSION_ACK MAV_MISSION_INVALID_SEQUENCE (the upload goes on and
   the request is repeated on the next timeout); an item from another sysid/compid → MAV_MISSION_DENIED; an item
   while no upload runs → MAV_MISSION_ERROR; MISSION_COUNT from another sender during an upload → DENIED (the same
@@ -30,10 +30,10 @@ ArduPilot behaviour reproduced (../shared/AUTOPILOT_FACTS.md, ``libraries/GCS_MA
 - Items are kept as ArduPilot stores them: :func:`companion.storage.stored` for the vehicle's firmware (fence
   points in frame GLOBAL with autocontinue 0 and only param1, NAV_WAYPOINT's radii on a plane / hold time on a
   copter, commands without a position in frame GLOBAL…), so a readback is the real one.
-- While booting (``capacity`` says so) an upload is refused at MISSION_COUNT: a mission with
-  MAV_MISSION_NO_SPACE and STATUSTEXT "Only 0 items are supported", a fence or rally list with
-  MAV_MISSION_UNSUPPORTED (and in the first ~0.1 s a mission too). Until home is set (``home_set``) an
-  untouched mission reads back with count 0, and item 0 as all zeros.
+- While booting (``capacity`` says so) a mission upload is refused at MISSION_COUNT with MAV_MISSION_NO_SPACE
+  and STATUSTEXT "Only 0 items are supported"; a fence or rally MISSION_COUNT gets no answer until the boot is
+  over, then its upload starts (SITL: the first MISSION_REQUEST ~0.1 s after "ArduPilot Ready"). Until home is
+  set (``home_set``) an untouched mission reads back with count 0, and item 0 as all zeros.
 """
 
 from __future__ import annotations
@@ -52,6 +52,7 @@ logger = logging.getLogger(__name__)
 
 REQUEST_RESEND_S = 1.0  # ArduPilot: 1000 ms (+ stream slow-down) without an item → request again
 UPLOAD_TIMEOUT_S = 8.0  # ArduPilot upload_timeout_ms
+LIST_NAME = {MISSION: "Mission", FENCE: "Fence", RALLY: "Rally"}  # in ArduPilot's STATUSTEXTs
 MAX_ITEMS = {MISSION: 724, FENCE: 84, RALLY: 20}  # what a 16 kB-storage board holds (rally: not measured)
 
 GLOBAL_FRAMES = frozenset({
@@ -138,7 +139,8 @@ class MissionServer:
     ``mission[0]`` is always the home item; ``home_item()`` supplies the live one for downloads.
     ``running()`` tells whether the mission is executing (MISSION_CLEAR_ALL is refused then).
     ``on_set_current(seq)`` handles MISSION_SET_CURRENT. Items are stored as ``firmware`` stores them.
-    ``capacity(mission_type)``: how many items an upload may have now (None: that list is not available yet);
+    ``capacity(mission_type)``: how many items an upload may have now (None: that list is not loaded yet, its
+    MISSION_COUNT is answered once it is);
     ``home_set()``: False until the vehicle has a home (an untouched mission reads back empty until then).
     """
 
@@ -158,6 +160,7 @@ class MissionServer:
         self._written = False  # a mission was uploaded since power-up
         self.lists: dict[int, list[MissionItem]] = {MISSION: [home_item()], FENCE: [], RALLY: []}
         self._uploads: dict[int, _Upload] = {}
+        self._deferred: dict[int, mavlink.MAVLink_message] = {}  # MISSION_COUNTs received while booting
         self.completed_uploads = 0
         self.abandoned: list[list[MissionItem]] = []  # the mission as left by each abandoned upload
         self.refuse: Callable[[MissionItem], int] | None = None  # fault injection: a result for an item, or ACCEPTED
@@ -191,14 +194,19 @@ class MissionServer:
         return True
 
     def tick(self, now: float) -> None:
-        """Re-request overdue items and abandon stalled uploads (sim-time clock)."""
+        """Start deferred uploads whose list is ready, re-request overdue items and abandon stalled uploads
+        (sim-time clock)."""
+        for mission_type, msg in list(self._deferred.items()):
+            if self._capacity(mission_type) is not None:
+                del self._deferred[mission_type]
+                self._count(msg, now)
         for mission_type, up in list(self._uploads.items()):
             if now - up.last_receive_t > UPLOAD_TIMEOUT_S:
                 del self._uploads[mission_type]
                 if mission_type == MISSION:
                     self.abandoned.append(list(self.mission))
-                self._text(mavlink.MAV_SEVERITY_WARNING, "Mission upload timeout")
                 self._ack_to(up.sysid, up.compid, mavlink.MAV_MISSION_OPERATION_CANCELLED, mission_type)
+                self._text(mavlink.MAV_SEVERITY_WARNING, f"{LIST_NAME[mission_type]} upload timeout")
                 logger.info("simulator: upload of type %d abandoned at item %d", mission_type, up.next_seq)
             elif now - up.last_request_t > REQUEST_RESEND_S:
                 self._request_next(mission_type, up, now)
@@ -248,8 +256,8 @@ class MissionServer:
                 return
             del self._uploads[mission_type]  # the same uploader restarts
         capacity = self._capacity(mission_type)
-        if capacity is None:  # still booting: that list does not exist yet
-            self._ack(msg, mavlink.MAV_MISSION_UNSUPPORTED, mission_type)
+        if capacity is None:  # still booting, that list not loaded yet: answered once the boot is over
+            self._deferred[mission_type] = msg
             return
         if msg.count > capacity:
             self._ack(msg, mavlink.MAV_MISSION_NO_SPACE, mission_type)

@@ -20,7 +20,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.builder import mission_from_plan_json
 from companion.items import FENCE, RALLY, MissionItem, compare_items
 from companion.sim import SimAutopilot
-from companion.sim.autopilot import BOOT_S, PREARM_TEXT
+from companion.sim.autopilot import BOOT_S, FIRST_HEARTBEAT_FRACTION, PREARM_TEXT
 from companion.storage import Firmware, stored
 from planner.scenario import Scenario
 from test_sim import PLANE_MODES, Client, booted, item, route
@@ -50,8 +50,8 @@ async def _download_count(gcs: Client) -> int:
 # SITL, client connected at power-up: plane first HEARTBEAT 0.93 s (sim) system_status 2 CALIBRATING, custom mode
 # 16 INITIALISING, base_mode 17; STANDBY in MANUAL (base_mode 81) with "ArduPilot Ready" at 1.7 s. Copter first
 # HEARTBEAT 0.9 s system_status 1 BOOT, mode 0, base_mode 89; STANDBY (81) at 2.5 s. Until then a mission upload
-# gets MAV_MISSION_NO_SPACE + "Only 0 items are supported" (in the first ~0.1 s MAV_MISSION_UNSUPPORTED), a fence
-# upload MAV_MISSION_UNSUPPORTED, arming COMMAND_ACK FAILED + "Arm: System not initialised". After boot, until
+# gets MAV_MISSION_NO_SPACE + "Only 0 items are supported" (sent before the first HEARTBEAT: no answer at all), a
+# fence upload no answer until "ArduPilot Ready" (then its first MISSION_REQUEST), arming COMMAND_ACK FAILED + "Arm: System not initialised". After boot, until
 # home is set, a download says count 0 and arming fails with a pre-arm text ("Arm: AHRS: waiting for home" on the
 # plane, mostly "Arm: Gyros inconsistent" on the copter).
 BOOTING = {"plane": (mavlink.MAV_STATE_CALIBRATING, 16, 17), "copter": (mavlink.MAV_STATE_BOOT, 0, 89)}
@@ -70,8 +70,8 @@ async def test_boot_phase_as_sitl(static: Scenario, vehicle: str) -> None:  # no
         ack = await _count_to(gcs, 5)
         assert ack.get_type() == "MISSION_ACK" and ack.type == mavlink.MAV_MISSION_NO_SPACE
         await gcs.expect("STATUSTEXT", where=lambda m: m.text == "Only 0 items are supported", after=0)
-        ack = await _count_to(gcs, 2, FENCE)
-        assert ack.get_type() == "MISSION_ACK" and ack.type == mavlink.MAV_MISSION_UNSUPPORTED
+        fence_mark = gcs.mark()  # a fence upload during the boot: no answer until the boot is over
+        gcs.send(mavlink.MAVLink_mission_count_message(1, 1, 2, FENCE))
         mark = gcs.mark()
         assert await gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_FAILED
         await gcs.expect("STATUSTEXT", where=lambda m: m.text == "Arm: System not initialised", after=mark)
@@ -80,7 +80,10 @@ async def test_boot_phase_as_sitl(static: Scenario, vehicle: str) -> None:  # no
         hb = await gcs.expect("HEARTBEAT", where=booted, timeout=3.0 * BOOT_S[vehicle] / speedup)
         assert (hb.system_status, hb.custom_mode, hb.base_mode) == STANDBY
         assert sim.sim_time == pytest.approx(BOOT_S[vehicle], abs=1.2)  # 1 Hz heartbeats
-        await gcs.expect("STATUSTEXT", where=lambda m: m.text == "ArduPilot Ready", after=0)
+        ready = await gcs.expect("STATUSTEXT", where=lambda m: m.text == "ArduPilot Ready", after=0)
+        request = await gcs.expect("MISSION_REQUEST", where=lambda m: m.mission_type == FENCE, after=fence_mark)
+        assert request.seq == 0 and gcs.inbox.index(request) > gcs.inbox.index(ready)
+        gcs.send(mavlink.MAVLink_mission_ack_message(1, 1, mavlink.MAV_MISSION_OPERATION_CANCELLED, FENCE))
         # booted, home not set yet
         assert await _download_count(gcs) == 0
         mark = gcs.mark()
@@ -92,17 +95,20 @@ async def test_boot_phase_as_sitl(static: Scenario, vehicle: str) -> None:  # no
 
 
 @pytest.mark.asyncio
-async def test_mission_upload_in_the_first_moment_is_unsupported(static: Scenario) -> None:  # noqa: F811
-    """SITL: the first MISSION_COUNT, answered within ~0.1 s of power-up, got MAV_MISSION_UNSUPPORTED; the next
-    ones MAV_MISSION_NO_SPACE. (No socket: the simulator's answers as handed to its transport.)"""
+async def test_what_comes_before_the_first_heartbeat_is_lost(static: Scenario) -> None:  # noqa: F811
+    """SITL (client on SERIAL0 at power-up): a MISSION_COUNT sent before the first HEARTBEAT is never answered,
+    the next one after it gets MAV_MISSION_NO_SPACE. (No socket: the simulator's answers as handed to its
+    transport.)"""
     sim = SimAutopilot(static, "udpin:127.0.0.1:0", boot_s=None)
     replies: list[mavlink.MAVLink_message] = []
     sim._transport.send = lambda msg, component_id=None: replies.append(msg)  # type: ignore[method-assign]
     sim._on_message(mavlink.MAVLink_mission_count_message(1, 1, 3, 0))
     sim.advance(0.2)
+    assert not [m for m in replies if m.get_type() == "MISSION_ACK"]
+    sim.advance(FIRST_HEARTBEAT_FRACTION * sim.boot_s)
     sim._on_message(mavlink.MAVLink_mission_count_message(1, 1, 3, 0))
     acks = [m.type for m in replies if m.get_type() == "MISSION_ACK"]
-    assert acks == [mavlink.MAV_MISSION_UNSUPPORTED, mavlink.MAV_MISSION_NO_SPACE]
+    assert acks == [mavlink.MAV_MISSION_NO_SPACE]
 
 
 # --- readback -----------------------------------------------------------------------------------------------

@@ -13,7 +13,8 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.errors import CommandError, MissionUploadError
-from conformance.conftest import booting, collect, home_item, numbered, takeoff, texts, waypoint
+from companion.items import FENCE, compare_items
+from conformance.conftest import booting, collect, home_item, item, numbered, takeoff, texts, waypoint
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
@@ -22,9 +23,6 @@ def _mission() -> list:
     return numbered([home_item(), takeoff(40.0), waypoint(200.0, 0.0, 40.0)])
 
 
-@pytest.mark.xfail_backends(
-    {"sim-plane": "simulator: its plane's first HEARTBEAT reaches a companion after its boot has ended "
-                  "(SITL's comes while CALIBRATING in mode 16); listed in companion.sim's docstring"})
 async def test_upload_refused_while_booting_then_accepted_once_booted(fresh, measure) -> None:
     async with fresh() as v:
         t0 = time.monotonic()
@@ -50,6 +48,23 @@ async def test_upload_refused_while_booting_then_accepted_once_booted(fresh, mea
         assert not booting(v.link.last_heartbeat_msg, v.plane)
         got = await v.client.upload_verified(_mission())
         assert len(got) == 3
+
+
+async def test_fence_upload_refused_while_booting_is_retried_after_boot(fresh, measure) -> None:
+    """ArduPilot refuses a fence with MAV_MISSION_UNSUPPORTED until its fence storage is up; the supervisor's
+    upload at the first HEARTBEAT takes that for the boot's answer, waits for the boot and uploads again."""
+    fence = numbered([item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, 0.0, 0.0, param1=1500.0),
+                      item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, 300.0, 300.0, param1=40.0),
+                      item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, -300.0, 300.0, param1=40.0)], FENCE)
+    async with fresh() as v:
+        await v.link.wait_heartbeat(10.0)
+        await v.request_telemetry()
+        await v.supervisor.upload((), fence)
+        failed = [e for e in v.events.records if e["event"] == "upload_failed"]
+        measure(f"fence at the first HEARTBEAT: {[e['error'] for e in failed] or 'accepted at once'}")
+        assert all(e["retrying"] for e in failed), failed
+        got = await v.client.download(FENCE)
+        assert len(got) == 3 and all(compare_items(v.stored(s), g) is None for s, g in zip(fence, got))
 
 
 async def test_arming_before_ready_is_refused_with_a_reason(fresh, measure) -> None:

@@ -11,7 +11,7 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.errors import CommandError
-from companion.items import FENCE, RALLY, MissionItem, compare_items
+from companion.items import FENCE, MISSION, RALLY, MissionItem, compare_items
 from conformance.conftest import (HOME, NAN, collect, home_item, item, next_matching, numbered,
                                   takeoff, texts, waypoint)
 
@@ -238,3 +238,67 @@ async def test_copter_refuses_to_arm_in_auto_with_a_reason(vehicle, measure) -> 
         if hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
             await vehicle.client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0, 21196)
         await vehicle.supervisor.set_mode("STABILIZE")
+
+
+# ------------------------------------------------------------------------------------------------ abandoned uploads
+async def _abandoned_upload(vehicle, items: list[MissionItem], answered: int, mission_type: int) -> list:
+    """Start an upload of ``items`` by hand, answer the first ``answered`` requests, then fall silent as a
+    companion that lost its link would; returns the MISSION_ACKs and STATUSTEXTs seen until the autopilot gives
+    up (8 s of its time: 0.8 s wall at speed-up 10)."""
+    link = vehicle.link
+    ts, tc = link.target_system, link.target_component
+    is_request = lambda m: m.get_type() in ("MISSION_REQUEST", "MISSION_REQUEST_INT") \
+        and m.mission_type == mission_type  # noqa: E731
+    with link.subscribe("MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK", "STATUSTEXT") as sub:
+        link.send(mavlink.MAVLink_mission_count_message(ts, tc, len(items), mission_type))
+        sent = 0
+        while sent < answered:
+            req = await next_matching(sub, is_request, timeout=2.0)
+            if req.seq == sent:
+                link.send(items[sent].to_message(ts, tc))
+                sent += 1
+        ack = await next_matching(sub, lambda m: m.get_type() == "MISSION_ACK"
+                                  and m.mission_type == mission_type, timeout=5.0)
+        return [ack] + sub.drain() + await collect(sub, 0.2)
+
+
+def _ack_results(seen: list) -> list[int]:
+    return [m.type for m in seen if m.get_type() == "MISSION_ACK"]
+
+
+async def test_a_mission_upload_abandoned_part_way_leaves_old_and_new_items_mixed(vehicle, measure) -> None:
+    """AUTOPILOT_FACTS "Uploads are not atomic": MISSION_COUNT truncates the stored mission to the new count at
+    once and each item is written into place as it arrives, so an upload abandoned after k items leaves
+    new items 1..k-1, then the old mission's items up to the new count (companion.sim.mission_server)."""
+    old = numbered([home_item(), takeoff(40.0)] + [waypoint(100.0 * i, 0.0, 40.0) for i in range(1, 6)])  # 7
+    new = numbered([home_item(), takeoff(60.0)] + [waypoint(0.0, 100.0 * i, 60.0) for i in range(1, 4)])  # 5
+    await vehicle.client.upload_verified(old)
+    seen = await _abandoned_upload(vehicle, new, answered=3, mission_type=MISSION)  # home, takeoff, wp 1
+    measure(f"mission upload abandoned after 3 of 5 items: MISSION_ACK {_ack_results(seen)}, "
+            f"STATUSTEXT {texts(seen)}")
+    assert _ack_results(seen)[0] == mavlink.MAV_MISSION_OPERATION_CANCELLED
+    assert "Mission upload timeout" in texts(seen)
+    got = await vehicle.client.download()
+    measure(f"… then {len(got)} items stored, commands {[g.command for g in got]}, "
+            f"z {[round(g.z) for g in got[1:]]}")
+    expected = [new[1], new[2], old[3], old[4]]  # new items 1-2, old 3-4: 5 items in all
+    assert len(got) == 5
+    for want, have in zip(expected, got[1:]):
+        assert compare_items(vehicle.stored(want), have) is None, (want, have)
+
+
+async def test_a_fence_upload_abandoned_part_way_leaves_the_old_fence(vehicle, measure) -> None:
+    """A fence, unlike the mission, is staged and replaces the stored one only when complete (ArduPilot's
+    polygon fence loader)."""
+    fence = _fence()
+    await vehicle.client.upload_verified(fence, FENCE)
+    other = numbered([item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, 0.0, 0.0, param1=900.0),
+                      item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, 300.0, 300.0, param1=40.0),
+                      item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, -300.0, 300.0, param1=40.0)], FENCE)
+    seen = await _abandoned_upload(vehicle, other, answered=1, mission_type=FENCE)
+    measure(f"fence upload abandoned after 1 of 3 items: MISSION_ACK {_ack_results(seen)}, "
+            f"STATUSTEXT {texts(seen)}")
+    assert _ack_results(seen)[0] == mavlink.MAV_MISSION_OPERATION_CANCELLED
+    assert "Fence upload timeout" in texts(seen)
+    got = await vehicle.client.download(FENCE)
+    assert _difference(vehicle, fence, got, skip_home=False) is None, _difference(vehicle, fence, got, False)
