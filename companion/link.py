@@ -172,6 +172,7 @@ class Link:
                  dialect: ModuleType = ardupilotmega, signing_key: SigningKey | None = None) -> None:
         self.url = url
         self._signing_key = signing_key  # MAVLink 2 signing: sign all we send, drop unsigned input
+        self._signing_timestamp = 0  # the last signing timestamp of a closed connection (10 µs units)
         self.source_system = source_system
         self.source_component = source_component
         self.baud = baud
@@ -273,7 +274,10 @@ class Link:
         conn.mav = self.dialect.MAVLink(conn, srcSystem=self.source_system, srcComponent=self.source_component)
         conn.mav.robust_parsing = True
         if self._signing_key is not None:
-            enable_signing(conn.mav, self._signing_key)
+            # a new connection goes on from the last timestamp used or learned from the peer (pymavlink
+            # takes a signed peer's when it is ahead): SITL's clock runs ahead of ours under speed-up, and
+            # it ignores a stream more than 60 s behind its own
+            enable_signing(conn.mav, self._signing_key, timestamp=self._signing_timestamp)
         conn.robust_parsing = True
         conn.first_byte = False
         conn.WIRE_PROTOCOL_VERSION = "2.0"
@@ -297,6 +301,8 @@ class Link:
         self._conn = self._fd = None
         if conn is None:
             return
+        if self._signing_key is not None:
+            self._signing_timestamp = max(self._signing_timestamp, conn.mav.signing.timestamp)
         if fd is not None and self._loop is not None:
             self._loop.remove_reader(fd)
         try:

@@ -60,14 +60,15 @@ class SigningKey:
         return cls.from_passphrase(text)
 
 
-def enable_signing(mav: object, key: SigningKey, link_id: int = 0) -> None:
-    """Sign everything ``mav`` (a pymavlink ``MAVLink``) sends and reject unsigned or badly signed input."""
+def enable_signing(mav: object, key: SigningKey, link_id: int = 0, timestamp: int = 0) -> None:
+    """Sign everything ``mav`` (a pymavlink ``MAVLink``) sends and reject unsigned or badly signed input;
+    timestamps go on from the latest of ``timestamp`` (a previous connection's), ``mav``'s own and now."""
     signing = mav.signing  # type: ignore[attr-defined]
     signing.secret_key = key.secret
     signing.sign_outgoing = True
     signing.allow_unsigned_callback = None
     signing.link_id = link_id
-    signing.timestamp = max(signing.timestamp, signing_timestamp())
+    signing.timestamp = max(signing.timestamp, timestamp, signing_timestamp())
 
 
 def signing_timestamp(unix_time: float | None = None) -> int:

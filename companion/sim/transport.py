@@ -91,7 +91,10 @@ class SimTransport:
     def _mavlink(self, system_id: int, component_id: int) -> mavlink.MAVLink:
         mav = new_mavlink(system_id, component_id)
         if self._signing_key is not None:  # as ArduPilot with a key set: signed out, unsigned in rejected
-            enable_signing(mav, self._signing_key)
+            # one signing clock for the vehicle (ArduPilot's is persistent): a new connection's parser starts
+            # at the vehicle's timestamp and rejects a stream more than 60 s behind it
+            packer = getattr(self, "_packer", None)
+            enable_signing(mav, self._signing_key, timestamp=packer.signing.timestamp if packer else 0)
         return mav
 
     @property

@@ -12,7 +12,7 @@ from companion.builder import MissionSpec, build_mission
 from companion.errors import CompanionError
 from companion.link import HeartbeatTimeout, Link
 from companion.protocol import MissionClient
-from companion.signing import SigningKey
+from companion.signing import SigningKey, signing_timestamp
 from companion.sim import SimAutopilot
 from planner.errors import FuseplanError
 from planner.scenario import load_scenario
@@ -106,3 +106,44 @@ def test_fly_signed_on_the_simulator_and_a_bad_key_file(tmp_path: Path, capsys: 
                  "--signing-key", str(tmp_path / "empty.key"), "--report", str(tmp_path / "rep2")])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and "signing key file is empty" in err[0]
+
+
+def test_signing_timestamps_go_on_across_a_reconnect() -> None:
+    """An autopilot whose signing clock is ahead of ours (SITL under speed-up; a vehicle that was powered for a
+    long time) ignores a new stream more than 60 s behind it. The companion takes the autopilot's timestamp from
+    its signed messages; after a reconnect it must go on from there, not restart from the wall clock."""
+    ahead = 600 * 100_000  # 10 minutes in 10 µs units
+
+    async def go() -> tuple[int, int, int, list[int]]:
+        async with SimAutopilot(SC, "tcp:127.0.0.1:0", speedup=5.0, signing_key=KEY) as sim:
+            transport = sim._transport  # noqa: SLF001
+            transport._packer.signing.timestamp += ahead  # the vehicle's clock
+            parsers = []  # one per TCP connection: what each rejected
+
+            def parser(*args: int, make=transport._mavlink):  # noqa: ANN202
+                parsers.append(make(*args))
+                return parsers[-1]
+
+            transport._mavlink = parser
+            async with Link(f"tcp:127.0.0.1:{sim.port}", open_timeout=5.0, signing_key=KEY,
+                            heartbeat_timeout=1.0, reconnect_min=0.2, reconnect_max=0.5) as link:
+                await link.wait_heartbeat(3.0)
+                await asyncio.sleep(0.3)
+                learned = link._conn.mav.signing.timestamp  # noqa: SLF001
+                sim.inject_outage(1.5)
+                for _ in range(100):
+                    await asyncio.sleep(0.1)
+                    if link.reconnects:
+                        break
+                await link.wait_heartbeat(5.0)
+                client = MissionClient(link, timeout=0.3, retries=3)
+                await client.upload_verified(ITEMS)
+                return (learned, link._conn.mav.signing.timestamp, link.reconnects,  # noqa: SLF001
+                        [p.signing.badsig_count for p in parsers])
+
+    learned, after, reconnects, rejected = asyncio.run(go())
+    assert reconnects >= 1 and len(rejected) >= 2
+    assert rejected[-1] == 0  # not even the greeting HEARTBEAT sent at once on the new connection
+    now = signing_timestamp()
+    assert learned > now + ahead // 2  # taken from the autopilot
+    assert after >= learned  # and kept across the reconnect (the upload above was accepted)
