@@ -18,6 +18,7 @@ the old route is clear again. Every decision goes to the event log.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import logging
 import math
 import multiprocessing
@@ -111,6 +112,15 @@ class PlanWorker:
         self._warm = asyncio.get_running_loop().run_in_executor(self._pool, _warm_up, problem, settings)
         self._warm.add_done_callback(lambda f: f.cancelled() or f.exception())  # no "never retrieved" noise
         self._overhead_s = 0.035  # running estimate: wall time of a job beyond its optimiser's search
+
+    async def ready(self) -> float:
+        """Wait for the warm-up (process start, imports, a first short plan); returns the seconds waited. A
+        process that failed to start is left to :meth:`plan`, which then plans in a thread."""
+        t0 = time.monotonic()
+        if self._pool is not None:
+            with contextlib.suppress(Exception):
+                await asyncio.shield(self._warm)
+        return time.monotonic() - t0
 
     async def plan(self, problem: Any, settings: Any, seed: list[int], initial: np.ndarray,
                    budget_s: float) -> WorkerPlan:
@@ -215,6 +225,12 @@ class LiveReplanner:
     @property
     def goal_seq(self) -> int:
         return self.route.goal_seq
+
+    async def ready(self) -> None:
+        """Wait until the planner is warm (call before the flight starts: a replan made while the planner
+        process is still starting takes seconds instead of its budget)."""
+        waited = await self._worker.ready()
+        self.events.log("planner_ready", waited_s=round(waited, 3))
 
     def mission_started(self, wall: float) -> None:
         """Call when MISSION_START was accepted (at ``wall``, monotonic s): mission time (the scripted
@@ -454,9 +470,18 @@ class LiveReplanner:
         settings = replan_settings(self.scenario.planner, cfg)
         t0 = time.monotonic()
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
-        job = await self._worker.plan(problem, settings, [self.seed, rec.n], seeds, cfg.budget_s)
+        job = await self._plan_watching(problem, settings, [self.seed, rec.n], seeds, cp.first_new_seq, rec)
         rec.plan_s = round(time.monotonic() - t0, 3)
         rec.plan_status = status = job.status
+        self._pump()
+        if not departing and self.current_seq > cp.first_new_seq + 1:
+            # the plan took so long (a loaded machine) that the vehicle is past the commit point and its next
+            # item: the new route would start behind it and its timing is gone. Plan again from here, now.
+            rec.outcome = "stale: the vehicle passed the commit point while it was planned"
+            self.events.log("replan_stale", n=rec.n, plan_s=rec.plan_s, first_new=cp.first_new_seq,
+                            current=self.current_seq)
+            self._last_replan = -math.inf
+            return False
         new_route = job.waypoints.astype(float)
         after = route_separations(new_route, self.speed, 0.0, cp.t, threats, cfg.horizon_s, cfg.sample_dt_s)
         rec.sep_after_m = round(min((c.separation for c in after), default=math.inf), 2)
@@ -491,6 +516,28 @@ class LiveReplanner:
         rec.outcome = "new mission current"
         self.events.log("replanned", **rec.summary())
         return True
+
+    async def _plan_watching(self, problem: Any, settings: Any, seed: list[int], initial: np.ndarray,
+                             first_new_seq: int, rec: ReplanRecord) -> WorkerPlan:
+        """The worker's plan, watching the vehicle meanwhile: a plan that overruns (a loaded machine, a
+        planner process still starting) must not let the vehicle fly on to the commit point and into the
+        conflict while it waits, so the swap's guard applies already: hold when the vehicle could reach the
+        commit point before the plan can be uploaded and verified."""
+        job = asyncio.create_task(self._worker.plan(problem, settings, seed, initial, self.cfg.budget_s),
+                                  name="replan-plan")
+        try:
+            while not job.done():
+                await asyncio.wait({job}, timeout=0.01)
+                self._pump()
+                if self.holding is None and not job.done() and \
+                        self._eta_leave_prefix(first_new_seq) < self._guard_threshold_s():
+                    await self.hold("the plan is late: the vehicle could reach the commit point before it is ready")
+                    rec.held = True
+        except BaseException:
+            job.cancel()
+            await asyncio.gather(job, return_exceptions=True)
+            raise
+        return job.result()
 
     async def swap(self, items: list[MissionItem], first_new_seq: int, rec: ReplanRecord) -> bool:
         """Upload ``items`` while flying and make them the live mission (see the module docstring); False

@@ -364,6 +364,8 @@ class FlightSupervisor:
         if replanner is not None:
             replanner.note_upload(out.upload_s)
         await self.wait_ready(ready_timeout)
+        if replanner is not None:  # its planner process warmed up before take-off, not at the first conflict
+            await replanner.ready()
         first = next(it.seq for it in items if it.command != mavlink.MAV_CMD_NAV_WAYPOINT or it.seq > 0)
         with self.link.subscribe(*self.MONITORED) as sub:
             await self.start(first)

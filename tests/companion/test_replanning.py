@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -254,6 +255,59 @@ def test_link_outage_pauses_replanning_then_it_resumes_from_fresh_telemetry(dyna
     _assert_only_verified_items_flown(verified, flown)
     seps = truth_separations(sim, sc)
     assert min(seps[i].separation for i in _intruder_ids(DYNAMIC)) >= sc.hazard.d_coll
+
+
+def _slow_first_plan(delay_s: float, guard: bool = True):
+    """A ``during`` hook: the replanner's first plan comes back ``delay_s`` of wall time late (a loaded
+    machine); ``guard=False`` also turns its hold guards off, to reach the last line of defence."""
+    async def during(sim: SimAutopilot, rp: LiveReplanner) -> None:
+        worker = rp._worker  # noqa: SLF001
+        real = worker.plan
+        late = [delay_s]
+
+        async def plan(*args, **kwargs):  # noqa: ANN202
+            if late:
+                await asyncio.sleep(late.pop())
+            return await real(*args, **kwargs)
+
+        worker.plan = plan
+        if not guard:
+            rp._guard_threshold_s = lambda: -math.inf  # noqa: SLF001
+
+    return during
+
+
+def test_a_plan_that_comes_too_late_holds_the_vehicle_meanwhile(dynamic_plan: Path) -> None:
+    """The first plan takes 1.5 s of wall time (30 s of the vehicle's at 20×, ten times its budget; the conflict
+    was 26 s ahead). Seen once in CI with the planner process still starting: the plane flew on into the
+    intruder while it waited (−27 m). The replanner must hold the vehicle before it reaches the commit point,
+    and separation must hold."""
+    doc = json.loads(dynamic_plan.read_text())
+    sc = load_scenario(DYNAMIC)
+    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 20.0, ReplanConfig(),
+                                                              during=_slow_first_plan(1.5)))
+    names = [r["event"] for r in records]
+    assert out.completed, out.reason
+    late = next(i for i, r in enumerate(records) if r["event"] == "hold" and r["reason"].startswith("the plan is late"))
+    assert names.index("conflict") < late < names.index("replan_planned")
+    seps = truth_separations(sim, sc)
+    assert min(seps[i].separation for i in _intruder_ids(DYNAMIC)) >= sc.hazard.d_coll
+    _assert_only_verified_items_flown(verified, flown)
+
+
+def test_a_plan_the_vehicle_has_flown_past_is_dropped(dynamic_plan: Path) -> None:
+    """The last line of defence, with the hold guards off: the plan comes back when the vehicle is past its
+    commit point and the item after it. It must not be uploaded (the new route would start behind the vehicle
+    and turn it back); the replanner says so and plans again at once."""
+    doc = json.loads(dynamic_plan.read_text())
+    sc = load_scenario(DYNAMIC)
+    out, records, verified, flown, _sim = asyncio.run(_harness(sc, doc, 20.0, ReplanConfig(),
+                                                               during=_slow_first_plan(1.5, guard=False)))
+    stale = next(i for i, r in enumerate(records) if r["event"] == "replan_stale")
+    assert records[stale]["n"] == 1 and records[stale]["current"] > records[stale]["first_new"] + 1
+    assert not [r for r in records if r["event"] in ("replan_verified", "replanned") and r["n"] == 1]
+    assert out.completed, out.reason
+    _assert_only_verified_items_flown(verified, flown)
 
 
 def test_replanner_leaves_a_failsafe_mode_alone(dynamic_plan: Path) -> None:
