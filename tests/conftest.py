@@ -1,4 +1,5 @@
-"""Shared fixtures: paths to the shipped scenarios, and real ArduPilot SITL processes (tests/sitl_harness.py)."""
+"""Shared fixtures: paths to the shipped scenarios, and real ArduPilot SITL processes (tests/sitl_harness.py) and
+PX4 SITL processes (tests/px4_harness.py)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,8 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from px4_harness import DEFAULT_MODEL, Px4Instance, start_px4
+from px4_harness import unavailable as px4_unavailable
 from sitl_harness import HomeLike, SitlInstance, start_sitl, unavailable
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -13,6 +16,8 @@ SCENARIOS = ROOT / "sitl_scenarios"
 
 SitlFactory = Callable[..., SitlInstance]
 SITL_FIXTURES = {"sitl_factory", "sitl_factory_fn"}
+Px4Factory = Callable[..., Px4Instance]
+PX4_FIXTURES = {"px4_factory", "px4_factory_fn"}
 
 
 @pytest.fixture
@@ -21,10 +26,13 @@ def rescue_static() -> Path:
 
 
 def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
-    """Mark every test that uses a SITL fixture ``sitl``, so ``-m "not sitl"`` leaves them out."""
+    """Mark every test that uses an ArduPilot SITL fixture ``sitl`` and every one that uses a PX4 fixture ``px4``, so
+    ``-m "not sitl"`` / ``-m "not px4"`` leaves them out."""
     for item in items:
         if SITL_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.sitl)
+        if PX4_FIXTURES & set(getattr(item, "fixturenames", ())):
+            item.add_marker(pytest.mark.px4)
 
 
 def _sitl_factory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SitlFactory]:
@@ -61,3 +69,42 @@ def sitl_factory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SitlFacto
 def sitl_factory_fn(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SitlFactory]:
     """As ``sitl_factory``, but everything started is stopped at the end of the test."""
     yield from _sitl_factory(tmp_path_factory)
+
+
+def _px4_factory() -> Iterator[Px4Factory]:
+    """Yield ``start(home, speedup=5.0, model="sihsim_quadx") -> Px4Instance``; stop all it started afterwards."""
+    started: list[Px4Instance] = []
+
+    def start(
+        home: HomeLike | tuple[float, float, float], speedup: float = 5.0, model: str = DEFAULT_MODEL
+    ) -> Px4Instance:
+        reason = px4_unavailable()
+        if reason:
+            pytest.skip(reason)
+        px4 = start_px4(home, speedup, model)
+        started.append(px4)
+        return px4
+
+    yield start
+    problems = []
+    for px4 in started:
+        try:
+            px4.stop()
+        except AssertionError as e:
+            problems.append(str(e))
+    if problems:
+        pytest.fail("\n".join(problems))
+
+
+@pytest.fixture(scope="module")
+def px4_factory() -> Iterator[Px4Factory]:
+    """``start(home, speedup=5.0, model="sihsim_quadx")``: a real PX4 SITL per call, answering on
+    ``.companion_url`` when returned, stopped at the end of the test module (skips the test when
+    $FUSEPLAN_PX4_DIR is not a PX4 folder)."""
+    yield from _px4_factory()
+
+
+@pytest.fixture
+def px4_factory_fn() -> Iterator[Px4Factory]:
+    """As ``px4_factory``, but everything started is stopped at the end of the test."""
+    yield from _px4_factory()
