@@ -152,7 +152,7 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
     if vehicle.end_action == "loiter":
         items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_LOITER_UNLIM, param4=yaw, x=gx, y=gy, z=gz))
     elif vehicle.end_action == "rtl":
-        items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_RTL))
+        items.append(MissionItem(0, FRAME_MISSION, CMD_RTL))  # no position (PX4 refuses any other frame)
     elif vehicle.end_action == "land":
         items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_LAND, param4=yaw, x=gx, y=gy, z=0.0))
     else:  # VehicleLimits is validated at the scenario boundary; this guards hand-made ones

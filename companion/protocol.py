@@ -84,6 +84,7 @@ class MissionClient:
         self.item_timeout = item_timeout
         self.retries = retries
         self.item_giveup_s = item_giveup_s  # longer than ArduPilot's own 8 s abandon time
+        self.set_current_by_message = False  # the autopilot answered DO_SET_MISSION_CURRENT UNSUPPORTED (PX4)
         self._lock = asyncio.Lock()
 
     # ------------------------------------------------------------------ helpers
@@ -356,17 +357,23 @@ class MissionClient:
 
     async def set_current(self, seq: int, *, timeout: float = 0.5, retries: int = 2) -> None:
         """Make ``seq`` the active mission item: MAV_CMD_DO_SET_MISSION_CURRENT (ArduPilot restarts the item
-        even if it already was current). If nothing ACKs the command (MAVSDK's server does not), falls back to
-        MISSION_SET_CURRENT confirmed by MISSION_CURRENT.seq. Raises :class:`CommandError` when refused or
-        when neither confirms."""
+        even if it already was current). If nothing ACKs the command (MAVSDK's server) or the autopilot
+        answers it MAV_RESULT_UNSUPPORTED (PX4, which takes the MISSION_SET_CURRENT message), falls back to
+        MISSION_SET_CURRENT confirmed by MISSION_CURRENT.seq, and after an UNSUPPORTED uses only that from
+        then on. Raises :class:`CommandError` when refused or when neither confirms."""
         cmd = mavlink.MAV_CMD_DO_SET_MISSION_CURRENT
-        try:
-            await self.command_long(cmd, seq, timeout=timeout, retries=retries, persist=False)
-            return
-        except CommandError as exc:
-            if exc.result is not None:
-                raise  # an explicit refusal (e.g. seq out of range)
-            log.info("no COMMAND_ACK for DO_SET_MISSION_CURRENT; trying MISSION_SET_CURRENT")
+        if not self.set_current_by_message:
+            try:
+                await self.command_long(cmd, seq, timeout=timeout, retries=retries, persist=False)
+                return
+            except CommandError as exc:
+                if exc.result == mavlink.MAV_RESULT_UNSUPPORTED:
+                    self.set_current_by_message = True
+                    log.info("DO_SET_MISSION_CURRENT unsupported; MISSION_SET_CURRENT from now on")
+                elif exc.result is not None:
+                    raise  # an explicit refusal (e.g. seq out of range)
+                else:
+                    log.info("no COMMAND_ACK for DO_SET_MISSION_CURRENT; trying MISSION_SET_CURRENT")
         link = self.link
         ts, tc = self._target()
         msg = mavlink.MAVLink_mission_set_current_message(ts, tc, seq)

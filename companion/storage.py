@@ -8,8 +8,9 @@ radii as whole metres up to 255 on a plane and not at all on a copter (which kee
 NAV_LAND's yaw as a sign. Whole-number fields are truncated toward zero, as a C cast does.
 :func:`stored` maps an item to that form; an upload is verified by comparing ``stored(sent)`` with
 ``stored(got)`` (:func:`companion.items.compare_items`), and the built-in simulator stores ``stored(item)``
-so that its readback is the real one. Every rule here was seen on ArduPilot 4.7 SITL (plane and copter) and
-is checked by the conformance tests (tests/conformance). Commands not listed keep every field (strict).
+so that its readback is the real one. Every rule here was seen on ArduPilot 4.7 SITL (plane and copter) or PX4
+SITL and is checked by the conformance tests (tests/conformance, tests/px4). PX4 keeps every field of a mission
+item and only drops a fence item's frame and autocontinue. Commands not listed keep every field (strict).
 """
 
 from __future__ import annotations
@@ -57,6 +58,8 @@ _BYTE_MAX = 255  # ArduPlane packs NAV_WAYPOINT's acceptance and pass-by radii i
 def stored(item: MissionItem, firmware: Firmware) -> MissionItem:
     """``item`` as ``firmware`` stores it and returns it in a readback (frames always normalised)."""
     item = replace(item, frame=normalise_frame(item.frame))
+    if firmware is Firmware.PX4:
+        return _stored_px4(item)
     if not firmware.ardupilot:
         return item
     if item.frame == mavlink.MAV_FRAME_MISSION:  # no position: ArduPilot keeps no frame
@@ -91,6 +94,15 @@ def _stored_point(item: MissionItem) -> MissionItem:
                        autocontinue=0)
     return replace(item, param1=0.0, param2=0.0, param3=0.0, param4=0.0, z=float(math.trunc(item.z)),
                    autocontinue=0)  # rally altitude in whole metres
+
+
+def _stored_px4(item: MissionItem) -> MissionItem:
+    """PX4 (navigator's dataman records, measured on PX4 SITL main 2026-05): mission and rally items come back
+    as sent (frames as their INT twins, normalised here); fence items in frame GLOBAL_INT whatever was sent,
+    with autocontinue 0, position, altitude and params kept."""
+    if item.mission_type == FENCE:
+        return replace(item, frame=mavlink.MAV_FRAME_GLOBAL, autocontinue=0)
+    return item
 
 
 def _whole(value: float) -> float:

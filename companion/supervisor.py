@@ -32,6 +32,7 @@ PILOT_ARM_TIMEOUT_S = 600.0
 REPLANNER_STOP_S = 5.0  # wall seconds a cancelled replanner may take to finish (a plan in progress)
 UPLOAD_ATTEMPTS = 3  # whole verified uploads tried before the flight when the link breaks one
 BOOT_TIMEOUT_S = 60.0  # wall seconds an autopilot may take to finish booting
+PX4_CHECK_S = 3.0  # wall seconds PX4's navigator may take to accept a verified mission (measured: ≤ 0.21 s)
 BOOT_GRACE_S = 10.0  # a MAV_MISSION_NO_SPACE this soon after boot is the boot's, not the mission's size
 BOOTING_STATES = frozenset({mavlink.MAV_STATE_UNINIT, mavlink.MAV_STATE_BOOT, mavlink.MAV_STATE_CALIBRATING})
 ARDUPLANE_INITIALISING = 16  # ArduPlane's custom mode until its setup has finished
@@ -121,6 +122,7 @@ class FlightSupervisor:
             return all(v is None or v for v in state.values()) and state["gps"] is not None
 
         deadline = time.monotonic() + timeout
+        px4 = self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4
         with self.link.subscribe("GPS_RAW_INT", "SYS_STATUS", "EKF_STATUS_REPORT") as sub:
             while not ready():
                 left = deadline - time.monotonic()
@@ -133,7 +135,8 @@ class FlightSupervisor:
                 kind = msg.get_type()
                 if kind == "GPS_RAW_INT":
                     state["gps"] = msg.fix_type >= 3
-                elif kind == "SYS_STATUS" and msg.onboard_control_sensors_present & PREARM_BIT:
+                elif kind == "SYS_STATUS" and (msg.onboard_control_sensors_present & PREARM_BIT or px4):
+                    # PX4 sets the pre-arm bit in health only (never in present), ~2 s after its checks pass
                     state["prearm"] = bool(msg.onboard_control_sensors_health & PREARM_BIT)
                 elif kind == "EKF_STATUS_REPORT":
                     state["ekf"] = (msg.flags & EKF_GOOD) == EKF_GOOD
@@ -170,8 +173,31 @@ class FlightSupervisor:
                         await self.wait_booted()
                         await asyncio.sleep(1.0)
             dt += time.monotonic() - t0
+            if kind == MISSION and self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+                await self._px4_mission_valid(len(payload))
         self.events.log("upload_verified", seconds=round(dt, 3))
         return dt
+
+    async def _px4_mission_valid(self, count: int, timeout: float = PX4_CHECK_S) -> None:
+        """PX4 acknowledges an upload before its navigator has checked that the mission can be flown (takeoff
+        first, supported commands, a landing for planes); the verdict comes 30–210 ms later as MISSION_CURRENT
+        with the new total and mission_state NOT_STARTED/ACTIVE (valid) or NO_MISSION (rejected, the reason
+        only in PX4's EVENT messages). Starting before that is DENIED."""
+        valid = (mavlink.MISSION_STATE_NOT_STARTED, mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_PAUSED)
+        with self.link.subscribe("MISSION_CURRENT", predicate=lambda m: m.total == count) as sub:
+            deadline = time.monotonic() + timeout
+            state = None
+            while (left := deadline - time.monotonic()) > 0:
+                try:
+                    state = (await sub.get(left)).mission_state
+                except TimeoutError:
+                    break
+                if state in valid:
+                    self.events.log("mission_valid", items=count, mission_state=state)
+                    return
+        raise CompanionError(f"PX4 stored the {count} verified items but its navigator did not accept the mission "
+                             f"within {timeout:.0f} s (MISSION_CURRENT mission_state {state}: "
+                             "1 = NO_MISSION means it was rejected; PX4 says why in its events/log)")
 
     async def _backup(self, kind: int) -> list[MissionItem] | None:
         """The vehicle's ``kind`` list before we overwrite it (None if it cannot be read: a restore then
