@@ -11,7 +11,7 @@ import logging
 import math
 import time
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -152,6 +152,10 @@ class FlightSupervisor:
         part new, part old): raises :class:`UploadAborted` saying what the vehicle was left with."""
         self.events.log("upload_start", mission_items=len(items), fence_items=len(fence))
         dt = 0.0  # the uploads' own time, not the backups' (the replanner's first guess at a replan upload)
+        if items and self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+            # PX4 keeps its current item across uploads (and judges a new mission from it): a mission flown
+            # before, or a set-current, would leave it mid-list. The first item flagged current resets it.
+            items = [replace(items[0], current=1), *items[1:]]
         for kind, payload in ((MISSION, items), (FENCE, fence)):
             if not payload:
                 continue
@@ -163,7 +167,10 @@ class FlightSupervisor:
                     break
                 except (MissionTimeout, MissionVerifyError, MissionUploadError) as e:
                     booting = self._refused_while_booting(e)
-                    transient = booting or not (isinstance(e, MissionUploadError) and e.refused)
+                    # PX4 answers MAV_MISSION_ERROR for its own transfer trouble too (busy, a sync timeout)
+                    px4_error = self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4 and \
+                        isinstance(e, MissionUploadError) and e.result == mavlink.MAV_MISSION_ERROR
+                    transient = booting or px4_error or not (isinstance(e, MissionUploadError) and e.refused)
                     self.events.log("upload_failed", mission_type=kind, attempt=attempt, error=str(e),
                                     retrying=transient and attempt < attempts)
                     if not transient or attempt == attempts:

@@ -90,6 +90,18 @@ RATES: tuple[Rate, ...] = (
 )
 
 
+# PX4 streams its onboard (companion) link at full tilt by default: ATTITUDE ~100 Hz, GLOBAL_POSITION_INT,
+# HIGHRES_IMU, ATTITUDE_QUATERNION ~50 Hz, … (~500 messages/s measured on PX4 SITL; N times that at speed-up N),
+# none of which the companion reads. It turns them off on its own link (interval -1) so that what it reads is
+# not queued behind them (at 20x a mission download stalled for 20 s in that flood).
+PX4_UNUSED: tuple[str, ...] = (
+    "ATTITUDE", "ATTITUDE_QUATERNION", "HIGHRES_IMU", "ODOMETRY", "LOCAL_POSITION_NED", "ALTITUDE",
+    "ATTITUDE_TARGET", "POSITION_TARGET_LOCAL_NED", "SERVO_OUTPUT_RAW", "VFR_HUD", "DISTANCE_SENSOR",
+    "TIMESYNC", "ESTIMATOR_STATUS", "SCALED_PRESSURE", "VIBRATION", "BATTERY_STATUS",
+)
+OFF = -1  # SET_MESSAGE_INTERVAL param2: stop sending it
+
+
 def stream_requests(rates: Sequence[Rate] = RATES) -> list[tuple[int, int]]:
     """``(MAV_DATA_STREAM, Hz)`` for each stream group in ``rates``: the highest rate of its members, rounded up
     (REQUEST_DATA_STREAM takes whole Hz)."""
@@ -125,21 +137,25 @@ async def request_rates(link: Link, rates: Sequence[Rate] = RATES,
                 and m.target_system in (0, link.source_system) and m.target_component in (0, link.source_component))
 
     results: dict[str, str] = {}
+    requests = [(r.message, r.msg_id, r.interval_us, r.hz) for r in rates]
+    if link.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+        requests = [(f"{name} off", int(getattr(mavlink, f"MAVLINK_MSG_ID_{name}")), OFF, 0.0)
+                    for name in PX4_UNUSED] + requests
     with link.subscribe("COMMAND_ACK", predicate=is_ack) as acks:
-        for r in rates:
+        for message, msg_id, interval_us, hz in requests:
             acks.drain()  # a late answer to the previous request
             link.send(dialect.MAVLink_command_long_message(ts, tc, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0,
-                                                           r.msg_id, r.interval_us, 0, 0, 0, 0, 0))
+                                                           msg_id, interval_us, 0, 0, 0, 0, 0))
             try:
                 result: int | None = (await acks.get(ack_timeout)).result
             except TimeoutError:
                 result = None
-            results[r.message] = _result_name(result)
+            results[message] = _result_name(result)
             if result == mavlink.MAV_RESULT_ACCEPTED:
-                log.debug("%s at %g Hz: accepted", r.message, r.hz)
+                log.debug("%s at %g Hz: accepted", message, hz)
             else:
                 log.info("%s at %g Hz not confirmed by the autopilot (%s); using the rate it sends",
-                         r.message, r.hz, results[r.message])
+                         message, hz, results[message])
     return results
 
 

@@ -1,0 +1,131 @@
+"""The companion on a real PX4 (SIH quadrotor SITL, one instance shared by the module): the mission protocol as
+PX4 speaks it, what it stores (companion.storage's PX4 rules), set-current, and its navigator's verdict on a
+mission."""
+
+from __future__ import annotations
+
+import json
+from collections.abc import AsyncIterator
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+import pytest_asyncio
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
+
+from companion.builder import MissionSpec, build_mission
+from companion.errors import CompanionError
+from companion.events import EventLog
+from companion.geo import enu_to_geodetic, to_int_e7
+from companion.items import FENCE, FRAME_REL_ALT_INT, MISSION, MissionItem, compare_items
+from companion.link import Link
+from companion.protocol import MissionClient
+from companion.storage import Firmware, stored
+from companion.supervisor import FlightSupervisor
+from planner.cli import main
+from planner.scenario import load_scenario
+
+pytestmark = pytest.mark.asyncio(loop_scope="module")
+
+ROOT = Path(__file__).resolve().parents[2]
+MOUNTAIN = ROOT / "sitl_scenarios" / "mountain_rescue.toml"
+SC = load_scenario(MOUNTAIN)
+SPEEDUP = 20.0  # SIH in lockstep; the companion turns PX4's unused streams off, so uploads keep up
+
+
+def _point(north_m: float, east_m: float) -> tuple[int, int]:
+    lat, lon, _ = enu_to_geodetic(np.array([[east_m, north_m, 0.0]]), SC.home)
+    return to_int_e7(float(lat[0])), to_int_e7(float(lon[0]))
+
+
+def _fence_item(command: int, north_m: float, east_m: float, param1: float, frame: int) -> MissionItem:
+    x, y = _point(north_m, east_m)
+    return MissionItem(0, frame, command, param1=param1, x=x, y=y, z=50.0, mission_type=FENCE)
+
+
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def px4_link(px4_factory) -> AsyncIterator[tuple[Link, MissionClient, FlightSupervisor]]:
+    """A companion on a module-shared PX4, booted and ready to arm."""
+    px4 = px4_factory(SC.home, speedup=SPEEDUP)
+    async with Link(px4.companion_url, open_timeout=5.0) as link:
+        await link.wait_heartbeat(20.0)
+        client = MissionClient(link)
+        sup = FlightSupervisor(link, client, EventLog(), arm=True)
+        from companion.telemetry import request_rates
+
+        await request_rates(link)
+        await sup.wait_booted(30.0)
+        await sup.wait_ready(60.0)
+        yield link, client, sup
+
+
+def _mission(end_action: str) -> list[MissionItem]:
+    vehicle = replace(SC.vehicle, end_action=end_action)
+    route = [[0.0, 0.0, 30.0], [150.0, 100.0, 40.0], [300.0, 0.0, 40.0], [300.0, -150.0, 30.0]]
+    return build_mission(route, MissionSpec("px4", vehicle, SC.home))
+
+
+@pytest.mark.parametrize("end_action", ["loiter", "rtl", "land"])
+async def test_missions_upload_with_mission_request_int_and_read_back_as_sent(px4_link, end_action: str) -> None:
+    """PX4 asks with MISSION_REQUEST_INT, has no home item (item 0 is the takeoff) and keeps every field of a
+    mission item (RTL only in frame MISSION: any other frame is refused)."""
+    link, client, _ = px4_link
+    items = _mission(end_action)
+    assert items[0].command == mavlink.MAV_CMD_NAV_TAKEOFF
+    with link.subscribe("MISSION_REQUEST", "MISSION_REQUEST_INT") as sub:
+        got = await client.upload_verified(items)
+        kinds = {m.get_type() for m in sub.drain()}
+    assert kinds == {"MISSION_REQUEST_INT"}
+    assert len(got) == len(items)
+    for sent, back in zip(items, got):
+        assert compare_items(sent, back) is None, (sent, back)  # not even a storage rule needed
+
+
+async def test_fence_reads_back_as_the_px4_storage_rules_say(px4_link) -> None:
+    """Fence items come back in frame GLOBAL_INT with autocontinue 0, everything else kept (polygons first:
+    PX4 warns wrongly that home is outside when an inclusion circle comes before an inclusion polygon)."""
+    _, client, _ = px4_link
+    frames = (mavlink.MAV_FRAME_GLOBAL_INT, FRAME_REL_ALT_INT)
+    fence = [_fence_item(mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, n, e, 4.0, frames[i % 2])
+             for i, (n, e) in enumerate(((-1500.0, -1500.0), (-1500.0, 1500.0), (1500.0, 1500.0), (1500.0, -1500.0)))]
+    fence += [_fence_item(mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, n, e, 3.0, FRAME_REL_ALT_INT)
+              for n, e in ((500.0, -500.0), (500.0, -400.0), (400.0, -450.0))]
+    fence += [_fence_item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, 0.0, 0.0, 2000.0, FRAME_REL_ALT_INT),
+              _fence_item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, 300.0, 300.0, 50.5, mavlink.MAV_FRAME_GLOBAL)]
+    fence = [f.with_seq(i) for i, f in enumerate(fence)]
+    got = await client.upload_verified(fence, FENCE)
+    assert len(got) == len(fence)
+    assert {g.autocontinue for g in got} == {0} and {g.frame for g in got} == {mavlink.MAV_FRAME_GLOBAL_INT}
+    for sent, back in zip(fence, got):
+        assert compare_items(stored(sent, Firmware.PX4), back) is None, (sent, back)
+        assert back.z == sent.z and back.param1 == sent.param1
+
+
+async def test_set_current_falls_back_to_the_message_and_remembers(px4_link) -> None:
+    """PX4 answers MAV_CMD_DO_SET_MISSION_CURRENT with UNSUPPORTED; the client then sends MISSION_SET_CURRENT
+    (confirmed by MISSION_CURRENT) and does so straight away from then on."""
+    link, client, _ = px4_link
+    await client.upload_verified(_mission("loiter"))
+    client.set_current_by_message = False
+    with link.subscribe("COMMAND_ACK", predicate=lambda m: m.command == 224) as acks:
+        for seq in (3, 1):
+            with link.subscribe("MISSION_CURRENT", predicate=lambda m, seq=seq: m.seq == seq) as cur:
+                await client.set_current(seq)
+                assert (await cur.get(2.0)).seq == seq
+        answers = [m.result for m in acks.drain()]
+    assert answers == [mavlink.MAV_RESULT_UNSUPPORTED]  # asked once, never again
+    assert client.set_current_by_message
+
+
+async def test_a_mission_px4_stores_but_will_not_fly_is_reported_before_the_start(px4_link) -> None:
+    """PX4 acknowledges and stores a mission whose takeoff is not the first item, then its navigator rejects it
+    (MISSION_CURRENT mission_state NO_MISSION): the supervisor's upload says so instead of letting the start
+    fail later."""
+    _, _, sup = px4_link
+    items = _mission("loiter")
+    bad = [items[2].with_seq(0), items[0].with_seq(1), items[1].with_seq(2)] + items[3:]
+    with pytest.raises(CompanionError, match="did not accept the mission"):
+        await sup.upload(bad)
+    await sup.upload(items)  # and a good one is accepted after it
+    assert any(r["event"] == "mission_valid" for r in sup.events.records)

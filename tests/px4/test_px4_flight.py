@@ -1,0 +1,47 @@
+"""`fuseplan fly` on a real PX4 (SIH quadrotor SITL) started a moment before, default options."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from planner.cli import main
+from planner.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[2]
+MOUNTAIN = ROOT / "sitl_scenarios" / "mountain_rescue.toml"
+SC = load_scenario(MOUNTAIN)
+SPEEDUP = 20.0
+
+
+@pytest.fixture(scope="module")
+def mountain_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    from planner.cli import _plan_doc_for
+
+    doc, _ = _plan_doc_for(MOUNTAIN, None, [], None, feasible_only=True, for_flight=True)
+    path = tmp_path_factory.mktemp("mountain") / "PLAN.json"
+    path.write_text(json.dumps(doc))
+    return path
+
+
+def test_mountain_rescue_flies_on_px4_with_the_default_options(px4_factory_fn, mountain_plan: Path,
+                                                                tmp_path: Path) -> None:
+    """`fuseplan fly PLAN --connect udpin:127.0.0.1:14540 --arm` against a PX4 started a moment before: boot
+    and readiness, mission and fence verified, PX4's navigator accepts, set-current by message, arm, AUTO.MISSION,
+    the route flown to the landing at the casualty site."""
+    px4 = px4_factory_fn(SC.home, speedup=SPEEDUP)
+    report = tmp_path / "report"
+    code = main(["fly", str(mountain_plan), "--connect", px4.companion_url, "--arm", "--report", str(report), "-q"])
+    flight = json.loads((report / "flight.json").read_text())
+    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    assert code == 0 and flight["completed"] is True, flight.get("reason")
+    names = [e["event"] for e in events]
+    start = next(e for e in events if e["event"] == "upload_start")
+    assert start["fence_items"] > 0
+    assert names.index("mission_valid") < names.index("upload_verified") < names.index("armed") \
+        < names.index("mission_start")
+    reached = sorted({e["seq"] for e in events if e["event"] == "reached"})
+    assert len(flight["items_reached"]) >= 5 and reached[-1] >= flight["mission_items"] - 3  # the goal, before LAND
+    assert flight["autopilot"] in ("px4", 12) and flight["min_clearance_m"] > 0.0
