@@ -205,7 +205,10 @@ class MissionClient:
                             return None
                         log.debug("ignoring early MISSION_ACK ACCEPTED (stale?) at item %s", requested)
                         continue
-                    if final_resent:
+                    if final_resent or (waiting_ack and msg.type == mavlink.MAV_MISSION_ERROR):
+                        # after the last item, ArduPilot's MISSION_ERROR is its answer to a copy of that item
+                        # (ours, or one the network duplicated) arriving once the upload had ended: the final
+                        # ACK may have been lost; a readback tells
                         return msg.type, count - 1
                     if msg.type == mavlink.MAV_MISSION_INVALID_SEQUENCE and last_sent is not None:
                         # ArduPilot's answer to a duplicate (our own resend): the transfer goes on

@@ -189,6 +189,11 @@ class Px4Instance:
         return self.instance + 1
 
     @property
+    def gcs_port(self) -> int:
+        """PX4's ground-station link listens here (``udpout:127.0.0.1:PORT`` reaches it; it answers to the sender)."""
+        return OWN_PORTS[1] + self.instance
+
+    @property
     def companion_url(self) -> str:
         """The companion computer's link (PX4's API/offboard link sends here). Bind it after start() returns."""
         return f"udpin:127.0.0.1:{companion_port(self.instance)}"

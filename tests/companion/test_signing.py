@@ -125,12 +125,12 @@ def test_signing_timestamps_go_on_across_a_reconnect() -> None:
                 return parsers[-1]
 
             transport._mavlink = parser
-            async with Link(f"tcp:127.0.0.1:{sim.port}", open_timeout=5.0, signing_key=KEY,
-                            heartbeat_timeout=1.0, reconnect_min=0.2, reconnect_max=0.5) as link:
+            async with Link(f"tcp:127.0.0.1:{sim.port}", open_timeout=5.0, signing_key=KEY, heartbeat_interval=0.2,
+                            heartbeat_timeout=0.8, reconnect_min=0.2, reconnect_max=0.5) as link:
                 await link.wait_heartbeat(3.0)
                 await asyncio.sleep(0.3)
                 learned = link._conn.mav.signing.timestamp  # noqa: SLF001
-                sim.inject_outage(1.5)
+                sim.inject_outage(3.0)  # well past the heartbeat timeout, also on a loaded machine
                 for _ in range(100):
                     await asyncio.sleep(0.1)
                     if link.reconnects:
