@@ -125,11 +125,23 @@ def dynamic_copter_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
 
 
 async def _harness(sc, doc: dict, speedup: float, cfg: ReplanConfig, before=None, during=None,
-                   flight_timeout: float = 150.0) -> tuple:
+                   flight_timeout: float = 150.0, seed: int = 3) -> tuple:
     """(outcome, event records, verified missions, flown items, sim) of one flight with replanning."""
-    out, records, rp, sim = await fly_on_sim(doc, sc, speedup=speedup, cfg=cfg, seed=3, before=before,
+    out, records, rp, sim = await fly_on_sim(doc, sc, speedup=speedup, cfg=cfg, seed=seed, before=before,
                                              during=during, flight_timeout=flight_timeout)
     return out, records, rp.verified, sim.flown_items, sim
+
+
+def _until_a_replan_is_uploaded(sc, doc: dict, before, happened, seeds=(3, 4, 5)) -> tuple:
+    """Fly (10x, replan budget 0.5 s) until a replan upload meets the fault ``before`` injects (``happened(sim)``):
+    on a loaded machine the search may find no safe detour in its budget, and the vehicle is then held until the
+    threat has passed with nothing uploaded, so the fault has nothing to act on. At most ``len(seeds)`` flights;
+    the last one is returned whatever happened (the test's own assertion then fails)."""
+    for seed in seeds:
+        result = asyncio.run(_harness(sc, doc, 10.0, UPLOADS, before=before, seed=seed))
+        if happened(result[-1]):
+            break
+    return result
 
 
 def _assert_only_verified_items_flown(verified: list, flown: list, min_flown: int = 6) -> None:
@@ -155,7 +167,8 @@ def test_failed_replan_upload_never_flies_a_mixed_mission(dynamic_plan: Path, dy
     def stall(sim: SimAutopilot) -> None:
         sim.inject_upload_stall(upload=2, first_lost=-4)  # upload 1 is the initial mission
 
-    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 10.0, UPLOADS, before=stall))
+    out, records, verified, flown, sim = _until_a_replan_is_uploaded(sc, doc, stall,
+                                                                     lambda sim: sim.abandoned_uploads)
     # the fault really left a mixed mission on the vehicle: equal to no verified mission
     assert sim.abandoned_uploads
     for mixed in sim.abandoned_uploads:
@@ -203,7 +216,7 @@ def test_refused_replan_upload_restores_a_verified_mission(dynamic_plan: Path, d
     def refuse(sim: SimAutopilot) -> None:
         sim.inject_item_refusal(None, mavlink.MAV_MISSION_NO_SPACE, times=times, when=second_new_item)
 
-    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 10.0, UPLOADS, before=refuse))
+    out, records, verified, flown, sim = _until_a_replan_is_uploaded(sc, doc, refuse, lambda sim: sim.refusals)
     names = [r["event"] for r in records]
     assert sim.refusals, "no replan upload was refused: the fault never happened"
     for _item, mixed in sim.refusals:  # each refusal really left a mission nobody verified
