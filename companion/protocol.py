@@ -164,6 +164,7 @@ class MissionClient:
             requested: int | None = None  # seq of the latest request (the item being processed)
             last_sent: int | None = None
             final_resent = False  # the last item went out again unasked, while waiting for the final ACK
+            stalled = False  # the item last sent went out again unasked (no request since)
             misses = 0
             answered = 0  # bounded even against a peer that re-requests forever
             max_answers = (count + 1) * (self.retries + 1) * 2
@@ -195,6 +196,7 @@ class MissionClient:
                         link.send(count_msg)
                     else:
                         log.debug("no request after item %d for %.2f s; resending it", last_sent, silent)
+                        stalled = True
                         link.send(items[last_sent].to_message(ts, tc))
                         final_resent = waiting_ack
                     continue
@@ -210,6 +212,11 @@ class MissionClient:
                         # (ours, or one the network duplicated) arriving once the upload had ended: the final
                         # ACK may have been lost; a readback tells
                         return msg.type, count - 1
+                    if msg.type == mavlink.MAV_MISSION_ERROR and stalled:
+                        # we had been resending an item nobody asked for again: the autopilot abandoned the
+                        # transfer on its own clock (its OPERATION_CANCELLED lost) and now answers our resend
+                        # as an item outside any upload. A link fault, not a refusal of that item.
+                        raise MissionTimeout("upload", requested)
                     if msg.type == mavlink.MAV_MISSION_INVALID_SEQUENCE and last_sent is not None:
                         # ArduPilot's answer to a duplicate (our own resend): the transfer goes on
                         log.debug("MISSION_ACK INVALID_SEQUENCE after item %d; continuing", last_sent)
@@ -224,7 +231,7 @@ class MissionClient:
                     raise MissionTimeout("upload", seq)
                 misses = 0  # the autopilot is talking to us
                 progress = loop.time()
-                final_resent = False
+                final_resent = stalled = False
                 requested = seq
                 link.send(items[seq].to_message(ts, tc))
                 last_sent = seq
