@@ -470,7 +470,13 @@ class LiveReplanner:
         settings = replan_settings(self.scenario.planner, cfg)
         t0 = time.monotonic()
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
-        job = await self._plan_watching(problem, settings, [self.seed, rec.n], seeds, cp.first_new_seq, rec)
+        # a plan that overruns (a loaded machine, a planner process still starting) must not let the vehicle fly
+        # on into the rewritten items and the conflict while it waits: the swap's guard applies already
+        plan = asyncio.create_task(self._worker.plan(problem, settings, [self.seed, rec.n], seeds, cfg.budget_s),
+                                   name="replan-plan")
+        await self._guarded(plan, cp.first_new_seq, self._guard_threshold_s(),
+                            "the plan is late: the vehicle could reach the commit point before it is ready", rec)
+        job = plan.result()
         rec.plan_s = round(time.monotonic() - t0, 3)
         rec.plan_status = status = job.status
         self._pump()
@@ -517,27 +523,23 @@ class LiveReplanner:
         self.events.log("replanned", **rec.summary())
         return True
 
-    async def _plan_watching(self, problem: Any, settings: Any, seed: list[int], initial: np.ndarray,
-                             first_new_seq: int, rec: ReplanRecord) -> WorkerPlan:
-        """The worker's plan, watching the vehicle meanwhile: a plan that overruns (a loaded machine, a
-        planner process still starting) must not let the vehicle fly on to the commit point and into the
-        conflict while it waits, so the swap's guard applies already: hold when the vehicle could reach the
-        commit point before the plan can be uploaded and verified."""
-        job = asyncio.create_task(self._worker.plan(problem, settings, seed, initial, self.cfg.budget_s),
-                                  name="replan-plan")
+    async def _guarded(self, task: asyncio.Task, first_new_seq: int, threshold_s: float, reason: str,
+                       rec: ReplanRecord) -> None:
+        """Wait for ``task`` (a plan or an upload) watching the vehicle meanwhile: hold it, saying ``reason``,
+        once it could step into item ``first_new_seq`` or a later one within ``threshold_s`` of vehicle time
+        while the task still runs. On any exception (a cancel included) the task is cancelled first."""
         try:
-            while not job.done():
-                await asyncio.wait({job}, timeout=0.01)
+            while not task.done():
+                await asyncio.wait({task}, timeout=0.01)
                 self._pump()
-                if self.holding is None and not job.done() and \
-                        self._eta_leave_prefix(first_new_seq) < self._guard_threshold_s():
-                    await self.hold("the plan is late: the vehicle could reach the commit point before it is ready")
+                if self.holding is None and not task.done() and \
+                        self._eta_leave_prefix(first_new_seq) < threshold_s:
+                    await self.hold(reason)
                     rec.held = True
         except BaseException:
-            job.cancel()
-            await asyncio.gather(job, return_exceptions=True)
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
             raise
-        return job.result()
 
     async def swap(self, items: list[MissionItem], first_new_seq: int, rec: ReplanRecord) -> bool:
         """Upload ``items`` while flying and make them the live mission (see the module docstring); False
@@ -556,23 +558,12 @@ class LiveReplanner:
             t0 = time.monotonic()
             upload = asyncio.create_task(self.client.upload_verified(items), name="replan-upload")
             try:
-                while not upload.done():
-                    await asyncio.wait({upload}, timeout=0.01)
-                    self._pump()
-                    if self.holding is None and not upload.done() and \
-                            self._eta_leave_prefix(first_new_seq) < cfg.guard_s:
-                        await self.hold("upload not verified yet and the vehicle is about to leave its item")
-                        rec.held = True
+                await self._guarded(upload, first_new_seq, cfg.guard_s,
+                                    "upload not verified yet and the vehicle is about to leave its item", rec)
             except asyncio.CancelledError:
                 # cancelled mid-upload (flight ended, Ctrl-C): the stored mission may be mixed, so hold first
-                upload.cancel()
-                await asyncio.gather(upload, return_exceptions=True)
                 if self.holding is None:
                     await asyncio.shield(self.hold("cancelled during an upload: the stored mission may be mixed"))
-                raise
-            except BaseException:
-                upload.cancel()
-                await asyncio.gather(upload, return_exceptions=True)
                 raise
             try:
                 upload.result()
