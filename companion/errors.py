@@ -26,22 +26,25 @@ class MissionTimeout(CompanionError):
 class MissionUploadError(CompanionError):
     """The autopilot answered a transfer with a MISSION_ACK error (``result`` is a MAV_MISSION_RESULT)."""
 
-    def __init__(self, result: int, seq: int | None = None, operation: str = "upload") -> None:
+    def __init__(self, result: int, seq: int | None = None, operation: str = "upload",
+                 transfer_fault: bool = False) -> None:
         from companion.items import mission_result_name
 
         self.result = result
         self.seq = seq
         self.operation = operation
+        self.transfer_fault = transfer_fault  # the answer may be the autopilot's own transfer trouble
         where = f" at item {seq}" if seq is not None else ""
         super().__init__(f"mission {operation} refused{where}: {mission_result_name(result)}")
 
     @property
     def refused(self) -> bool:
-        """A refusal (of an item or the list), not the autopilot's own timeout cancelling the transfer: doing
-        the same upload again will likely be refused again."""
+        """A refusal (of an item or the list), not the autopilot's own timeout cancelling the transfer nor an
+        answer that may stand for its transfer trouble (``transfer_fault``, e.g. PX4's MAV_MISSION_ERROR):
+        doing the same upload again will likely be refused again."""
         from pymavlink.dialects.v20 import common as mavlink
 
-        return self.result != mavlink.MAV_MISSION_OPERATION_CANCELLED
+        return not self.transfer_fault and self.result != mavlink.MAV_MISSION_OPERATION_CANCELLED
 
 
 class MissionVerifyError(CompanionError):

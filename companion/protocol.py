@@ -221,7 +221,9 @@ class MissionClient:
                         # ArduPilot's answer to a duplicate (our own resend): the transfer goes on
                         log.debug("MISSION_ACK INVALID_SEQUENCE after item %d; continuing", last_sent)
                         continue
-                    raise MissionUploadError(msg.type, requested)
+                    # PX4 answers MAV_MISSION_ERROR for its own transfer trouble too (busy, a sync timeout)
+                    px4_error = self.firmware is Firmware.PX4 and msg.type == mavlink.MAV_MISSION_ERROR
+                    raise MissionUploadError(msg.type, requested, transfer_fault=px4_error)
                 seq = msg.seq
                 if not 0 <= seq < count:
                     log.warning("autopilot requested item %d of %d; ignored", seq, count)

@@ -167,10 +167,7 @@ class FlightSupervisor:
                     break
                 except (MissionTimeout, MissionVerifyError, MissionUploadError) as e:
                     booting = self._refused_while_booting(e)
-                    # PX4 answers MAV_MISSION_ERROR for its own transfer trouble too (busy, a sync timeout)
-                    px4_error = self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4 and \
-                        isinstance(e, MissionUploadError) and e.result == mavlink.MAV_MISSION_ERROR
-                    transient = booting or px4_error or not (isinstance(e, MissionUploadError) and e.refused)
+                    transient = booting or not (isinstance(e, MissionUploadError) and e.refused)
                     self.events.log("upload_failed", mission_type=kind, attempt=attempt, error=str(e),
                                     retrying=transient and attempt < attempts)
                     if not transient or attempt == attempts:
