@@ -55,6 +55,11 @@ log = logging.getLogger(__name__)
 ACK_TIMEOUT_S = 0.5  # wall seconds to wait for each COMMAND_ACK (an autopilot answers within milliseconds)
 
 
+def message_id(name: str) -> int:
+    """The MAVLink message id of ``name`` (e.g. "GLOBAL_POSITION_INT")."""
+    return int(getattr(mavlink, f"MAVLINK_MSG_ID_{name}"))
+
+
 @dataclass(frozen=True)
 class Rate:
     """One message the companion reads: ``hz`` in the autopilot's time; ``stream`` the ArduPilot
@@ -68,7 +73,7 @@ class Rate:
 
     @property
     def msg_id(self) -> int:
-        return int(getattr(mavlink, f"MAVLINK_MSG_ID_{self.message}"))
+        return message_id(self.message)
 
     @property
     def interval_us(self) -> int:
@@ -139,8 +144,7 @@ async def request_rates(link: Link, rates: Sequence[Rate] = RATES,
     results: dict[str, str] = {}
     requests = [(r.message, r.msg_id, r.interval_us, r.hz) for r in rates]
     if link.autopilot == mavlink.MAV_AUTOPILOT_PX4:
-        requests = [(f"{name} off", int(getattr(mavlink, f"MAVLINK_MSG_ID_{name}")), OFF, 0.0)
-                    for name in PX4_UNUSED] + requests
+        requests = [(f"{name} off", message_id(name), OFF, 0.0) for name in PX4_UNUSED] + requests
     with link.subscribe("COMMAND_ACK", predicate=is_ack) as acks:
         for message, msg_id, interval_us, hz in requests:
             acks.drain()  # a late answer to the previous request
