@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Iterator
 from pathlib import Path
+from typing import TypeVar
 
 import pytest
 from px4_harness import DEFAULT_MODEL, Px4Instance, start_px4
@@ -14,6 +15,7 @@ from sitl_harness import HomeLike, SitlInstance, start_sitl, unavailable
 ROOT = Path(__file__).resolve().parent.parent
 SCENARIOS = ROOT / "sitl_scenarios"
 
+T = TypeVar("T", SitlInstance, Px4Instance)  # an autopilot process: it has stop()
 SitlFactory = Callable[..., SitlInstance]
 SITL_FIXTURES = {"sitl_factory", "sitl_factory_fn"}
 Px4Factory = Callable[..., Px4Instance]
@@ -35,27 +37,37 @@ def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
             item.add_marker(pytest.mark.px4)
 
 
-def _sitl_factory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SitlFactory]:
-    """Yield ``start(vehicle, home, speedup=10.0) -> SitlInstance``; stop all it started afterwards."""
-    started: list[SitlInstance] = []
+def _stopped_afterwards(launch: Callable[..., T]) -> Iterator[Callable[..., T]]:
+    """Yield ``launch`` (which starts an autopilot process, or skips the test) remembering what it started;
+    afterwards stop all of it, each one, then fail once naming what any left behind."""
+    started: list[T] = []
 
-    def start(vehicle: str, home: HomeLike | tuple[float, float, float], speedup: float = 10.0) -> SitlInstance:
-        reason = unavailable(vehicle)
-        if reason:
-            pytest.skip(reason)
-        sitl = start_sitl(vehicle, home, tmp_path_factory.mktemp(f"sitl-{vehicle}"), speedup)
-        started.append(sitl)
-        return sitl
+    def start(*args: object, **kwargs: object) -> T:
+        instance = launch(*args, **kwargs)
+        started.append(instance)
+        return instance
 
     yield start
     problems = []
-    for sitl in started:
+    for instance in started:
         try:
-            sitl.stop()
+            instance.stop()
         except AssertionError as e:
             problems.append(str(e))
     if problems:
         pytest.fail("\n".join(problems))
+
+
+def _sitl_factory(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SitlFactory]:
+    """Yield ``start(vehicle, home, speedup=10.0) -> SitlInstance``; stop all it started afterwards."""
+
+    def launch(vehicle: str, home: HomeLike | tuple[float, float, float], speedup: float = 10.0) -> SitlInstance:
+        reason = unavailable(vehicle)
+        if reason:
+            pytest.skip(reason)
+        return start_sitl(vehicle, home, tmp_path_factory.mktemp(f"sitl-{vehicle}"), speedup)
+
+    yield from _stopped_afterwards(launch)
 
 
 @pytest.fixture(scope="module")
@@ -73,27 +85,16 @@ def sitl_factory_fn(tmp_path_factory: pytest.TempPathFactory) -> Iterator[SitlFa
 
 def _px4_factory() -> Iterator[Px4Factory]:
     """Yield ``start(home, speedup=5.0, model="sihsim_quadx") -> Px4Instance``; stop all it started afterwards."""
-    started: list[Px4Instance] = []
 
-    def start(
+    def launch(
         home: HomeLike | tuple[float, float, float], speedup: float = 5.0, model: str = DEFAULT_MODEL
     ) -> Px4Instance:
         reason = px4_unavailable()
         if reason:
             pytest.skip(reason)
-        px4 = start_px4(home, speedup, model)
-        started.append(px4)
-        return px4
+        return start_px4(home, speedup, model)
 
-    yield start
-    problems = []
-    for px4 in started:
-        try:
-            px4.stop()
-        except AssertionError as e:
-            problems.append(str(e))
-    if problems:
-        pytest.fail("\n".join(problems))
+    yield from _stopped_afterwards(launch)
 
 
 @pytest.fixture(scope="module")
