@@ -21,21 +21,20 @@ The pytest fixtures are in tests/conftest.py; this module does not need pytest.
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import shutil
 import signal
 import socket
 import subprocess
 import tempfile
-import threading
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
 from pymavlink.dialects.v20 import common as mavlink
-from sitl_harness import HomeLike, _bindable, _socket_inodes
+from processes import bindable, claim_instance, log_tail, processes_in, socket_inodes, terminate
+from sitl_harness import HomeLike
 
 ENV = "FUSEPLAN_PX4_DIR"
 SKIP_REASON = (
@@ -49,8 +48,6 @@ READY_TIMEOUT = 30.0  # s, start -> first HEARTBEAT on the companion link (measu
 STOP_GRACE = 5.0  # s between SIGTERM and SIGKILL (measured: SIGTERM ends it in 0.01 s)
 STARTED = "Startup script returned successfully"  # PX4's log line once its startup script (rcS) has run
 FAILED = "Startup script returned with return value"  # ... when it failed (PX4 keeps running, without MAVLink)
-
-_pick_lock = threading.Lock()
 
 
 def ports(instance: int) -> tuple[int, ...]:
@@ -96,22 +93,10 @@ def _make_command_links(px4_dir: Path, target: Path) -> Path | None:
 
 
 def _claim_instance() -> tuple[int, IO[bytes]]:
-    """The first instance whose ports and companion port are free, claimed by a lock file held until stop."""
-    with _pick_lock:
-        for n in range(FIRST_INSTANCE, LAST_INSTANCE + 1):
-            try:
-                lock = open(Path(tempfile.gettempdir()) / f"fuseplan-px4-i{n}.lock", "wb")
-            except OSError:
-                continue
-            try:
-                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                lock.close()
-                continue
-            if all(_bindable(p, socket.SOCK_DGRAM) for p in (*ports(n), companion_port(n))):
-                return n, lock
-            lock.close()
-    raise RuntimeError(f"no free PX4 instance in {FIRST_INSTANCE}..{LAST_INSTANCE}")
+    """The first instance whose ports and companion port are free, claimed until stop
+    (:func:`processes.claim_instance`)."""
+    return claim_instance("fuseplan-px4-i{}.lock", range(FIRST_INSTANCE, LAST_INSTANCE + 1),
+                          lambda n: all(bindable(p, socket.SOCK_DGRAM) for p in (*ports(n), companion_port(n))))
 
 
 def _process_group(pgid: int) -> list[int]:
@@ -125,19 +110,6 @@ def _process_group(pgid: int) -> list[int]:
                 continue
             if int(stat.rsplit(")", 1)[1].split()[2]) == pgid:
                 pids.append(int(entry.name))
-    return pids
-
-
-def _processes_in(binary: Path, root: Path) -> list[int]:
-    """Pids running ``binary`` with their working directory at or under ``root``."""
-    pids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if os.readlink(entry / "exe") == str(binary) and Path(os.readlink(entry / "cwd")).is_relative_to(root):
-                    pids.append(int(entry.name))
-            except OSError:
-                continue
     return pids
 
 
@@ -200,11 +172,7 @@ class Px4Instance:
 
     def log_tail(self, lines: int = 20) -> str:
         """The last lines of PX4's output, for failure messages."""
-        try:
-            text = self.log_path.read_text(errors="replace")
-        except OSError as e:
-            return f"(no log: {e})"
-        return "\n".join(text.splitlines()[-lines:])
+        return log_tail(self.log_path, lines)
 
     def _fail(self, what: str) -> RuntimeError:
         return RuntimeError(f"PX4 -i{self.instance} {what}; {self.log_path} (removed on stop):\n{self.log_tail()}")
@@ -248,8 +216,8 @@ class Px4Instance:
             found.append(f"process {self.pid}")
         found += [f"process {pid} (group {self.pid})" for pid in _process_group(self.pid) if pid != self.pid]
         for where in {self.root, self.workdir or self.root}:
-            found += [f"process {pid} ({self.binary.name} in {where})" for pid in _processes_in(self.binary, where)]
-        found += [f"udp {p} bound" for p in ports(self.instance) if _socket_inodes(("udp", "udp6"), p, None)]
+            found += [f"process {pid} ({self.binary.name} in {where})" for pid in processes_in(self.binary, where)]
+        found += [f"udp {p} bound" for p in ports(self.instance) if socket_inodes(("udp", "udp6"), p, None)]
         found += [f"directory {d}" for d in {self.root, self.workdir or self.root} if d.exists()]
         return found
 
@@ -258,15 +226,8 @@ class Px4Instance:
         directory and its command socket of this run; then assert nothing is left. A second call does nothing."""
         if self._lock is None:
             return
-        t0 = time.monotonic()
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(STOP_GRACE)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.pid, signal.SIGKILL)  # the group is ours: its leader is not reaped yet
-                self.process.wait()
-        self.stop_s = time.monotonic() - t0
+        # SIGKILL to the whole group: it is ours, its leader not reaped yet
+        self.stop_s = terminate(self.process, STOP_GRACE, lambda: os.killpg(self.pid, signal.SIGKILL))
         for pid in _process_group(self.pid):  # a startup-script shell that outlived PX4
             if pid != self.pid:  # the leader is reaped: that pid is no longer ours
                 with contextlib.suppress(ProcessLookupError):

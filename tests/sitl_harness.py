@@ -8,11 +8,9 @@ The pytest fixtures are in tests/conftest.py; this module is importable from eve
 from __future__ import annotations
 
 import contextlib
-import fcntl
 import os
 import socket
 import subprocess
-import tempfile
 import threading
 import time
 from dataclasses import dataclass, field
@@ -20,6 +18,7 @@ from pathlib import Path
 from typing import IO, Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from processes import bindable, claim_instance, log_tail, processes_in, socket_inodes, terminate
 
 ENV = "FUSEPLAN_SITL_DIR"
 SKIP_REASON = (
@@ -30,8 +29,6 @@ VEHICLES = {"plane": ("arduplane", "plane", "plane.parm"), "copter": ("arducopte
 FIRST_INSTANCE, LAST_INSTANCE = 1, 99  # engineers run SITL by hand on some of these: busy ones are skipped
 LISTEN_TIMEOUT = 20.0  # s, start -> SERIAL0 in LISTEN (measured: under 0.1 s)
 STOP_GRACE = 5.0  # s between SIGTERM and SIGKILL (measured: SIGTERM ends it in under 0.1 s)
-
-_pick_lock = threading.Lock()
 
 
 class HomeLike(Protocol):
@@ -70,57 +67,18 @@ def defaults_file(sitl_dir: Path, vehicle: str) -> Path | None:
     return next((p for p in candidates if p.is_file()), None)
 
 
-def _bindable(port: int, kind: socket.SocketKind) -> bool:
-    """Whether 127.0.0.1:port can be bound (TCP with SO_REUSEADDR as SITL does, so TIME_WAIT does not count)."""
-    with socket.socket(socket.AF_INET, kind) as s:
-        if kind == socket.SOCK_STREAM:
-            s.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-        try:
-            s.bind(("127.0.0.1", port))
-        except OSError:
-            return False
-    return True
-
-
 def _claim_instance() -> tuple[int, IO[bytes]]:
-    """The first instance whose four ports are free, claimed by a lock file held until stop (so neither another
-    fixture of this process nor a parallel pytest picks it before SITL has bound all its ports)."""
-    with _pick_lock:
-        for n in range(FIRST_INSTANCE, LAST_INSTANCE + 1):
-            try:
-                lock = open(Path(tempfile.gettempdir()) / f"fuseplan-sitl-I{n}.lock", "wb")
-            except OSError:
-                continue
-            try:
-                fcntl.flock(lock, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError:
-                lock.close()
-                continue
-            tcp0, tcp1, tcp2, udp = ports(n)
-            if all(_bindable(p, socket.SOCK_STREAM) for p in (tcp0, tcp1, tcp2)) and _bindable(udp, socket.SOCK_DGRAM):
-                return n, lock
-            lock.close()
-    raise RuntimeError(f"no free SITL instance in {FIRST_INSTANCE}..{LAST_INSTANCE}")
+    """The first instance whose four ports are free, claimed until stop (:func:`processes.claim_instance`)."""
+    def free(n: int) -> bool:
+        tcp0, tcp1, tcp2, udp = ports(n)
+        return all(bindable(p, socket.SOCK_STREAM) for p in (tcp0, tcp1, tcp2)) and bindable(udp, socket.SOCK_DGRAM)
 
-
-def _socket_inodes(tables: tuple[str, ...], port: int, state: str | None) -> set[str]:
-    """Inodes of the sockets in /proc/net ``tables`` on local ``port`` (in ``state``, e.g. "0A" = LISTEN)."""
-    found = set()
-    for table in tables:
-        try:
-            rows = Path("/proc/net", table).read_text().splitlines()[1:]
-        except FileNotFoundError:
-            continue
-        for row in rows:
-            f = row.split()
-            if int(f[1].rsplit(":", 1)[1], 16) == port and (state is None or f[3] == state):
-                found.add(f[9])
-    return found
+    return claim_instance("fuseplan-sitl-I{}.lock", range(FIRST_INSTANCE, LAST_INSTANCE + 1), free)
 
 
 def _listening(port: int) -> set[str]:
     """Inodes of TCP sockets in LISTEN on ``port``."""
-    return _socket_inodes(("tcp", "tcp6"), port, "0A")
+    return socket_inodes(("tcp", "tcp6"), port, "0A")
 
 
 def _owned_sockets(pid: int) -> set[str]:
@@ -138,19 +96,6 @@ def _owned_sockets(pid: int) -> set[str]:
         if target.startswith("socket:["):
             found.add(target[8:-1])
     return found
-
-
-def _processes(binary: Path, workdir: Path) -> list[int]:
-    """Pids running ``binary`` in ``workdir`` (the instance or anything it left behind)."""
-    pids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                if os.readlink(entry / "exe") == str(binary) and os.readlink(entry / "cwd") == str(workdir):
-                    pids.append(int(entry.name))
-            except OSError:
-                continue
-    return pids
 
 
 class GcsHolder:
@@ -240,11 +185,7 @@ class SitlInstance:
 
     def log_tail(self, lines: int = 20) -> str:
         """The last lines of the SITL log, for failure messages."""
-        try:
-            text = self.log_path.read_text(errors="replace")
-        except OSError as e:
-            return f"(no log: {e})"
-        return "\n".join(text.splitlines()[-lines:])
+        return log_tail(self.log_path, lines)
 
     def wait_listening(self, url: str, timeout: float = LISTEN_TIMEOUT) -> float:
         """Wait until this process has a LISTEN socket on ``url``'s port (read from /proc, no connection made);
@@ -283,11 +224,11 @@ class SitlInstance:
         found = []
         if self.process.returncode is None or Path(f"/proc/{self.pid}").exists():
             found.append(f"process {self.pid}")
-        strays = _processes(self.binary, self.workdir)
+        strays = processes_in(self.binary, self.workdir)
         found += [f"process {pid} ({self.binary.name} in {self.workdir})" for pid in strays]
         tcp0, tcp1, tcp2, udp = ports(self.instance)
         found += [f"LISTEN on tcp {p}" for p in (tcp0, tcp1, tcp2) if _listening(p)]
-        if _socket_inodes(("udp", "udp6"), udp, None):
+        if socket_inodes(("udp", "udp6"), udp, None):
             found.append(f"udp {udp} bound")
         return found
 
@@ -298,15 +239,7 @@ class SitlInstance:
             return
         for holder in self._holders:
             holder.close()
-        t0 = time.monotonic()
-        if self.process.poll() is None:
-            self.process.terminate()
-            try:
-                self.process.wait(STOP_GRACE)
-            except subprocess.TimeoutExpired:
-                self.process.kill()
-                self.process.wait()
-        self.stop_s = time.monotonic() - t0
+        self.stop_s = terminate(self.process, STOP_GRACE)
         left = self.leftovers()
         self._lock.close()  # frees the instance number for the next start
         self._lock = None

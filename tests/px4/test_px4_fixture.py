@@ -13,6 +13,7 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
+from processes import bindable
 from px4_harness import (
     ENV,
     SKIP_REASON,
@@ -23,7 +24,6 @@ from px4_harness import (
     start_px4,
     unavailable,
 )
-from sitl_harness import _bindable
 
 from planner.scenario import Home, load_scenario
 
@@ -55,7 +55,7 @@ def _assert_gone(px4: Px4Instance) -> None:
     """Nothing of a stopped instance is left: process, any px4 in its directories, ports, directories."""
     assert px4.process.returncode is not None
     assert not Path(f"/proc/{px4.pid}").exists()
-    assert all(_bindable(p, socket.SOCK_DGRAM) for p in (*ports(px4.instance), companion_port(px4.instance)))
+    assert all(bindable(p, socket.SOCK_DGRAM) for p in (*ports(px4.instance), companion_port(px4.instance)))
     assert px4.workdir is not None and px4.workdir.is_relative_to(px4.root)  # start.sh's mktemp went to our TMPDIR
     assert not px4.root.exists() and not px4.workdir.exists()
     assert px4.leftovers() == []

@@ -10,7 +10,8 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from sitl_harness import ENV, SKIP_REASON, _bindable, _claim_instance, defaults_file, ports, start_sitl, unavailable
+from processes import bindable
+from sitl_harness import ENV, SKIP_REASON, _claim_instance, defaults_file, ports, start_sitl, unavailable
 
 from planner.scenario import Home, load_scenario
 
@@ -37,7 +38,7 @@ def _heartbeat(conn: mavutil.mavfile, system: int, component: int, timeout: floa
 
 def _all_ports_free(instance: int) -> bool:
     tcp0, tcp1, tcp2, udp = ports(instance)
-    return all(_bindable(p, socket.SOCK_STREAM) for p in (tcp0, tcp1, tcp2)) and _bindable(udp, socket.SOCK_DGRAM)
+    return all(bindable(p, socket.SOCK_STREAM) for p in (tcp0, tcp1, tcp2)) and bindable(udp, socket.SOCK_DGRAM)
 
 
 @pytest.mark.parametrize(
@@ -47,7 +48,7 @@ def test_heartbeat_on_serial0_then_stop_leaves_nothing(sitl_factory, home, vehic
     sitl = sitl_factory(vehicle, home)
     assert "Waiting for connection" in sitl.log_path.read_text()
     assert f"Home: {home.lat:.6f} {home.lon:.6f} alt={home.alt:.6f}m" in sitl.log_path.read_text()
-    assert _bindable(int(sitl.serial1_url.rsplit(":", 1)[1]), socket.SOCK_STREAM)  # SERIAL1: not before SERIAL0
+    assert bindable(int(sitl.serial1_url.rsplit(":", 1)[1]), socket.SOCK_STREAM)  # SERIAL1: not before SERIAL0
     with closing(_connect(sitl.serial0_url)) as gcs:
         hb = _heartbeat(gcs, 1, 1)
     assert hb.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
