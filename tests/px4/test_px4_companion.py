@@ -18,11 +18,12 @@ from companion.builder import MissionSpec, build_mission
 from companion.errors import CompanionError
 from companion.events import EventLog
 from companion.geo import enu_to_geodetic, to_int_e7
-from companion.items import FENCE, FRAME_REL_ALT_INT, MISSION, MissionItem, compare_items
+from companion.items import FENCE, FRAME_REL_ALT_INT, MissionItem, compare_items
 from companion.link import Link
 from companion.protocol import MissionClient
 from companion.storage import Firmware, stored
 from companion.supervisor import FlightSupervisor
+from companion.telemetry import request_rates
 from planner.cli import main
 from planner.scenario import load_scenario
 
@@ -52,8 +53,6 @@ async def px4_link(px4_factory) -> AsyncIterator[tuple[Link, MissionClient, Flig
         await link.wait_heartbeat(20.0)
         client = MissionClient(link)
         sup = FlightSupervisor(link, client, EventLog(), arm=True)
-        from companion.telemetry import request_rates
-
         await request_rates(link)
         await sup.wait_booted(30.0)
         await sup.wait_ready(60.0)
