@@ -34,6 +34,7 @@ from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega
 
 from companion.errors import LinkError
+from companion.profiles import AutopilotProfile, profile_for
 from companion.signing import SigningKey, enable_signing
 
 log = logging.getLogger(__name__)
@@ -217,6 +218,12 @@ class Link:
     @property
     def connected(self) -> bool:
         return self._conn is not None
+
+    @property
+    def profile(self) -> AutopilotProfile:
+        """What the target autopilot does where the companion must know it (:mod:`companion.profiles`), from its
+        last HEARTBEAT's autopilot and type; the generic profile until one is heard."""
+        return profile_for(self.autopilot, self.vehicle_type)
 
     async def open(self) -> None:
         """Create the connection, start receiving and heartbeating."""

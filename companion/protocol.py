@@ -31,8 +31,9 @@ from pymavlink.dialects.v20 import common as mavlink
 
 from companion.errors import CommandError, MissionTimeout, MissionUploadError, MissionVerifyError
 from companion.items import FENCE, MISSION, MissionItem
-from companion.storage import Firmware, mission_difference
 from companion.link import Link, Message
+from companion.profiles import Firmware
+from companion.storage import mission_difference
 
 log = logging.getLogger(__name__)
 
@@ -51,7 +52,6 @@ def command_name(command: int) -> str:
 
 
 DOWNLOAD_RESTARTS = 3  # a stalled download is started again this many times (the last try is patient)
-ARDUPILOT_MIN_FENCE_ITEMS = 3  # fewer fence items than this count as no fence on ArduPilot (see _upload)
 FINAL_ACK_MISSES = 3  # waits (of ``timeout``) for the final MISSION_ACK before checking by readback
 
 
@@ -119,12 +119,11 @@ class MissionClient:
             await self._upload(_numbered(items, mission_type), mission_type)
 
     async def _upload(self, items: list[MissionItem], mission_type: int) -> list[MissionItem] | None:
-        """The upload; returns the readback when one was needed to confirm it (else None). An ArduPilot fence
-        of fewer than 3 items goes to a cleared fence: ArduPilot counts such a fence as none (FENCE_TOTAL 0),
-        and its fence loader erases the stored fence, a few milliseconds after acknowledging the upload, when
-        that count drops from non-zero to 0 (seen on 4.7 SITL: one circle over six). Cleared first, with two
-        HEARTBEATs for the loader to see the drop, the fence that follows stays."""
-        if mission_type == FENCE and 0 < len(items) < ARDUPILOT_MIN_FENCE_ITEMS and self.firmware.ardupilot:
+        """The upload; returns the readback when one was needed to confirm it (else None). A fence of fewer
+        items than the autopilot's ``min_fence_items`` (ArduPilot: 3, see :mod:`companion.profiles`) goes to a
+        cleared fence: ArduPilot's fence loader would erase the stored fence just after acknowledging it.
+        Cleared first, with two HEARTBEATs for the loader to see the drop, the fence that follows stays."""
+        if mission_type == FENCE and 0 < len(items) < self.link.profile.min_fence_items:
             await self._clear(FENCE)
             for _ in range(2):
                 try:
@@ -221,9 +220,8 @@ class MissionClient:
                         # ArduPilot's answer to a duplicate (our own resend): the transfer goes on
                         log.debug("MISSION_ACK INVALID_SEQUENCE after item %d; continuing", last_sent)
                         continue
-                    # PX4 answers MAV_MISSION_ERROR for its own transfer trouble too (busy, a sync timeout)
-                    px4_error = self.firmware is Firmware.PX4 and msg.type == mavlink.MAV_MISSION_ERROR
-                    raise MissionUploadError(msg.type, requested, transfer_fault=px4_error)
+                    fault = msg.type == mavlink.MAV_MISSION_ERROR and self.link.profile.error_may_be_transfer_fault
+                    raise MissionUploadError(msg.type, requested, transfer_fault=fault)
                 seq = msg.seq
                 if not 0 <= seq < count:
                     log.warning("autopilot requested item %d of %d; ignored", seq, count)
@@ -261,12 +259,13 @@ class MissionClient:
 
     @property
     def firmware(self) -> Firmware:
-        """How the target stores items (:mod:`companion.storage`), from its HEARTBEAT."""
-        return Firmware.of(self.link.autopilot, self.link.vehicle_type)
+        """How the target stores items (:mod:`companion.storage`): its profile's."""
+        return self.link.profile.storage
 
     def home_at_zero(self, mission_type: int) -> bool:
-        """ArduPilot keeps home at item 0 of the mission list (replaced on upload, read back as the real home)."""
-        return mission_type == MISSION and self.link.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+        """The target keeps its home at item 0 of the mission list (ArduPilot: replaced on upload, read back as
+        the real home)."""
+        return mission_type == MISSION and self.link.profile.home_at_zero
 
     # ------------------------------------------------------------------ download
     async def download(self, mission_type: int = MISSION) -> list[MissionItem]:

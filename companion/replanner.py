@@ -38,7 +38,6 @@ from companion.events import EventLog
 from companion.geo import geodetic_to_enu
 from companion.items import MissionItem
 from companion.link import MAV_COMP_ID_ADSB, Link, Message, Subscription
-from companion.modes import hold_mode, mode_name, mode_number, set_mode_params
 from companion.protocol import MissionClient
 from companion.restore import restore_mission
 from companion.replan import (
@@ -63,7 +62,6 @@ WATCHED = ("GLOBAL_POSITION_INT", "ADSB_VEHICLE", "MISSION_CURRENT", "MISSION_IT
 # ADS-B reports come from the autopilot (its own receiver, forwarded) or from a receiver that is a MAVLink component
 # of the same vehicle; that receiver's other messages (its HEARTBEAT) and every other system's are not ours
 ADSB_SOURCES = {"ADSB_VEHICLE": (MAV_COMP_ID_ADSB,)}
-PLANE_EARLY_SWITCH_M = 65.0  # ArduPlane counts a waypoint reached up to this far before it (AUTOPILOT_FACTS)
 BAND_INSET_M = 0.5  # a commit point is moved at least this far inside the altitude band
 GOOD = (PlanStatus.EXACT.value, PlanStatus.APPROXIMATE.value)
 PACE_TAU_S = 8.0  # vehicle seconds over which the ground speed along the route is smoothed
@@ -309,19 +307,14 @@ class LiveReplanner:
         self.pace = keep * (cruise if self.pace is None else self.pace) + (1.0 - keep) * v
 
     def _number(self, name: str) -> int:
-        return mode_number(self.link.autopilot or 0, self.link.vehicle_type or 0, name)
+        return self.link.profile.mode_number(name)
 
     def _name(self, custom_mode: int) -> str:
-        return mode_name(self.link.autopilot or 0, self.link.vehicle_type or 0, custom_mode)
+        return self.link.profile.mode_name(custom_mode)
 
     @property
     def hold_mode(self) -> str:
-        return hold_mode(self.link.autopilot or 0, self.link.vehicle_type or 0)
-
-    @property
-    def is_arduplane(self) -> bool:
-        return self.link.autopilot != mavlink.MAV_AUTOPILOT_PX4 and \
-            self.link.vehicle_type == mavlink.MAV_TYPE_FIXED_WING
+        return self.link.profile.hold_mode
 
     def in_control(self) -> bool:
         """The vehicle flies our mission in AUTO, or holds in the mode we put it in. Any other mode (the pilot
@@ -371,7 +364,7 @@ class LiveReplanner:
         """Vehicle seconds a vehicle resumed now may take to be flying its route again: none when it is not
         held or stops dead (a copter in BRAKE); for a plane circling in LOITER, anything up to one circle,
         which is why a hold that merely delays a plane by a few seconds must not look like a cleared threat."""
-        if self.holding is None or not self.is_arduplane:
+        if self.holding is None or not self.link.profile.hold_circles:
             return np.zeros(1)
         circle = 2.0 * math.pi * self.cfg.plane_loiter_radius_m / self.speed
         held = self.now() - self._held_since if self._held_since is not None else circle
@@ -546,9 +539,7 @@ class LiveReplanner:
         when they were verified but are no longer safe to join (the vehicle is then held)."""
         cfg = self.cfg
         self._pump()
-        if self.holding is None and not self.is_arduplane:
-            # ArduCopter/Rover re-read the current and next two NAV items from storage as soon as they change,
-            # and PX4's behaviour is not ours to assume: only ArduPlane keeps flying its copy
+        if self.holding is None and not self.link.profile.flies_copy_during_upload:
             await self.hold("the vehicle would re-read its items from storage during the upload")
             rec.held = True
         elif self.holding is None and self._eta_leave_prefix(first_new_seq) < self._guard_threshold_s():
@@ -612,8 +603,7 @@ class LiveReplanner:
 
     def _switch_m(self) -> float:
         """How far before a waypoint the vehicle may count it reached (ArduPlane switches early)."""
-        accept = self.scenario.vehicle.acceptance_radius
-        return max(accept, PLANE_EARLY_SWITCH_M) if self.is_arduplane else accept
+        return max(self.scenario.vehicle.acceptance_radius, self.link.profile.early_switch_m)
 
     def _commit_lead_m(self, conflict: Conflict, now: float) -> float:
         """How far ahead of the vehicle the new route starts. Far enough that the vehicle, flying on while the
@@ -694,12 +684,11 @@ class LiveReplanner:
     # -- holding ------------------------------------------------------------------------------------
     async def _mode(self, name: str) -> None:
         custom = self._number(name)
-        await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE,
-                                       *set_mode_params(self.link.autopilot or 0, custom))
+        await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE, *self.link.profile.set_mode_params(custom))
         self.custom_mode = custom  # accepted; the next HEARTBEAT will say so too
 
     async def hold(self, reason: str) -> None:
-        """Stop the vehicle advancing through its mission where it is (:func:`companion.modes.hold_mode`)."""
+        """Stop the vehicle advancing through its mission where it is (its profile's ``hold_mode``)."""
         if self.holding is not None:
             return
         if self.custom_mode is not None and self.custom_mode != self._number("AUTO"):

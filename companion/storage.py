@@ -15,7 +15,6 @@ item and only drops a fence item's frame and autocontinue. Commands not listed k
 
 from __future__ import annotations
 
-import enum
 import math
 from collections.abc import Sequence
 from dataclasses import replace
@@ -23,32 +22,8 @@ from dataclasses import replace
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.items import FENCE, RALLY, MissionItem, compare_items, normalise_frame
+from companion.profiles import Firmware  # which of these rules an autopilot follows: its profile's ``storage``
 
-
-class Firmware(enum.Enum):
-    """How an autopilot stores items: ArduPlane and the other ArduPilot vehicles differ in NAV_WAYPOINT."""
-
-    ARDUPLANE = "arduplane"
-    ARDUCOPTER = "arducopter"  # also Rover and Sub: AP_Mission's non-plane branch
-    PX4 = "px4"
-    GENERIC = "generic"  # stores every field (MAVSDK's MissionRawServer)
-
-    @classmethod
-    def of(cls, autopilot: int | None, vehicle_type: int | None) -> Firmware:
-        """From a HEARTBEAT's ``autopilot`` and ``type``."""
-        if autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
-            return cls.ARDUPLANE if vehicle_type in _FIXED_WING else cls.ARDUCOPTER
-        if autopilot == mavlink.MAV_AUTOPILOT_PX4:
-            return cls.PX4
-        return cls.GENERIC
-
-    @property
-    def ardupilot(self) -> bool:
-        return self in (Firmware.ARDUPLANE, Firmware.ARDUCOPTER)
-
-
-_FIXED_WING = frozenset({mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_TYPE_VTOL_DUOROTOR,  # QuadPlane types too
-                         mavlink.MAV_TYPE_VTOL_QUADROTOR, mavlink.MAV_TYPE_VTOL_TILTROTOR})
 
 # ArduPilot commands kept without a position: read back in frame GLOBAL with x = y = z = 0
 _NO_POSITION = frozenset({mavlink.MAV_CMD_DO_CHANGE_SPEED, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH})

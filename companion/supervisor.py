@@ -20,7 +20,7 @@ from companion.errors import (CommandError, CompanionError, MissionTimeout, Miss
 from companion.events import EventLog
 from companion.items import FENCE, MISSION, MissionItem
 from companion.link import Link, Subscription
-from companion.modes import mode_name, mode_number, set_mode_params
+from companion.profiles import ARM, MODE, PILOT_ARM, START, profile_for
 from companion.protocol import MissionClient
 from companion.replanner import LiveReplanner
 from companion.restore import restore_mission
@@ -32,10 +32,8 @@ PILOT_ARM_TIMEOUT_S = 600.0
 REPLANNER_STOP_S = 5.0  # wall seconds a cancelled replanner may take to finish (a plan in progress)
 UPLOAD_ATTEMPTS = 3  # whole verified uploads tried before the flight when the link breaks one
 BOOT_TIMEOUT_S = 60.0  # wall seconds an autopilot may take to finish booting
-PX4_CHECK_S = 3.0  # wall seconds PX4's navigator may take to accept a verified mission (measured: ≤ 0.21 s)
+VERDICT_S = 3.0  # wall seconds PX4's navigator may take to accept a verified mission (measured: ≤ 0.21 s)
 BOOT_GRACE_S = 10.0  # a MAV_MISSION_NO_SPACE this soon after boot is the boot's, not the mission's size
-BOOTING_STATES = frozenset({mavlink.MAV_STATE_UNINIT, mavlink.MAV_STATE_BOOT, mavlink.MAV_STATE_CALIBRATING})
-ARDUPLANE_INITIALISING = 16  # ArduPlane's custom mode until its setup has finished
 
 
 @dataclass
@@ -53,10 +51,13 @@ class FlightOutcome:
 
 
 def _booting(hb: object) -> bool:
-    """A HEARTBEAT of an autopilot that has not finished booting."""
-    return hb.system_status in BOOTING_STATES or (  # type: ignore[attr-defined]
-        hb.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA and hb.type == mavlink.MAV_TYPE_FIXED_WING  # type: ignore[attr-defined]
-        and hb.custom_mode == ARDUPLANE_INITIALISING)  # type: ignore[attr-defined]
+    """A HEARTBEAT of an autopilot that has not finished booting (its profile's ``booting``)."""
+    return profile_for(hb.autopilot, hb.type).booting(hb.system_status, hb.custom_mode)  # type: ignore[attr-defined]
+
+
+def _mode_name(hb: object) -> str:
+    """The mode a HEARTBEAT reports, by name."""
+    return profile_for(hb.autopilot, hb.type).mode_name(hb.custom_mode)  # type: ignore[attr-defined]
 
 
 class FlightSupervisor:
@@ -73,22 +74,19 @@ class FlightSupervisor:
     async def wait_booted(self, timeout: float = BOOT_TIMEOUT_S) -> None:
         """Wait until the autopilot has finished booting before touching its mission: its HEARTBEAT no longer
         says UNINIT/BOOT/CALIBRATING (nor, on ArduPlane, mode INITIALISING) and, from ArduPilot or PX4, a first
-        SYS_STATUS has come. An ArduPilot that is still booting refuses every upload with
-        MAV_MISSION_NO_SPACE (AUTOPILOT_FACTS: a companion usually powers up with its autopilot)."""
+        SYS_STATUS has come (the profile's boot fields). An ArduPilot that is still booting refuses every upload
+        with MAV_MISSION_NO_SPACE (AUTOPILOT_FACTS: a companion usually powers up with its autopilot)."""
         t0 = time.monotonic()
-        wants_status = self.link.autopilot in (mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, mavlink.MAV_AUTOPILOT_PX4)
-        hb, status_seen, said = self.link.last_heartbeat_msg, not wants_status, False
+        hb, status_seen, said = self.link.last_heartbeat_msg, not self.link.profile.boot_needs_status, False
         with self.link.subscribe("HEARTBEAT", "SYS_STATUS") as sub:
             while hb is None or _booting(hb) or not status_seen:
                 if not said and hb is not None and _booting(hb):
-                    self.events.log("booting", system_status=hb.system_status,
-                                    mode=mode_name(hb.autopilot, hb.type, hb.custom_mode))
+                    self.events.log("booting", system_status=hb.system_status, mode=_mode_name(hb))
                     said = True
                 left = timeout - (time.monotonic() - t0)
                 if left <= 0:
-                    what = (f"HEARTBEAT system_status {hb.system_status}, mode "
-                            f"{mode_name(hb.autopilot, hb.type, hb.custom_mode)}" if hb is not None and _booting(hb)
-                            else "no SYS_STATUS")
+                    what = (f"HEARTBEAT system_status {hb.system_status}, mode {_mode_name(hb)}"
+                            if hb is not None and _booting(hb) else "no SYS_STATUS")
                     raise CompanionError(f"the autopilot did not finish booting within {timeout:.0f} s ({what}); "
                                          "nothing was uploaded")
                 try:
@@ -122,7 +120,7 @@ class FlightSupervisor:
             return all(v is None or v for v in state.values()) and state["gps"] is not None
 
         deadline = time.monotonic() + timeout
-        px4 = self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4
+        health_only = self.link.profile.prearm_health_only
         with self.link.subscribe("GPS_RAW_INT", "SYS_STATUS", "EKF_STATUS_REPORT") as sub:
             while not ready():
                 left = deadline - time.monotonic()
@@ -135,8 +133,7 @@ class FlightSupervisor:
                 kind = msg.get_type()
                 if kind == "GPS_RAW_INT":
                     state["gps"] = msg.fix_type >= 3
-                elif kind == "SYS_STATUS" and (msg.onboard_control_sensors_present & PREARM_BIT or px4):
-                    # PX4 sets the pre-arm bit in health only (never in present), ~2 s after its checks pass
+                elif kind == "SYS_STATUS" and (msg.onboard_control_sensors_present & PREARM_BIT or health_only):
                     state["prearm"] = bool(msg.onboard_control_sensors_health & PREARM_BIT)
                 elif kind == "EKF_STATUS_REPORT":
                     state["ekf"] = (msg.flags & EKF_GOOD) == EKF_GOOD
@@ -152,9 +149,8 @@ class FlightSupervisor:
         part new, part old): raises :class:`UploadAborted` saying what the vehicle was left with."""
         self.events.log("upload_start", mission_items=len(items), fence_items=len(fence))
         dt = 0.0  # the uploads' own time, not the backups' (the replanner's first guess at a replan upload)
-        if items and self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4:
-            # PX4 keeps its current item across uploads (and judges a new mission from it): a mission flown
-            # before, or a set-current, would leave it mid-list. The first item flagged current resets it.
+        if items and self.link.profile.first_item_current_on_upload:
+            # PX4 keeps its current item across uploads: the first item flagged current resets it
             items = [replace(items[0], current=1), *items[1:]]
         for kind, payload in ((MISSION, items), (FENCE, fence)):
             if not payload:
@@ -177,16 +173,15 @@ class FlightSupervisor:
                         await self.wait_booted()
                         await asyncio.sleep(1.0)
             dt += time.monotonic() - t0
-            if kind == MISSION and self.link.autopilot == mavlink.MAV_AUTOPILOT_PX4:
-                await self._px4_mission_valid(len(payload))
+            if kind == MISSION and self.link.profile.awaits_mission_verdict:
+                await self._mission_verdict(len(payload))
         self.events.log("upload_verified", seconds=round(dt, 3))
         return dt
 
-    async def _px4_mission_valid(self, count: int, timeout: float = PX4_CHECK_S) -> None:
-        """PX4 acknowledges an upload before its navigator has checked that the mission can be flown (takeoff
-        first, supported commands, a landing for planes); the verdict comes 30–210 ms later as MISSION_CURRENT
-        with the new total and mission_state NOT_STARTED/ACTIVE (valid) or NO_MISSION (rejected, the reason
-        only in PX4's EVENT messages). Starting before that is DENIED."""
+    async def _mission_verdict(self, count: int, timeout: float = VERDICT_S) -> None:
+        """Wait for the navigator's verdict on a verified mission (the profile's ``awaits_mission_verdict``: PX4):
+        MISSION_CURRENT with the new total and mission_state NOT_STARTED/ACTIVE (valid) or NO_MISSION (rejected,
+        the reason only in PX4's EVENT messages). Starting before it is DENIED."""
         valid = (mavlink.MISSION_STATE_NOT_STARTED, mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_PAUSED)
         with self.link.subscribe("MISSION_CURRENT", predicate=lambda m: m.total == count) as sub:
             deadline = time.monotonic() + timeout
@@ -226,10 +221,10 @@ class FlightSupervisor:
 
     # -- start -------------------------------------------------------------------------------------
     async def set_mode(self, name: str) -> None:
-        """MAV_CMD_DO_SET_MODE (:func:`companion.modes.set_mode_params`)."""
-        custom = mode_number(self.link.autopilot or 0, self.link.vehicle_type or 0, name)
+        """MAV_CMD_DO_SET_MODE as the autopilot's profile packs it."""
+        profile = self.link.profile
         await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE,
-                                       *set_mode_params(self.link.autopilot or 0, custom))
+                                       *profile.set_mode_params(profile.mode_number(name)))
         self.events.log("mode", mode=name)
 
     async def arm_vehicle(self, attempts: int = 5) -> None:
@@ -245,37 +240,31 @@ class FlightSupervisor:
                 await asyncio.sleep(1.0)
 
     async def start(self, first_seq: int) -> None:
-        """Make the first item current, then the autopilot's start sequence: ArduPlane AUTO → arm → start;
-        ArduCopter GUIDED → arm → AUTO → start (it refuses to arm in AUTO); PX4 arm → mission → start."""
-        link = self.link
-        px4 = link.autopilot == mavlink.MAV_AUTOPILOT_PX4
-        plane = link.vehicle_type == mavlink.MAV_TYPE_FIXED_WING
+        """Make the first item current, then the autopilot's start sequence (its profile's; the pilot arms
+        unless the companion may): ArduPlane AUTO → arm → start; ArduCopter GUIDED → arm → AUTO → start; PX4
+        arm → mission → start."""
+        profile = self.link.profile
         await self.client.set_current(first_seq)
         self.events.log("set_current", seq=first_seq)
-        if not self.arm:  # a copter must be armed outside AUTO, so only planes and PX4 wait in AUTO
-            if plane or px4:
-                await self.set_mode("AUTO")
-            self.events.log("waiting_for_pilot_arm", note="the companion arms only with --arm")
-            try:
-                await link.wait_for("HEARTBEAT", timeout=PILOT_ARM_TIMEOUT_S,
-                                    predicate=lambda m: m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
-            except TimeoutError:
-                raise CompanionError(f"the vehicle was not armed within {PILOT_ARM_TIMEOUT_S:.0f} s "
-                                     "(pass --arm to let the companion arm it)") from None
-            if not (plane or px4):
-                await self.set_mode("AUTO")
-        elif plane or px4:
-            if not px4:
-                await self.set_mode("AUTO")
-            await self.arm_vehicle()
-            if px4:
-                await self.set_mode("AUTO")
-        else:
-            await self.set_mode("GUIDED")
-            await self.arm_vehicle()
-            await self.set_mode("AUTO")
-        await self.client.command_long(mavlink.MAV_CMD_MISSION_START, 0, 0)
-        self.events.log("mission_start")
+        for step in profile.start_sequence if self.arm else profile.pilot_arm_sequence:
+            if step.startswith(MODE):
+                await self.set_mode(step.removeprefix(MODE))
+            elif step == ARM:
+                await self.arm_vehicle()
+            elif step == PILOT_ARM:
+                await self._wait_pilot_arm()
+            elif step == START:  # (the profile has checked its steps)
+                await self.client.command_long(mavlink.MAV_CMD_MISSION_START, 0, 0)
+                self.events.log("mission_start")
+
+    async def _wait_pilot_arm(self) -> None:
+        self.events.log("waiting_for_pilot_arm", note="the companion arms only with --arm")
+        try:
+            await self.link.wait_for("HEARTBEAT", timeout=PILOT_ARM_TIMEOUT_S,
+                                     predicate=lambda m: m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        except TimeoutError:
+            raise CompanionError(f"the vehicle was not armed within {PILOT_ARM_TIMEOUT_S:.0f} s "
+                                 "(pass --arm to let the companion arm it)") from None
 
     # -- monitor -----------------------------------------------------------------------------------
     MONITORED = ("MISSION_ITEM_REACHED", "MISSION_CURRENT", "GLOBAL_POSITION_INT", "STATUSTEXT", "HEARTBEAT")
@@ -382,7 +371,7 @@ class FlightSupervisor:
         failures (the CLI maps them)."""
         out = FlightOutcome(False, "", mission_count=len(items), fence_count=len(fence))
         hb = await self.link.wait_heartbeat(timeout=10.0)
-        mode = mode_name(hb.autopilot, hb.type, hb.custom_mode)
+        mode = _mode_name(hb)
         self.events.log("connected", system=self.link.target_system, autopilot=hb.autopilot,
                         vehicle_type=hb.type, mode=mode, armed=bool(hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED))
         if hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED:

@@ -9,12 +9,15 @@ companion reads and how often; :func:`request_rates` is the one function that as
 * MAV_CMD_SET_MESSAGE_INTERVAL (COMMAND_LONG, param1 = message id, param2 = interval in µs) per message, which
   ArduPilot, PX4 and MAVSDK servers honour for the link the command came in on (ArduPilot 4.7 SITL: ACCEPTED for
   every message of the table, ADSB_VEHICLE included; DENIED for an id it does not know);
-* for ArduPilot, first REQUEST_DATA_STREAM for each legacy stream group holding a message of the table, at the
-  highest rate of its members (older firmware knows only that). It goes *first* because ArduPilot applies a
-  stream request to every message of the group, overriding earlier per-message intervals (measured on SITL:
-  GLOBAL_POSITION_INT at 10 Hz fell to 3 Hz after REQUEST_DATA_STREAM POSITION 3 Hz); the per-message
-  intervals sent after it are then the ones that stay. A stream request also sets the group's other messages
-  (LOCAL_POSITION_NED, NAV_CONTROLLER_OUTPUT, …) to that rate: a few hundred bytes/s at most.
+* for ArduPilot (its profile's ``data_streams``), first REQUEST_DATA_STREAM for each legacy stream group
+  holding a message of the table, at the highest rate of its members (older firmware knows only that). It goes
+  *first* because ArduPilot applies a stream request to every message of the group, overriding earlier
+  per-message intervals (measured on SITL: GLOBAL_POSITION_INT at 10 Hz fell to 3 Hz after REQUEST_DATA_STREAM
+  POSITION 3 Hz); the per-message intervals sent after it are then the ones that stay. A stream request also
+  sets the group's other messages (LOCAL_POSITION_NED, NAV_CONTROLLER_OUTPUT, …) to that rate: a few hundred
+  bytes/s at most;
+* ahead of the per-message intervals, interval -1 (off) for what the autopilot streams to the companion unasked
+  and the companion does not read (its profile's ``streams_off``: PX4's onboard link, :mod:`companion.profiles`).
 
 Rates are in the autopilot's time: under SITL speed-up N a 10 Hz request arrives at 10·N Hz of wall time.
 
@@ -95,15 +98,6 @@ RATES: tuple[Rate, ...] = (
 )
 
 
-# PX4 streams its onboard (companion) link at full tilt by default: ATTITUDE ~100 Hz, GLOBAL_POSITION_INT,
-# HIGHRES_IMU, ATTITUDE_QUATERNION ~50 Hz, … (~500 messages/s measured on PX4 SITL; N times that at speed-up N),
-# none of which the companion reads. It turns them off on its own link (interval -1) so that what it reads is
-# not queued behind them (at 20x a mission download stalled for 20 s in that flood).
-PX4_UNUSED: tuple[str, ...] = (
-    "ATTITUDE", "ATTITUDE_QUATERNION", "HIGHRES_IMU", "ODOMETRY", "LOCAL_POSITION_NED", "ALTITUDE",
-    "ATTITUDE_TARGET", "POSITION_TARGET_LOCAL_NED", "SERVO_OUTPUT_RAW", "VFR_HUD", "DISTANCE_SENSOR",
-    "TIMESYNC", "ESTIMATOR_STATUS", "SCALED_PRESSURE", "VIBRATION", "BATTERY_STATUS",
-)
 OFF = -1  # SET_MESSAGE_INTERVAL param2: stop sending it
 
 
@@ -133,7 +127,8 @@ async def request_rates(link: Link, rates: Sequence[Rate] = RATES,
     if ts is None or tc is None:
         raise LinkError("no target autopilot yet")
     dialect = link.dialect
-    if link.autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
+    profile = link.profile
+    if profile.data_streams:
         for stream, hz in stream_requests(rates):
             link.send(dialect.MAVLink_request_data_stream_message(ts, tc, stream, hz, 1))
 
@@ -143,8 +138,7 @@ async def request_rates(link: Link, rates: Sequence[Rate] = RATES,
 
     results: dict[str, str] = {}
     requests = [(r.message, r.msg_id, r.interval_us, r.hz) for r in rates]
-    if link.autopilot == mavlink.MAV_AUTOPILOT_PX4:
-        requests = [(f"{name} off", message_id(name), OFF, 0.0) for name in PX4_UNUSED] + requests
+    requests = [(f"{name} off", message_id(name), OFF, 0.0) for name in profile.streams_off] + requests
     with link.subscribe("COMMAND_ACK", predicate=is_ack) as acks:
         for message, msg_id, interval_us, hz in requests:
             acks.drain()  # a late answer to the previous request

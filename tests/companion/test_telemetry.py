@@ -13,7 +13,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.errors import LinkError
 from companion.link import Link
-from companion.telemetry import (OFF, PX4_UNUSED, RATES, Rate, TelemetryRates, message_id, request_rates,
+from companion.profiles import PX4_UNUSED_STREAMS
+from companion.telemetry import (OFF, RATES, Rate, TelemetryRates, message_id, request_rates,
                                  stream_requests)
 
 pytestmark = pytest.mark.asyncio
@@ -138,7 +139,7 @@ async def test_px4_gets_no_ardupilot_stream_requests(raw_peer):
         assert set((await rates.wait()).values()) == {"ACCEPTED"}
         streams, intervals, _ = requests(ap.received)
         # the messages the companion does not read are turned off first (PX4 floods its onboard link)
-        off = {message_id(name): OFF for name in PX4_UNUSED}
+        off = {message_id(name): OFF for name in PX4_UNUSED_STREAMS}
         assert streams == [] and intervals == [*off.items(), *EXPECTED_INTERVALS.items()]
 
 
