@@ -2,13 +2,14 @@
 
 Mission layout (``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``, altitude = ENU z = metres above home):
 
-    [ArduPilot only] 0  NAV_WAYPOINT at home, frame GLOBAL, AMSL alt   (ignored on upload; the autopilot's home)
+    [ArduPilot only] 0  NAV_WAYPOINT at home, frame GLOBAL, AMSL alt   (the layout's ``home_item``)
                         NAV_TAKEOFF at the start, z = max(takeoff_alt, start z)
                         DO_CHANGE_SPEED (airspeed for planes, ground speed for copters)
                         NAV_WAYPOINT × route (waypoints after the start, or trajectory samples if densified)
                         end action: NAV_LOITER_UNLIM / NAV_RETURN_TO_LAUNCH / NAV_LAND at the goal
 
-PX4 has no home item, so its first item is the takeoff at seq 0.
+The layout key (``"ardupilot"``, ``"px4"``; :data:`companion.profiles.LAYOUTS`) says what differs: the home
+item (PX4 has none, so its first item is the takeoff at seq 0), the yaw of NAV commands, the acceptance radius.
 """
 
 from __future__ import annotations
@@ -33,6 +34,7 @@ from companion.items import (
     MissionItem,
     normalise_frame,
 )
+from companion.profiles import MissionLayout, mission_layout
 from planner.config import VehicleLimits
 from planner.environment import Cylinders
 from planner.scenario import Home, Scenario
@@ -43,7 +45,6 @@ logger = logging.getLogger(__name__)
 Autopilot = Literal["ardupilot", "px4"]
 
 TAKEOFF_MIN_PITCH_DEG = 10.0  # plane NAV_TAKEOFF param1 (ArduPilot reads 0 as 4°)
-ARDUPILOT_MAX_ACCEPTANCE_M = 255  # ArduPilot stores NAV_WAYPOINT param2 in one byte
 SPEED_TYPE_AIRSPEED = 0.0
 SPEED_TYPE_GROUNDSPEED = 1.0
 NO_CHANGE = -1.0  # DO_CHANGE_SPEED param3: throttle unchanged
@@ -78,16 +79,18 @@ class MissionSpec:
     fly_to_start: bool = True
 
     def __post_init__(self) -> None:
-        if self.autopilot not in ("ardupilot", "px4"):
-            raise ValueError(f"autopilot must be 'ardupilot' or 'px4', got {self.autopilot!r}")
+        mission_layout(self.autopilot)  # ValueError for an unknown key
         if not self.densify_spacing_m > 0:
             raise ValueError(f"densify_spacing_m must be positive, got {self.densify_spacing_m!r}")
 
     @property
+    def layout(self) -> MissionLayout:
+        return mission_layout(self.autopilot)
+
+    @property
     def yaw_param(self) -> float:
-        """param4 of NAV commands: PX4 reads NaN as "keep heading" (0 would mean north); ArduPilot does not
-        store it and reads back 0, so 0 keeps upload verification exact."""
-        return math.nan if self.autopilot == "px4" else 0.0
+        """param4 of NAV commands (the layout's ``nav_yaw``)."""
+        return self.layout.nav_yaw
 
 
 COPTER_CLIMB_RATE_M_S = 2.5  # ArduCopter WPNAV_SPEED_UP default (250 cm/s)
@@ -138,7 +141,7 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
     plane = vehicle.type == "plane"
 
     items: list[MissionItem] = []
-    if spec.autopilot == "ardupilot":
+    if spec.layout.home_item:
         items.append(MissionItem(0, FRAME_GLOBAL, CMD_WAYPOINT, x=to_int_e7(home.lat), y=to_int_e7(home.lon),
                                  z=float(home.alt)))
     takeoff_alt = max(vehicle.takeoff_alt, float(wps[0, 2]))
@@ -167,19 +170,9 @@ def waypoint_items(points_enu: np.ndarray, spec: MissionSpec) -> list[MissionIte
     """
     pts = np.asarray(points_enu, dtype=float).reshape(-1, 3)
     lat, lon, _ = enu_to_geodetic(pts, spec.home)
-    accept = _acceptance_param(spec.vehicle.acceptance_radius, spec.autopilot, spec.vehicle.type)
+    accept = spec.layout.acceptance_param(spec.vehicle.acceptance_radius, spec.vehicle.type)
     return [MissionItem(0, FRAME_REL_ALT_INT, CMD_WAYPOINT, param1=0.0, param2=accept, param4=spec.yaw_param,
                         x=to_int_e7(a), y=to_int_e7(o), z=float(p[2])) for a, o, p in zip(lat, lon, pts)]
-
-
-def _acceptance_param(radius: float, autopilot: Autopilot, vehicle_type: str) -> float:
-    """NAV_WAYPOINT param2. ArduPlane keeps whole metres in one byte, so send exactly what it will read back;
-    ArduCopter does not store it at all (reads back 0, uses its WPNAV_RADIUS), so send 0 there."""
-    if autopilot == "ardupilot":
-        if vehicle_type == "copter":
-            return 0.0
-        return float(min(ARDUPILOT_MAX_ACCEPTANCE_M, max(0, round(radius))))
-    return float(radius)
 
 
 def _route_points(wps: np.ndarray, spec: MissionSpec, trajectory: Any) -> np.ndarray:

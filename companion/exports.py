@@ -31,7 +31,6 @@ ExportFormat = Literal["waypoints", "plan", "geojson"]
 FORMATS: tuple[str, ...] = ("waypoints", "plan", "geojson")
 SUFFIX = {"waypoints": ".waypoints", "plan": ".plan", "geojson": ".geojson"}
 
-FIRMWARE_TYPE = {"ardupilot": mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, "px4": mavlink.MAV_AUTOPILOT_PX4}  # 3, 12
 VEHICLE_TYPE = {"plane": mavlink.MAV_TYPE_FIXED_WING, "copter": mavlink.MAV_TYPE_QUADROTOR}  # 1, 2
 
 
@@ -99,7 +98,7 @@ def qgc_plan(items: Sequence[MissionItem], spec: MissionSpec, fence: Cylinders |
         "groundStation": "fuseplan",
         "mission": {
             "version": 2,
-            "firmwareType": FIRMWARE_TYPE[spec.autopilot],
+            "firmwareType": spec.layout.qgc_firmware_type,  # 3 ArduPilot, 12 PX4
             "vehicleType": VEHICLE_TYPE[vehicle.type],
             "cruiseSpeed": float(vehicle.cruise_speed),
             "hoverSpeed": float(vehicle.cruise_speed),

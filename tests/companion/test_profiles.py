@@ -9,10 +9,12 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
+from companion.builder import MissionSpec
 from companion.link import Link
 from companion.profiles import (ARDUCOPTER, ARDUPILOT_VTOL, ARDUPLANE, GENERIC, GENERIC_FIXED_WING, LAYOUTS,
                                 PROFILES, PX4_FIXED_WING, PX4_MULTICOPTER, Firmware, mission_layout, profile_for)
-from planner.scenario import load_scenario
+from planner.config import VehicleLimits
+from planner.scenario import Home, load_scenario
 
 APM, PX4, GEN = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, mavlink.MAV_AUTOPILOT_PX4, mavlink.MAV_AUTOPILOT_GENERIC
 FW, QUAD, HEXA = mavlink.MAV_TYPE_FIXED_WING, mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_TYPE_HEXAROTOR
@@ -153,3 +155,5 @@ def test_each_profile_names_a_builder_layout() -> None:
     assert px4.acceptance_param(20.4, "copter") == 20.4
     with pytest.raises(ValueError, match="autopilot must be 'ardupilot' or 'px4', got 'inav'"):
         mission_layout("inav")
+    spec = MissionSpec("px4", VehicleLimits(), Home(47.0, 8.0, 500.0))
+    assert spec.layout is px4 and math.isnan(spec.yaw_param)
