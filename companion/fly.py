@@ -18,6 +18,7 @@ from companion.events import EventLog
 from companion.exports import write_geojson, write_qgc_plan, write_waypoints, zones_of
 from companion.geo import geodetic_to_enu, lonlatalt
 from companion.link import Link
+from companion.mavsdk_backend import MavsdkLink, MavsdkMissionClient
 from companion.protocol import MissionClient
 from companion.replan import ReplanConfig
 from companion.replanner import LiveReplanner
@@ -50,6 +51,7 @@ class FlyOptions:
     replan_config: ReplanConfig | None = None  # None: ReplanConfig() defaults
     signing_key: SigningKey | None = None  # MAVLink 2 signing (our simulator uses the same key)
     traffic: str | None = None  # a real autopilot's spare port: fly the scenario's intruders there (TrafficFeed)
+    backend: str = "pymavlink"  # or "mavsdk": the vehicle through MAVSDK (companion.mavsdk_backend)
 
 
 async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, events: EventLog) -> dict[str, Any]:
@@ -69,8 +71,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
     try:
         if opts.signing_key is not None:
             events.log("signing", key=opts.signing_key.fingerprint)
-        async with Link(url, source_system=opts.source_system, open_timeout=10.0,
-                        signing_key=opts.signing_key) as link:
+        async with _link(url, opts) as link:
             TelemetryRates(link, on_results=lambda answers: events.log("telemetry_rates", **answers)).start()
             hb = await link.wait_heartbeat(timeout=15.0)
             autopilot = "px4" if hb.autopilot == mavlink.MAV_AUTOPILOT_PX4 else "ardupilot"
@@ -80,7 +81,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             fence = build_fence(scenario.environment.cylinders, scenario.home, max_route_alt=top) \
                 if opts.fence and len(scenario.environment.cylinders) else []
             _write_mission_files(opts.report, plan_doc, scenario, items, spec, fence)
-            client = MissionClient(link)
+            client = MissionClient(link) if opts.backend == "pymavlink" else MavsdkMissionClient(link)
             sup = FlightSupervisor(link, client, events, arm=opts.arm or opts.sim)
             length = float(plan_doc["metrics"]["length_m"])
             timeout = 120.0 + 4.0 * length / scenario.vehicle.cruise_speed / max(opts.speedup, 1e-3)
@@ -100,6 +101,13 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
         if sim is not None:
             await sim.stop()
     return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, len(items), replanner, feed)
+
+
+def _link(url: str, opts: FlyOptions) -> Link:
+    """Our pymavlink link, or MAVSDK's (``opts.backend``)."""
+    if opts.backend == "mavsdk":
+        return MavsdkLink(url, source_system=opts.source_system, open_timeout=10.0)
+    return Link(url, source_system=opts.source_system, open_timeout=10.0, signing_key=opts.signing_key)
 
 
 def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,
@@ -156,6 +164,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         "flight_wall_s": round(out.flight_s, 3),
         "autopilot": autopilot,
         "link": "built-in simulator" if sim is not None else opts.connect,
+        "backend": opts.backend,
         "speedup": opts.speedup if sim is not None else None,
         "track_source": source,
         "track_points": int(len(flown)),

@@ -81,6 +81,9 @@ def _parser() -> argparse.ArgumentParser:
                     help="fly the scenario's [[intruders]] against a real autopilot: report them as an ADS-B "
                     "receiver (component 156) on this spare MAVLink port of it, e.g. tcp:127.0.0.1:5763 (SITL "
                     "SERIAL2), and measure separation from its positions")
+    fl.add_argument("--backend", choices=("pymavlink", "mavsdk"), default="pymavlink",
+                    help="how the companion talks to the autopilot: its own pymavlink link (default), or MAVSDK "
+                    "(mission_raw, action, mavlink_direct); planning, replanning and the report stay the same")
     fl.add_argument("--report", type=Path, default=Path("fuseplan-report"), help="report directory")
     fl.add_argument("--scenario-file", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
     fl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
@@ -367,6 +370,13 @@ def cmd_fly(args: argparse.Namespace) -> int:
         raise FuseplanError("--speedup and --sim-loss apply to the built-in simulator (--sim) only")
     if getattr(args, "traffic", None) and args.sim:
         raise FuseplanError("--traffic is for a real autopilot (--connect): the simulator flies the intruders itself")
+    backend = getattr(args, "backend", "pymavlink")
+    if backend == "mavsdk":
+        from companion.mavsdk_backend import unsupported_options
+
+        why = unsupported_options(signing=getattr(args, "signing_key", None) is not None)
+        if why:
+            raise FuseplanError(why)
     key = SigningKey.load(args.signing_key) if getattr(args, "signing_key", None) else None
     overrides = list(args.overrides) + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else [])
     try:
@@ -392,7 +402,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
                       arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report,
                       replan=not getattr(args, "no_replan", False), replan_config=replan_cfg,
-                      signing_key=key, traffic=getattr(args, "traffic", None))
+                      signing_key=key, traffic=getattr(args, "traffic", None), backend=backend)
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
     try:
         flight = asyncio.run(fly(doc, sc, opts, events))
