@@ -42,6 +42,9 @@ logger = logging.getLogger(__name__)
 COMPONENT_ID = mavlink.MAV_COMP_ID_AUTOPILOT1
 PLANE_MODES = {"MANUAL": 0, "CIRCLE": 1, "STABILIZE": 2, "TRAINING": 3, "ACRO": 4, "FBWA": 5, "FBWB": 6,
                "CRUISE": 7, "AUTOTUNE": 8, "AUTO": 10, "RTL": 11, "LOITER": 12, "TAKEOFF": 13, "GUIDED": 15}
+# ArduCopter modes it refuses to arm in: AUTO and BRAKE measured on SITL 4.7 (tests/conformance), the others as
+# ArduCopter's mode classes declare them (allows_arming false)
+COPTER_NOT_ARMABLE = frozenset({"AUTO", "BRAKE", "RTL", "LAND", "CIRCLE"})
 COPTER_MODES = {"STABILIZE": 0, "ACRO": 1, "ALT_HOLD": 2, "AUTO": 3, "GUIDED": 4, "LOITER": 5, "RTL": 6,
                 "CIRCLE": 7, "LAND": 9, "POSHOLD": 16, "BRAKE": 17}
 # Boot (ArduPilot 4.7 SITL, sim s from power-up): HEARTBEAT from ~0.9 s saying CALIBRATING + mode 16
@@ -728,8 +731,8 @@ class SimAutopilot:
         if not self.booted:
             self._text(mavlink.MAV_SEVERITY_CRITICAL, "Arm: System not initialised")
             return mavlink.MAV_RESULT_FAILED
-        if not self.is_plane and self.mode == "AUTO":
-            self._text(mavlink.MAV_SEVERITY_CRITICAL, "Arm: AUTO mode not armable")
+        if not self.is_plane and self.mode in COPTER_NOT_ARMABLE:
+            self._text(mavlink.MAV_SEVERITY_CRITICAL, f"Arm: {self.mode} mode not armable")
             return mavlink.MAV_RESULT_FAILED
         if not self._ready and not force:
             self._text(mavlink.MAV_SEVERITY_CRITICAL, PREARM_TEXT[self.vehicle.type])

@@ -52,6 +52,7 @@ from sitl_harness import SitlInstance, unavailable
 from companion.events import EventLog
 from companion.items import FRAME_REL_ALT_INT, MISSION, MissionItem
 from companion.link import Link, Message, Subscription
+from companion.mavsdk_backend import MavsdkLink, MavsdkMissionClient
 from companion.protocol import MissionClient
 from companion.sim import SimAutopilot
 from companion.storage import Firmware, stored
@@ -250,10 +251,10 @@ def _sim_as_sitl() -> dict[str, Any]:
 
 @contextlib.asynccontextmanager
 async def connect(backend: str, sitl_factory: Callable[..., SitlInstance] | None, *,
-                  first_client: bool = False) -> AsyncIterator[Vehicle]:
+                  first_client: bool = False, mavsdk: bool = False) -> AsyncIterator[Vehicle]:
     """Start ``backend``'s autopilot, connect a companion and yield it; everything is stopped on exit. On SITL
     ``first_client`` puts the companion on SERIAL0 (its connection starts SITL's clock), else on SERIAL1 with a
-    ground station holding SERIAL0."""
+    ground station holding SERIAL0. ``mavsdk``: the companion's MAVSDK backend instead of its own link."""
     kind, vehicle = backend.split("-")
     sim = sitl = None
     try:
@@ -270,9 +271,9 @@ async def connect(backend: str, sitl_factory: Callable[..., SitlInstance] | None
             else:
                 sitl.hold_serial0()
                 url = sitl.serial1_url
-        link = Link(url)
+        link = MavsdkLink(url) if mavsdk else Link(url)
         events = EventLog()
-        client = MissionClient(link)
+        client = MavsdkMissionClient(link) if mavsdk else MissionClient(link)
         v = Vehicle(backend, link, client, FlightSupervisor(link, client, events, arm=True), events, sim, sitl)
         try:
             await link.open()

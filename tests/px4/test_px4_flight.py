@@ -47,17 +47,35 @@ def test_mountain_rescue_flies_on_px4_with_the_default_options(px4_factory_fn, m
     assert flight["autopilot"] in ("px4", 12) and flight["min_clearance_m"] > 0.0
 
 
-def test_px4_replans_around_an_intruder(px4_factory_fn, tmp_path: Path) -> None:
+@pytest.mark.parametrize("backend", ["pymavlink", "mavsdk"])
+def test_rescue_static_flies_on_px4_as_a_copter(px4_factory_fn, tmp_path: Path, backend: str) -> None:
+    """`fuseplan fly rescue_static.toml --set vehicle.type=copter --arm` on the PX4 quad, through either backend:
+    planned, uploaded with its fence, flown to the goal clear of every cylinder."""
+    scenario = ROOT / "sitl_scenarios" / "rescue_static.toml"
+    px4 = px4_factory_fn(load_scenario(scenario).home, speedup=SPEEDUP)
+    report = tmp_path / "report"
+    code = main(["fly", str(scenario), "--connect", px4.companion_url, "--arm", "--set", 'vehicle.type="copter"',
+                 "--backend", backend, "--report", str(report), "-q"])
+    flight = json.loads((report / "flight.json").read_text())
+    assert code == 0 and flight["completed"] is True, flight.get("reason")
+    assert flight["backend"] == backend and flight["fence_items"] > 0
+    assert flight["track_points"] > 10 and flight["min_clearance_m"] > 0.0
+
+
+@pytest.mark.parametrize("backend", ["pymavlink", "mavsdk"])
+def test_px4_replans_around_an_intruder(px4_factory_fn, tmp_path: Path, backend: str) -> None:
     """rescue_dynamic flown by the PX4 quad (10x), its intruder reported as ADSB_VEHICLE by an ADS-B source on
     PX4's ground-station link (system 1, component 156), which PX4 passes on to the companion's link as its own.
     Without replanning this flight comes to −19.8 m of the intruder (measured by hand, same set-up with
     --no-replan). PX4 keeps the current index when a mission is uploaded in flight and turns at once to the new
-    item there, so the swap holds first (AUTO.LOITER), uploads, sets the item and resumes."""
+    item there, so the swap holds first (AUTO.LOITER), uploads, sets the item and resumes. Through MAVSDK as
+    through our own link (measured by hand: 2 replans, 180.5 m at the closest through MAVSDK)."""
     scenario = ROOT / "sitl_scenarios" / "rescue_dynamic.toml"
     px4 = px4_factory_fn(load_scenario(scenario).home, speedup=10.0)
     report = tmp_path / "report"
     code = main(["fly", str(scenario), "--connect", px4.companion_url, "--arm", "--set", 'vehicle.type="copter"',
-                 "--traffic", f"udpout:127.0.0.1:{px4.gcs_port}", "--report", str(report), "-q"])
+                 "--traffic", f"udpout:127.0.0.1:{px4.gcs_port}", "--backend", backend, "--report", str(report),
+                 "-q"])
     flight = json.loads((report / "flight.json").read_text())
     events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
     assert code == 0 and flight["completed"] is True, flight.get("reason")
