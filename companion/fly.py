@@ -3,6 +3,7 @@ monitor → report directory. With ``sim=True`` the built-in simulated autopilot
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import logging
 import math
@@ -34,6 +35,7 @@ if TYPE_CHECKING:
     from companion.sim.traffic import TrafficFeed
 
 log = logging.getLogger(__name__)
+RATES_WAIT_S = 15.0  # wall seconds the first round of telemetry rate requests may delay the upload
 
 
 @dataclass
@@ -72,8 +74,12 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
         if opts.signing_key is not None:
             events.log("signing", key=opts.signing_key.fingerprint)
         async with _link(url, opts) as link:
-            TelemetryRates(link, on_results=lambda answers: events.log("telemetry_rates", **answers)).start()
+            rates = TelemetryRates(link, on_results=lambda answers: events.log("telemetry_rates", **answers)).start()
             hb = await link.wait_heartbeat(timeout=15.0)
+            # the streams we do not read turned off before the first transfer (PX4 floods a companion link with
+            # ~500 messages/s times its speed-up: an upload in that flood timed out three times on a busy machine)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(asyncio.shield(rates.wait()), RATES_WAIT_S)
             autopilot = "px4" if hb.autopilot == mavlink.MAV_AUTOPILOT_PX4 else "ardupilot"
             items = mission_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)
             spec = spec_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)

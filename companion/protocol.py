@@ -146,7 +146,9 @@ class MissionClient:
         if got is None or mission_difference(items, got, home, self.firmware) is not None:
             if result is None:
                 raise MissionTimeout("upload", seq)
-            raise MissionUploadError(result, seq)
+            # an answer after the last item is never a refusal of an item (ArduPilot's to a duplicate, PX4's
+            # for its own transfer trouble: seen at 20x while PX4 still floods the link): the upload is retried
+            raise MissionUploadError(result, seq, transfer_fault=True)
         log.info("uploaded %d items (mission type %d; confirmed by readback)", len(items), mission_type)
         return got
 

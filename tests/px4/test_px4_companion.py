@@ -5,12 +5,15 @@ where they differ the test says which one shows the autopilot's behaviour."""
 
 from __future__ import annotations
 
+import asyncio
 import json
+import math
 from collections.abc import AsyncIterator
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
+import pymap3d
 import pytest
 import pytest_asyncio
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -34,12 +37,19 @@ pytestmark = pytest.mark.asyncio(loop_scope="module")
 ROOT = Path(__file__).resolve().parents[2]
 MOUNTAIN = ROOT / "sitl_scenarios" / "mountain_rescue.toml"
 SC = load_scenario(MOUNTAIN)
+AUTO_MISSION, AUTO_RTL = 0x04040000, 0x05040000  # PX4 custom_mode (sub << 24 | main << 16), as HEARTBEAT shows it
 SPEEDUP = 20.0  # SIH in lockstep; the companion turns PX4's unused streams off, so uploads keep up
 
 
 def _point(north_m: float, east_m: float) -> tuple[int, int]:
     lat, lon, _ = enu_to_geodetic(np.array([[east_m, north_m, 0.0]]), SC.home)
     return to_int_e7(float(lat[0])), to_int_e7(float(lon[0]))
+
+
+def _offset_m(lat_e7: int, lon_e7: int) -> tuple[float, float]:
+    """North and east metres of a position from the scenario's home."""
+    n, e, _ = pymap3d.geodetic2ned(lat_e7 / 1e7, lon_e7 / 1e7, SC.home.alt, SC.home.lat, SC.home.lon, SC.home.alt)
+    return float(n), float(e)
 
 
 def _fence_item(command: int, north_m: float, east_m: float, param1: float, frame: int) -> MissionItem:
@@ -142,3 +152,24 @@ async def test_a_mission_px4_stores_but_will_not_fly_is_reported_before_the_star
         await sup.upload(bad)
     await sup.upload(items)  # and a good one is accepted after it
     assert any(r["event"] == "mission_valid" for r in sup.events.records)
+
+
+async def test_the_rtl_end_action_returns_lands_and_disarms(px4_link) -> None:
+    """The "rtl" end action as PX4 carries it out (a route with nothing between its end and home, no fence):
+    after the last waypoint PX4 switches to AUTO.RTL, flies home, lands and disarms itself."""
+    link, _, sup = px4_link
+    await sup.upload(_mission("rtl"))
+    seen: list[int] = []
+    with link.subscribe("HEARTBEAT") as beats:
+        await sup.start(0)
+        async with asyncio.timeout(90.0):
+            while True:
+                hb = await beats.get()
+                if not seen or seen[-1] != hb.custom_mode:
+                    seen.append(hb.custom_mode)
+                if AUTO_RTL in seen and not hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
+                    break
+    assert seen.index(AUTO_MISSION) < seen.index(AUTO_RTL), [hex(m) for m in seen]
+    home = await link.wait_for("GLOBAL_POSITION_INT", timeout=5.0)
+    north, east = _offset_m(home.lat, home.lon)
+    assert math.hypot(north, east) < 10.0 and home.relative_alt < 2000  # on the ground at home (mm)
