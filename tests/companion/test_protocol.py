@@ -212,6 +212,29 @@ async def test_lost_final_ack_with_a_silent_autopilot_is_settled_by_readback(raw
         await link.close()
 
 
+async def test_a_mission_error_after_the_last_item_with_a_different_readback_is_a_transfer_fault(raw_peer):
+    """MAV_MISSION_ERROR right after the last item (PX4 busy, or ArduPilot answering a duplicate of that item) and
+    a readback that is not the mission: the upload did not complete, but nothing was refused; the supervisor
+    must upload again rather than give up (seen on PX4 SITL at 20x while it still flooded the link)."""
+    link, client = await _linked(raw_peer, timeout=0.1, item_giveup_s=30.0)
+    items = sample_mission()
+    try:
+        upload = asyncio.create_task(client.upload(items))
+        await raw_peer.recv_type("MISSION_COUNT")
+        for seq in range(len(items)):
+            raw_peer.send(mavlink.MAVLink_mission_request_int_message(1, 191, seq, MISSION))
+            await raw_peer.recv_type("MISSION_ITEM_INT")
+        raw_peer.send(mavlink.MAVLink_mission_ack_message(1, 191, mavlink.MAV_MISSION_ERROR, MISSION))
+        await raw_peer.recv_type("MISSION_REQUEST_LIST")
+        raw_peer.send(mavlink.MAVLink_mission_count_message(1, 191, 0, MISSION))  # nothing stored
+        with pytest.raises(MissionUploadError) as err:
+            await asyncio.wait_for(upload, 2.0)
+        assert err.value.result == mavlink.MAV_MISSION_ERROR and err.value.transfer_fault
+        assert not err.value.refused
+    finally:
+        await link.close()
+
+
 async def test_a_stalled_download_is_started_again(raw_peer):
     """A server that dropped the download (MAVSDK after missing our requests) answers no more item requests
     but a new MISSION_REQUEST_LIST: the client starts again from the list request."""
