@@ -18,6 +18,7 @@ maps it to ours (docs/px4.md says where the two backends differ on a real autopi
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import logging
 import math
@@ -72,11 +73,17 @@ def mavsdk_url(url: str) -> str:
 
 
 _closing = 0  # MAVSDK instances being destroyed: what they log meanwhile (closed sockets) is only debug
+_log_loop: asyncio.AbstractEventLoop | None = None  # the loop of the last MavsdkLink opened
 
 
 def _to_logging(level: LogLevel, message: str, file: str | None, line: int) -> bool:
-    mavsdk_log.log(logging.DEBUG if _closing else _LEVELS.get(level, logging.INFO), "%s (%s:%s)", message, file,
-                   line)
+    """MAVSDK's log line, called on one of its own threads: logged on the link's loop, since logging from a
+    foreign thread would register a dummy Python thread for it that outlives MAVSDK."""
+    loop = _log_loop
+    if loop is not None and not loop.is_closed():
+        level_no = logging.DEBUG if _closing else _LEVELS.get(level, logging.INFO)
+        with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
+            loop.call_soon_threadsafe(mavsdk_log.log, level_no, "%s (%s:%s)", message, file, line)
     return True  # not printed by MAVSDK
 
 
@@ -123,6 +130,8 @@ class MavsdkLink(Link):
             raise LinkError("link already opened")
         self._loop = asyncio.get_running_loop()
         self._closing = False
+        global _log_loop
+        _log_loop = self._loop
         log_subscribe(_to_logging)
         config = Configuration.create_with_component_type(ComponentType.COMPANION_COMPUTER)
         config.system_id = self.source_system

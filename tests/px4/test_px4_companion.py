@@ -154,6 +154,7 @@ async def test_a_mission_px4_stores_but_will_not_fly_is_reported_before_the_star
     assert any(r["event"] == "mission_valid" for r in sup.events.records)
 
 
+@pytest.mark.parametrize("px4_link", ["pymavlink"], indirect=True)  # PX4's behaviour: one backend is enough
 async def test_the_rtl_end_action_returns_lands_and_disarms(px4_link) -> None:
     """The "rtl" end action as PX4 carries it out (a route with nothing between its end and home, no fence):
     after the last waypoint PX4 switches to AUTO.RTL, flies home, lands and disarms itself."""
