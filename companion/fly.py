@@ -12,7 +12,6 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
-from pymavlink.dialects.v20 import common as mavlink
 
 from companion.builder import build_fence, mission_from_plan_json, spec_from_plan_json
 from companion.events import EventLog
@@ -75,12 +74,12 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             events.log("signing", key=opts.signing_key.fingerprint)
         async with _link(url, opts) as link:
             rates = TelemetryRates(link, on_results=lambda answers: events.log("telemetry_rates", **answers)).start()
-            hb = await link.wait_heartbeat(timeout=15.0)
+            await link.wait_heartbeat(timeout=15.0)
             # the streams we do not read turned off before the first transfer (PX4 floods a companion link with
             # ~500 messages/s times its speed-up: an upload in that flood timed out three times on a busy machine)
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.shield(rates.wait()), RATES_WAIT_S)
-            autopilot = "px4" if hb.autopilot == mavlink.MAV_AUTOPILOT_PX4 else "ardupilot"
+            autopilot = link.profile.layout  # the builder's layout key ("ardupilot", "px4")
             items = mission_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)
             spec = spec_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)
             top = float(np.max(np.asarray(plan_doc["trajectory"]["points"])[:, 2]))
