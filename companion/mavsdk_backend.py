@@ -154,7 +154,11 @@ class MavsdkLink(Link):
         self._conn = self.sdk  # "connected"
         self._feeds = [asyncio.create_task(self._feed(name), name=f"mavsdk {name}") for name in MESSAGES]
         self._heartbeat_task = asyncio.create_task(self._heartbeat_loop(), name=f"mavsdk-heartbeat {self.url}")
-        await self.wait_heartbeat(timeout=max(self.open_timeout, 1.0))  # the target known, as on our link
+        try:
+            await self.wait_heartbeat(timeout=max(self.open_timeout, 1.0))  # the target known, as on our link
+        except BaseException:
+            await self.close()  # nothing of MAVSDK's left running when the open fails
+            raise
         log.info("MAVSDK %s on %s", self.version, self.url)
 
     async def _feed(self, name: str) -> None:

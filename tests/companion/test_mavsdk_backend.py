@@ -4,8 +4,10 @@ tests/conformance/test_mavsdk_ground.py)."""
 
 from __future__ import annotations
 
+import asyncio
 import json
 import math
+import socket
 from pathlib import Path
 
 import pytest
@@ -104,3 +106,19 @@ def test_fly_through_mavsdk_on_the_simulator(tmp_path: Path) -> None:
     assert flight["backend"] == "mavsdk" and flight["fence_items"] > 0
     assert events.index("upload_verified") < events.index("armed") < events.index("mission_start")
     assert len(flight["items_reached"]) >= 3
+
+
+@pytest.mark.asyncio
+async def test_no_autopilot_on_the_connection_is_a_link_error_and_nothing_is_left_running() -> None:
+    """MAVSDK finds no autopilot on a port nobody answers: a LinkError naming the URL, MAVSDK destroyed (the
+    leak check of this package sees no thread, task or socket left)."""
+    from companion.mavsdk_backend import MavsdkLink
+
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    link = MavsdkLink(f"udpout:127.0.0.1:{port}", open_timeout=0.5)
+    with pytest.raises(LinkError, match=f"MAVSDK found no autopilot on udpout:127.0.0.1:{port}"):
+        await link.open()
+    assert link.sdk is None and not link.connected
+    await asyncio.get_running_loop().shutdown_default_executor()  # MAVSDK's blocking calls ran there
