@@ -72,7 +72,7 @@ def mavsdk_url(url: str) -> str:
     raise LinkError(f"cannot use connection {url!r} with MAVSDK (udpin:, udpout:, tcp: or a serial device)")
 
 
-_closing = 0  # MAVSDK instances being destroyed: what they log meanwhile (closed sockets) is only debug
+_destroying = 0  # MAVSDK instances being destroyed: what they log meanwhile (closed sockets) is only debug
 _log_loop: asyncio.AbstractEventLoop | None = None  # the loop of the last MavsdkLink opened
 
 
@@ -81,7 +81,7 @@ def _to_logging(level: LogLevel, message: str, file: str | None, line: int) -> b
     foreign thread would register a dummy Python thread for it that outlives MAVSDK."""
     loop = _log_loop
     if loop is not None and not loop.is_closed():
-        level_no = logging.DEBUG if _closing else _LEVELS.get(level, logging.INFO)
+        level_no = logging.DEBUG if _destroying else _LEVELS.get(level, logging.INFO)
         with contextlib.suppress(RuntimeError):  # the loop closed meanwhile
             loop.call_soon_threadsafe(mavsdk_log.log, level_no, "%s (%s:%s)", message, file, line)
     return True  # not printed by MAVSDK
@@ -173,35 +173,27 @@ class MavsdkLink(Link):
             self._dispatch(msg)
 
     async def close(self) -> None:
-        self._closing = True
         feeds, self._feeds = self._feeds, []
         for task in feeds:
             task.cancel()
         await asyncio.gather(*feeds, return_exceptions=True)
-        hb, self._heartbeat_task = self._heartbeat_task, None
-        if hb is not None:
-            hb.cancel()
-            await asyncio.gather(hb, return_exceptions=True)
+        await super().close()  # the heartbeat watch, then _disconnect, then every waiter
+
+    def _disconnect(self) -> None:
+        """Destroy MAVSDK's plugins and the library instance (what closing our socket is on our own link)."""
+        global _destroying
         for plugin in (self.direct, self.mission_raw, self.action):
             if plugin is not None:
                 plugin.destroy()
         self.direct = self.mission_raw = self.action = self.system = None
         if self.sdk is not None:
-            global _closing
-            _closing += 1
+            _destroying += 1
             try:
                 self.sdk.destroy()
             finally:
-                _closing -= 1
+                _destroying -= 1
             self.sdk = None
         self._conn = None
-        for sub in list(self._subscriptions):
-            sub.close()
-        for *_, fut in list(self._expectations):
-            if not fut.done():
-                fut.set_exception(LinkError("link closed"))
-        self._expectations.clear()
-        self._loop = None
 
     def send(self, msg: Message) -> None:
         """Send through MAVSDK, in the background (MAVSDK's calls block a worker thread). A COMMAND_LONG goes
@@ -211,25 +203,32 @@ class MavsdkLink(Link):
             raise LinkError(f"link {self.url} is not connected")
         if msg.get_type() == "HEARTBEAT":
             return
-        fields = from_message(msg)
-        out = MavlinkMessage(msg.get_type(), self.source_system, self.source_component,
-                             fields.get("target_system", 0), fields.get("target_component", 0), json.dumps(fields))
         loop = asyncio.get_running_loop()
         if msg.get_type() == "COMMAND_LONG":
-            task = loop.create_task(self._command(out))
+            task = loop.create_task(self.command(msg))
         else:
-            task = loop.create_task(self.direct.send_message(out))
+            task = loop.create_task(self.direct.send_message(self._outgoing(msg)))
         task.add_done_callback(_log_send_failure)
 
-    async def _command(self, command: MavlinkMessage) -> None:
+    def _outgoing(self, msg: Message) -> MavlinkMessage:
+        fields = from_message(msg)
+        return MavlinkMessage(msg.get_type(), self.source_system, self.source_component,
+                              fields.get("target_system", 0), fields.get("target_component", 0), json.dumps(fields))
+
+    async def command(self, msg: Message) -> Message | None:
+        """A COMMAND_LONG through MAVSDK's command sender (resent until answered); its COMMAND_ACK, also delivered
+        to our subscribers, or None when none came."""
         try:
-            ack = await self.direct.send_command(command)
+            ack = await self.direct.send_command(self._outgoing(msg))
         except MavlinkDirectError as exc:
-            log.debug("MAVSDK: no answer to %s: %s", command.fields_json, exc)
-            return
-        if ack.fields_json and self._loop is not None:
-            self._dispatch(to_message("COMMAND_ACK", ack.system_id or self.target_system or 0,
-                                      ack.component_id or self.target_component or 0, ack.fields_json))
+            log.debug("MAVSDK: no answer to %s: %s", msg, exc)
+            return None
+        if not ack.fields_json or self._loop is None:
+            return None
+        answer = to_message("COMMAND_ACK", ack.system_id or self.target_system or 0,
+                            ack.component_id or self.target_component or 0, ack.fields_json)
+        self._dispatch(answer)
+        return answer
 
     # MAVSDK reconnects on its own; nothing of Link's connection handling applies
     def _connect(self) -> None:  # pragma: no cover - never called
@@ -387,20 +386,12 @@ class MavsdkMissionClient(MissionClient):
         ts, tc = self._target()
         tc = tc if target_component is None else target_component
         p = [float(x) for x in params] + [0.0] * (7 - len(params))
-        fields = {"target_system": ts, "target_component": tc, "command": command, "confirmation": 0,
-                  **{f"param{i + 1}": v for i, v in enumerate(p)}}
-        cmd = MavlinkMessage("COMMAND_LONG", self.link.source_system, self.link.source_component, ts, tc,
-                             json.dumps(fields))
-        try:
-            ack = await self.link.direct.send_command(cmd)
-        except MavlinkDirectError as exc:
-            raise CommandError(command, None, f"MAVSDK: {exc}") from exc
-        result = json.loads(ack.fields_json).get("result") if ack.fields_json else None
-        if result is None:
+        ack = await self.link.command(mavlink.MAVLink_command_long_message(ts, tc, command, 0, *p))
+        if ack is None:
             raise CommandError(command, None, "MAVSDK got no COMMAND_ACK")
-        if result in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
-            return int(result)
-        raise CommandError(command, int(result))
+        if ack.result in (mavlink.MAV_RESULT_ACCEPTED, mavlink.MAV_RESULT_IN_PROGRESS):
+            return int(ack.result)
+        raise CommandError(command, int(ack.result))
 
     async def _action(self, command: int, call: Any) -> int:
         try:
