@@ -14,8 +14,8 @@ from typing import Any, Protocol
 
 import numpy as np
 
-from planner.alloc import tune_allocator
-from planner.checks import (
+from planner.search.alloc import tune_allocator
+from planner.trajectory.checks import (
     CheckResult,
     Trajectory,
     check_trajectory,
@@ -24,11 +24,11 @@ from planner.checks import (
     smooth,
     smoothness,
 )
-from planner.config import PlannerSettings
+from planner.world.config import PlannerSettings
 from planner.problem import Evaluation, PlanningProblem
-from planner.scenario import Scenario
-from planner.spso import SphericalPSO
-from planner.swarm import OptimiserResult
+from planner.world.scenario import Scenario
+from planner.search.spso import SphericalPSO
+from planner.search.swarm import OptimiserResult
 
 
 MERGE_TOLERANCE_M = 1.0
@@ -102,12 +102,12 @@ class Optimiser(Protocol):
 
 def make_optimiser(settings: PlannerSettings) -> Optimiser:
     """The optimiser named by ``settings.algorithm``, configured from ``settings``."""
-    from planner.aco import ColdColony
-    from planner.bpso import BPSO
-    from planner.cartesian_pso import CartesianPSO
-    from planner.fusion import Fusion
-    from planner.psogsa import PSOGSA
-    from planner.qpso import QPSO
+    from planner.search.aco import ColdColony
+    from planner.search.baselines.bpso import BPSO
+    from planner.search.baselines.cartesian_pso import CartesianPSO
+    from planner.search.fusion import Fusion
+    from planner.search.baselines.psogsa import PSOGSA
+    from planner.search.baselines.qpso import QPSO
 
     name = settings.algorithm
     factories: dict[str, Callable[[], Optimiser]] = {

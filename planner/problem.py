@@ -10,16 +10,16 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.config import TERMS, CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
-from planner.environment import Environment
-from planner.geometry import (
+from planner.world.config import CATEGORIES, TERMS, CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
+from planner.world.environment import Environment
+from planner.world.geometry import (
     horizontal_turn,
     segment_cylinder_clearance,
     segment_point_distance,
     segment_point_distance_2d,
     segment_sphere_clearance,
 )
-from planner.smoothing import (
+from planner.trajectory.smoothing import (
     bezier_point,
     climb_angle,
     corner_cut_bound,
@@ -29,7 +29,6 @@ from planner.smoothing import (
     peak_curvature,
 )
 
-CATEGORIES = ("collision", "altitude", "bounds", "turn", "climb")
 _EPS = 1e-9
 _TERRAIN_T = np.linspace(0.0, 1.0, 17)  # samples per segment for terrain clearance
 _THREAT_T = np.linspace(0.0, 1.0, 11)  # samples per segment (ends included) for time-aware threats

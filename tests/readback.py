@@ -1,12 +1,12 @@
 """Comparing missions in tests as an ArduPilot vehicle stores them (the built-in simulator stores items as the
-plane or the copter does: companion.storage), when a test does not care which vehicle it flew."""
+plane or the copter does: companion.mavlink.storage), when a test does not care which vehicle it flew."""
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-from companion.items import MissionItem, compare_items
-from companion.storage import Firmware, mission_difference, stored
+from companion.mavlink.items import MissionItem, compare_items
+from companion.mavlink.storage import Firmware, mission_difference, stored
 
 ARDUPILOT = (Firmware.ARDUPLANE, Firmware.ARDUCOPTER)
 

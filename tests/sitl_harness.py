@@ -32,7 +32,7 @@ STOP_GRACE = 5.0  # s between SIGTERM and SIGKILL (measured: SIGTERM ends it in 
 
 
 class HomeLike(Protocol):
-    """Anything with lat/lon (degrees) and alt (m AMSL), e.g. planner.scenario.Home."""
+    """Anything with lat/lon (degrees) and alt (m AMSL), e.g. planner.world.scenario.Home."""
 
     @property
     def lat(self) -> float: ...

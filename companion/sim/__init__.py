@@ -7,7 +7,7 @@ execution) → ``flight_model`` (kinematics); ``streams`` (telemetry rates); ``i
 ``autopilot`` ties them together.
 
 **The real autopilot is the judge.** What the simulator imitates was measured on ArduPilot 4.7.0-dev SITL
-(../shared/sitl, plane.parm / copter.parm); ``tests/companion/test_sim_conformance.py`` holds the measured numbers
+(../shared/sitl, plane.parm / copter.parm); ``tests/companion/sim/test_sim_conformance.py`` holds the measured numbers
 and checks the simulator against them. When the two disagree, the simulator is wrong.
 
 Imitated:
@@ -21,7 +21,7 @@ Imitated:
 - HEARTBEAT as ArduPilot fills it (base_mode 81, + GUIDED in position-controlled modes, + ARMED; system_status
   ACTIVE only in the air), sent at once on a mode change.
 - The mission protocol (``mission_server``) for the mission, fence and rally lists, storing items as ArduPilot
-  does (:func:`companion.storage.stored`), so a readback is the real one.
+  does (:func:`companion.mavlink.storage.stored`), so a readback is the real one.
 - A few parameters (FENCE_ENABLE, FENCE_TYPE, FENCE_ACTION, RALLY_TOTAL, RALLY_LIMIT_KM, SITL's values):
   PARAM_SET echoed with PARAM_VALUE (other names ignored, as ArduPilot does), PARAM_REQUEST_READ / _LIST;
   SYS_STATUS says the geofence is enabled once FENCE_ENABLE is set and a fence is stored.

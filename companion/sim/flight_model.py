@@ -1,7 +1,7 @@
 """Kinematic flight model of the simulated autopilot, in local ENU metres from home (SPEC §1).
 
 No aerodynamics: a point with a compass heading (0 = north, clockwise, radians), a horizontal speed and a
-vertical rate. The limits come from :class:`planner.config.VehicleLimits`:
+vertical rate. The limits come from :class:`planner.world.config.VehicleLimits`:
 
 - plane: turn rate ≤ g·tan(max bank)/v, climb/descent ≤ v·tan(max climb), never hovers (it circles instead);
   speed changes at most 1.3 m/s² and vertical rate at most 3.7 m/s² (so it overshoots a level-off as ArduPlane
@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from planner.config import G0, VehicleLimits
+from planner.world.config import G0, VehicleLimits
 
 COPTER_CLIMB_RATE = 2.5  # m/s, WPNAV_SPEED_UP
 COPTER_DESCENT_RATE = 1.5  # m/s, WPNAV_SPEED_DN / LAND_SPEED_HIGH

@@ -19,8 +19,9 @@ import numpy as np
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.geo import enu_to_geodetic
-from planner.scenario import Home, Intruder
+from companion.mission.geo import enu_to_geodetic
+from planner.world.home import Home
+from planner.world.scenario import Intruder
 
 ADSB_FLAGS = (mavlink.ADSB_FLAGS_VALID_COORDS | mavlink.ADSB_FLAGS_VALID_ALTITUDE | mavlink.ADSB_FLAGS_VALID_HEADING
               | mavlink.ADSB_FLAGS_VALID_VELOCITY | mavlink.ADSB_FLAGS_VALID_CALLSIGN)

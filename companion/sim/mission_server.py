@@ -27,7 +27,7 @@ ArduPilot behaviour reproduced (../shared/AUTOPILOT_FACTS.md, ``libraries/GCS_MA
   INVALID_PARAM5_X / INVALID_PARAM6_Y; unknown commands → MAV_MISSION_UNSUPPORTED. A failed item ends the upload.
 - MISSION_WRITE_PARTIAL_LIST (start ≤ end ≤ count) re-requests and overwrites that range in place.
 - MISSION_CLEAR_ALL is refused (MAV_MISSION_ERROR) during an upload or while the mission is running.
-- Items are kept as ArduPilot stores them: :func:`companion.storage.stored` for the vehicle's firmware (fence
+- Items are kept as ArduPilot stores them: :func:`companion.mavlink.storage.stored` for the vehicle's firmware (fence
   points in frame GLOBAL with autocontinue 0 and only param1, NAV_WAYPOINT's radii on a plane / hold time on a
   copter, commands without a position in frame GLOBAL…), so a readback is the real one.
 - While booting (``capacity`` says so) a mission upload is refused at MISSION_COUNT with MAV_MISSION_NO_SPACE
@@ -45,8 +45,8 @@ from dataclasses import dataclass, replace
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.items import FENCE, MISSION, RALLY, MissionItem, normalise_frame
-from companion.storage import Firmware, stored
+from companion.mavlink.items import FENCE, MISSION, RALLY, MissionItem, normalise_frame
+from companion.mavlink.storage import Firmware, stored
 
 logger = logging.getLogger(__name__)
 

@@ -27,7 +27,7 @@ from typing import Protocol
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.items import MissionItem
+from companion.mavlink.items import MissionItem
 from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel
 from companion.sim.mission_server import is_nav
 

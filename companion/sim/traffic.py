@@ -22,13 +22,13 @@ from collections.abc import Sequence
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.geo import geodetic_to_enu
-from companion.link import MAV_COMP_ID_ADSB, Link, Message
-from companion.modes import mode_number
-from companion.separation import Separation, min_separations
+from companion.mission.geo import geodetic_to_enu
+from companion.mavlink.link import MAV_COMP_ID_ADSB, Link, Message
+from companion.mavlink.modes import mode_number
+from companion.replanning.separation import Separation, min_separations
 from companion.sim.intruders import IntruderTrack, adsb_report
-from companion.telemetry import Rate, TelemetryRates
-from planner.scenario import Scenario
+from companion.mavlink.telemetry import Rate, TelemetryRates
+from planner.world.scenario import Scenario
 
 log = logging.getLogger(__name__)
 

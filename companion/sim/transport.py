@@ -21,8 +21,8 @@ from dataclasses import dataclass
 import numpy as np
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.errors import LinkError
-from companion.signing import SigningKey, enable_signing
+from companion.mavlink.errors import LinkError
+from companion.mavlink.signing import SigningKey, enable_signing
 
 logger = logging.getLogger(__name__)
 

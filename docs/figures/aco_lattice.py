@@ -12,10 +12,10 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 
-from planner.aco import build_lattice, initial_pheromone  # noqa: E402
+from planner.search.aco import build_lattice, initial_pheromone  # noqa: E402
 from planner.plan import plan, problem_from_scenario  # noqa: E402
 from planner.plot import draw_plan_view  # noqa: E402
-from planner.scenario import load_scenario  # noqa: E402
+from planner.world.scenario import load_scenario  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -59,7 +59,7 @@ def _report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSetting
     write_csv(paths[1], [{**r, "label": labels[r["variant"]]} for r in records], list(RUN_COLUMNS))
     paths[2].write_text(markdown(rows, settings))
     plot_bars(paths[3], rows)
-    from planner.compare import plot_convergence
+    from planner.bench.compare import plot_convergence
 
     plot_convergence(paths[4], [{"algorithm": f"{r['variant']} {labels[r['variant']]}", "history": r["history"]}
                                 for r in records], [f"{v.key} {v.label}" for v in VARIANTS])

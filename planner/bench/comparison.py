@@ -311,7 +311,7 @@ def plot_radar(path: Path, rows: Sequence[dict[str, Any]]) -> None:
 def _report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSettings, *, title: str,
             claims: Callable[[Sequence[dict[str, Any]], Sequence[dict[str, Any]]], list[Claim]],
             paper_col: dict[str, str], paper_head: str, notes: Sequence[str]) -> list[Path]:
-    from planner.compare import plot_convergence
+    from planner.bench.compare import plot_convergence
 
     name = settings.bench.name
     rows = table_rows(records)

@@ -46,7 +46,7 @@ STRAIGHT_TOL = 0.05  # "nearly straight": path length within 5 % of the straight
 
 
 def _straight(settings: BenchSettings) -> float:
-    from planner.scenario import load_scenario
+    from planner.world.scenario import load_scenario
 
     sc = load_scenario(str(settings.bench.scenario), settings.overrides_for(VARIANTS[0]))
     return float(np.linalg.norm(np.asarray(sc.goal) - np.asarray(sc.start)))
@@ -61,7 +61,7 @@ def _report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSetting
     write_csv(paths[1], [{**r, "label": labels[r["variant"]]} for r in records], list(RUN_COLUMNS))
     paths[2].write_text(markdown(rows, settings, _straight(settings)))
     plot_bars(paths[3], rows)
-    from planner.compare import plot_convergence
+    from planner.bench.compare import plot_convergence
 
     plot_convergence(paths[4], [{"algorithm": f"{r['variant']} ({labels[r['variant']]})", "history": r["history"]}
                                 for r in records], [f"{v.key} ({v.label})" for v in VARIANTS])

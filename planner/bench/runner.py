@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from planner.compare import _bar
+from planner.bench.compare import _bar
 from planner.errors import FuseplanError
 
 log = logging.getLogger(__name__)
@@ -95,7 +95,7 @@ def specs_for(settings: BenchSettings) -> list[RunSpec]:
 def run_one(spec: RunSpec) -> dict[str, Any]:
     """Plan once (in a worker process) and return a flat, JSON-ready record."""
     from planner.plan import json_safe, plan, problem_from_scenario
-    from planner.scenario import load_scenario
+    from planner.world.scenario import load_scenario
 
     sc = load_scenario(spec.scenario, spec.overrides)
     res = plan(problem_from_scenario(sc), sc.planner, np.random.default_rng(spec.seed), seed=spec.seed)

@@ -27,7 +27,7 @@ async def no_leaks():
 
 class RawPeer:
     """A MAVLink endpoint on a bare UDP socket bound to 127.0.0.1 (ephemeral port): it packs and parses with
-    pymavlink's MAVLink 2 codec only, so it shares no code path with :class:`companion.link.Link`."""
+    pymavlink's MAVLink 2 codec only, so it shares no code path with :class:`companion.mavlink.link.Link`."""
 
     def __init__(self, system: int = 1, component: int = 1) -> None:
         self.sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
@@ -92,7 +92,7 @@ QUICK_PLAN = ("planner.pso.n_pop=200", "planner.pso.max_iter=80")  # a feasible 
 def static_plan_doc() -> Callable[..., dict]:
     """``static_plan_doc(*overrides)``: the PLAN.json document of rescue_static planned with the quick settings
     (and ``overrides``), made once per session; each call returns a fresh copy."""
-    from planner.cli import _plan_doc_for
+    from companion.cli import _plan_doc_for
 
     made: dict[tuple[str, ...], dict] = {}
 

@@ -22,7 +22,7 @@ Fixtures:
   the companion sees the boot from its first HEARTBEAT on.
 
 Telemetry: real ArduCopter streams nothing but HEARTBEAT until asked, so every connection asks for the
-companion's rates with :func:`companion.telemetry.request_rates` (the companion's own request; REQUEST_DATA_STREAM
+companion's rates with :func:`companion.mavlink.telemetry.request_rates` (the companion's own request; REQUEST_DATA_STREAM
 for every group at 10 Hz while that module is not there).
 
 The ``measure`` fixture notes the numbers the tests measure (boot times, acceptance distances, refusal texts…);
@@ -49,19 +49,20 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from leaks import Snapshot, fail_on_leaks
 from sitl_harness import SitlInstance, unavailable
 
-from companion.events import EventLog
-from companion.items import FRAME_REL_ALT_INT, MISSION, MissionItem
-from companion.link import Link, Message, Subscription
-from companion.mavsdk_backend import MavsdkLink, MavsdkMissionClient
-from companion.protocol import MissionClient
+from companion.mission.events import EventLog
+from companion.mavlink.items import FRAME_REL_ALT_INT, MISSION, MissionItem
+from companion.mavlink.link import Link, Message, Subscription
+from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
+from companion.mavlink.protocol import MissionClient
 from companion.sim import SimAutopilot
-from companion.storage import Firmware, stored
-from companion.supervisor import FlightSupervisor
+from companion.mavlink.storage import Firmware, stored
+from companion.flight.supervisor import FlightSupervisor
 try:
-    from companion.telemetry import request_rates
-except ImportError:  # companion.telemetry not there yet: ask ArduPilot for every stream group ourselves
+    from companion.mavlink.telemetry import request_rates
+except ImportError:  # companion.mavlink.telemetry not there yet: ask ArduPilot for every stream group ourselves
     request_rates = None
-from planner.scenario import Home, load_scenario
+from planner.world.home import Home
+from planner.world.scenario import load_scenario
 
 STATIC = Path(__file__).resolve().parents[2] / "sitl_scenarios" / "rescue_static.toml"
 HOME: Home = load_scenario(STATIC).home  # -35.363261, 149.165230, 584 m
@@ -210,11 +211,11 @@ class Vehicle:
         return Firmware.of(self.link.autopilot, self.link.vehicle_type)
 
     def stored(self, it: MissionItem) -> MissionItem:
-        """``it`` as this autopilot should store it (companion.storage's rules)."""
+        """``it`` as this autopilot should store it (companion.mavlink.storage's rules)."""
         return stored(it, self.firmware)
 
     async def request_telemetry(self) -> dict[str, str]:
-        """The companion's own rate requests (companion.telemetry); without that module, REQUEST_DATA_STREAM
+        """The companion's own rate requests (companion.mavlink.telemetry); without that module, REQUEST_DATA_STREAM
         MAV_DATA_STREAM_ALL at 10 Hz."""
         if request_rates is not None:
             return await request_rates(self.link)

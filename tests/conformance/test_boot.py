@@ -12,8 +12,8 @@ import time
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.errors import CommandError, MissionUploadError
-from companion.items import FENCE, compare_items
+from companion.mavlink.errors import CommandError, MissionUploadError
+from companion.mavlink.items import FENCE, compare_items
 from conformance.conftest import booting, collect, home_item, item, numbered, takeoff, texts, waypoint
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")

@@ -21,10 +21,10 @@ import pytest
 import pytest_asyncio
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.errors import CompanionError
-from companion.events import EventLog
-from companion.items import MissionItem
-from companion.link import Message
+from companion.mavlink.errors import CompanionError
+from companion.mission.events import EventLog
+from companion.mavlink.items import MissionItem
+from companion.mavlink.link import Message
 from conformance.conftest import (Vehicle, home_item, horizontal_m, loiter_unlim, numbered, ready, takeoff,
                                   texts, waypoint)
 

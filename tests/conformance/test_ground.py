@@ -1,5 +1,5 @@
 """On the ground, with a booted and ready autopilot shared by the module: the mission protocol as ArduPilot
-speaks it, what it stores of each item fuseplan builds (companion.storage's rules, item type by item type),
+speaks it, what it stores of each item fuseplan builds (companion.mavlink.storage's rules, item type by item type),
 fences, rally points, the current item, and the copter's refusal to arm in AUTO."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ from dataclasses import dataclass
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.errors import CommandError
-from companion.items import FENCE, MISSION, RALLY, MissionItem, compare_items
+from companion.mavlink.errors import CommandError
+from companion.mavlink.items import FENCE, MISSION, RALLY, MissionItem, compare_items
 from conformance.conftest import (HOME, NAN, collect, home_item, item, next_matching, numbered,
                                   takeoff, texts, waypoint)
 
@@ -140,7 +140,7 @@ async def test_a_single_circle_over_a_longer_fence_stays(vehicle) -> None:
     fence loader clears the stored fence when FENCE_TOTAL goes from non-zero to 0 (AC_PolyFence_loader: "an older
     GCS sets the fence point count to zero"): a single circle uploaded straight over a longer fence is
     acknowledged, verified by a readback in the first ~10 ms of wall time at speed-up 10, and then gone. The
-    client clears an ArduPilot fence before uploading (companion.protocol), so the circle stays."""
+    client clears an ArduPilot fence before uploading (companion.mavlink.protocol), so the circle stays."""
     single = numbered([_fence()[2]], FENCE)
     await vehicle.client.upload_verified(_fence(), FENCE)
     await vehicle.client.upload_verified(single, FENCE)

@@ -13,9 +13,9 @@ import pytest
 import pytest_asyncio
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.errors import CommandError
-from companion.items import FENCE, RALLY
-from companion.mavsdk_backend import MavsdkLink
+from companion.mavlink.errors import CommandError
+from companion.mavlink.items import FENCE, RALLY
+from companion.mavlink.mavsdk_backend import MavsdkLink
 from conformance.conftest import (HOME, Vehicle, _sitl_factory, collect, connect, home_item, next_matching, numbered,
                                   ready, takeoff, texts, waypoint)
 from conformance.test_ground import _difference, _fence, _rally

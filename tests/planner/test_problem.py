@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from planner.config import CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
-from planner.environment import Cylinders, Environment, Radars, Spheres, Threat, Threats
+from planner.world.config import CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
+from planner.world.environment import Cylinders, Environment, Radars, Spheres, Threat, Threats
 from planner.problem import CATEGORIES, TERMS, PlanningProblem
-from planner.terrain import Terrain
+from planner.world.terrain import Terrain
 
 VEH = VehicleLimits()  # 18 m/s, 45° bank → R_min ≈ 33 m; climb 15°, turn 60°
 HAZ = HazardConfig(d_safe=100.0, d_coll=20.0)
@@ -427,7 +427,7 @@ def test_violating_paths_cost_more_than_clean_ones():
 
 
 # ---------------------------------------------------------------------------------------------
-# known gaps between the cost's closed forms and the flown trajectory (see tests/planner/test_checks.py
+# known gaps between the cost's closed forms and the flown trajectory (see tests/planner/trajectory/test_checks.py
 # for the checker's verdict on the same inputs)
 # ---------------------------------------------------------------------------------------------
 

@@ -1,12 +1,11 @@
 """The companion on a real PX4 (SIH quadrotor SITL, one instance shared by the module): the mission protocol as
-PX4 speaks it, what it stores (companion.storage's PX4 rules), set-current, and its navigator's verdict on a
+PX4 speaks it, what it stores (companion.mavlink.storage's PX4 rules), set-current, and its navigator's verdict on a
 mission. Every test runs through both backends, our own pymavlink link and MAVSDK (``fly --backend mavsdk``);
 where they differ the test says which one shows the autopilot's behaviour."""
 
 from __future__ import annotations
 
 import asyncio
-import json
 import math
 from collections.abc import AsyncIterator
 from dataclasses import replace
@@ -18,19 +17,18 @@ import pytest
 import pytest_asyncio
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.builder import MissionSpec, build_mission
-from companion.errors import CompanionError
-from companion.events import EventLog
-from companion.geo import enu_to_geodetic, to_int_e7
-from companion.items import FENCE, FRAME_REL_ALT_INT, MissionItem, compare_items
-from companion.link import Link
-from companion.mavsdk_backend import MavsdkLink, MavsdkMissionClient
-from companion.protocol import MissionClient
-from companion.storage import Firmware, stored
-from companion.supervisor import FlightSupervisor
-from companion.telemetry import request_rates
-from planner.cli import main
-from planner.scenario import load_scenario
+from companion.mission.builder import MissionSpec, build_mission
+from companion.mavlink.errors import CompanionError
+from companion.mission.events import EventLog
+from companion.mission.geo import enu_to_geodetic, to_int_e7
+from companion.mavlink.items import FENCE, FRAME_REL_ALT_INT, MissionItem, compare_items
+from companion.mavlink.link import Link
+from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
+from companion.mavlink.protocol import MissionClient
+from companion.mavlink.storage import Firmware, stored
+from companion.flight.supervisor import FlightSupervisor
+from companion.mavlink.telemetry import request_rates
+from planner.world.scenario import load_scenario
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 

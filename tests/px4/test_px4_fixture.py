@@ -25,7 +25,8 @@ from px4_harness import (
     unavailable,
 )
 
-from planner.scenario import Home, load_scenario
+from planner.world.home import Home
+from planner.world.scenario import load_scenario
 
 SPEEDUP = 5.0
 HOME_TOLERANCE_DEG = 1e-5  # PX4 keeps the home in float32 parameters: 149.16523 is stored as 149.1652374

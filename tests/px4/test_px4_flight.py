@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 from pymavlink import mavutil
 
-from planner.cli import main
-from planner.scenario import load_scenario
+from companion.cli import main
+from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 MOUNTAIN = ROOT / "sitl_scenarios" / "mountain_rescue.toml"
@@ -42,7 +42,7 @@ def _after_the_flight(url: str, until: Callable[[object], bool], timeout: float 
 
 @pytest.fixture(scope="module")
 def mountain_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
-    from planner.cli import _plan_doc_for
+    from companion.cli import _plan_doc_for
 
     doc, _ = _plan_doc_for(MOUNTAIN, None, [], None, feasible_only=True, for_flight=True)
     path = tmp_path_factory.mktemp("mountain") / "PLAN.json"

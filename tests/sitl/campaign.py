@@ -22,8 +22,8 @@ sys.path.insert(0, str(HERE.parent))  # tests/: sitl_harness
 
 from sitl_harness import start_sitl, unavailable  # noqa: E402
 
-from planner.cli import main as fuseplan  # noqa: E402
-from planner.scenario import load_scenario  # noqa: E402
+from companion.cli import main as fuseplan  # noqa: E402
+from planner.world.scenario import load_scenario  # noqa: E402
 
 SCENARIOS = HERE.parents[1] / "sitl_scenarios"
 

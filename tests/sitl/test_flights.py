@@ -10,8 +10,8 @@ from pathlib import Path
 
 import pytest
 
-from planner.cli import main
-from planner.scenario import load_scenario
+from companion.cli import main
+from planner.world.scenario import load_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[2] / "sitl_scenarios"
 FAST = 20.0  # SITL speed-up of the flights without replanning (the replanning ones fly at 10: wall-clock budgets)

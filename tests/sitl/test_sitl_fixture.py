@@ -13,7 +13,8 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from processes import bindable
 from sitl_harness import ENV, SKIP_REASON, _claim_instance, defaults_file, ports, start_sitl, unavailable
 
-from planner.scenario import Home, load_scenario
+from planner.world.home import Home
+from planner.world.scenario import load_scenario
 
 
 @pytest.fixture(scope="module")

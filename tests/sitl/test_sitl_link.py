@@ -21,15 +21,15 @@ from leaks import Snapshot, fail_on_leaks_sync
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.builder import mission_from_plan_json
-from companion.events import EventLog
-from companion.faultproxy import TcpOutageProxy
-from companion.fly import FlyOptions, fly
-from companion.link import Link
-from companion.protocol import MissionClient
-from companion.signing import SigningKey, enable_signing, setup_signing, signing_timestamp
-from companion.supervisor import FlightSupervisor
-from planner.scenario import Scenario, load_scenario
+from companion.mission.builder import mission_from_plan_json
+from companion.mission.events import EventLog
+from companion.sim.faultproxy import TcpOutageProxy
+from companion.flight.fly import FlyOptions, fly
+from companion.mavlink.link import Link
+from companion.mavlink.protocol import MissionClient
+from companion.mavlink.signing import SigningKey, enable_signing, setup_signing, signing_timestamp
+from companion.flight.supervisor import FlightSupervisor
+from planner.world.scenario import Scenario, load_scenario
 
 STATIC = Path(__file__).resolve().parents[2] / "sitl_scenarios" / "rescue_static.toml"
 QUICK_PLAN = ("planner.pso.n_pop=200", "planner.pso.max_iter=80")  # as tests/companion/conftest.py
@@ -54,7 +54,7 @@ def scenario() -> Scenario:
 @pytest.fixture(scope="module")
 def plan_doc() -> dict:
     """rescue_static planned quickly (the same settings as the companion tests' ``static_plan_doc``)."""
-    from planner.cli import _plan_doc_for
+    from companion.cli import _plan_doc_for
 
     doc, _ = _plan_doc_for(STATIC, None, list(QUICK_PLAN), None)
     return doc

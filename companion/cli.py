@@ -1,0 +1,350 @@
+"""The ``fuseplan`` command line: plan, compare, bench (:mod:`planner.cli`) with export, fly, sim, demo.
+
+The top layer: it assembles the planner's subcommands and the companion's. User mistakes print one line and exit 2;
+an infeasible plan exits 3; success exits 0; ``fly`` adds 4 (link or upload failure) and 5 (started but not
+completed).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+
+from planner import cli as planner_cli
+from planner.cli import EXIT_BAD_INPUT, EXIT_INFEASIBLE, EXIT_OK, check_writable, write_text
+from planner.errors import FuseplanError
+from planner.world.config import ALGORITHM_NAMES
+
+SCENARIOS = Path(__file__).resolve().parent.parent / "sitl_scenarios"
+
+
+def _parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(prog="fuseplan", description="Plan safe 3-D UAV routes and fly them over MAVLink.")
+    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
+    sub = p.add_subparsers(dest="command", required=True)
+    planner_parsers = planner_cli.add_commands(sub)
+    ex = sub.add_parser("export", help="write a mission file (.waypoints, QGroundControl .plan, GeoJSON)")
+    ex.add_argument("source", type=Path, help="a scenario TOML (planned first) or a PLAN.json")
+    ex.add_argument("--format", required=True, choices=("waypoints", "plan", "geojson"))
+    ex.add_argument("-o", "--output", type=Path, required=True)
+    ex.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
+    ex.add_argument("--scenario", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
+    ex.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory")
+    ex.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    ex.add_argument("--seed", type=int, default=None)
+    fl = sub.add_parser("fly", help="plan, upload, start and monitor a mission over MAVLink")
+    fl.add_argument("scenario", type=Path, help="scenario TOML (planned now) or a PLAN.json")
+    where = fl.add_mutually_exclusive_group(required=True)
+    where.add_argument("--connect", metavar="URL", help="autopilot link, e.g. tcp:127.0.0.1:5760 (ArduPilot SITL), "
+                       "udpin:0.0.0.0:14550, /dev/ttyACM0")
+    where.add_argument("--sim", action="store_true", help="fly on the built-in simulated autopilot (arming implied)")
+    fl.add_argument("--speedup", type=float, default=1.0, help="simulator speed-up (with --sim)")
+    fl.add_argument("--sim-loss", type=float, default=0.0, help="simulator packet loss probability (with --sim)")
+    fl.add_argument("--arm", action="store_true", help="let the companion arm the vehicle (never without this)")
+    fl.add_argument("--no-fence", action="store_true", help="do not upload the no-fly cylinders as a fence")
+    fl.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory as waypoints")
+    fl.add_argument("--signing-key", type=Path, metavar="FILE",
+                    help="MAVLink 2 signing: a 32-byte key file or a passphrase file (SHA-256, as MAVProxy); "
+                    "sign everything, ignore unsigned input")
+    fl.add_argument("--no-replan", action="store_true",
+                    help="fly the first plan whatever the threats do (no live replanning)")
+    fl.add_argument("--replan-budget", type=float, default=None, metavar="S",
+                    help="wall seconds the planner may use for one live replan (default 0.15)")
+    fl.add_argument("--traffic", metavar="URL",
+                    help="fly the scenario's [[intruders]] against a real autopilot: report them as an ADS-B "
+                    "receiver (component 156) on this spare MAVLink port of it, e.g. tcp:127.0.0.1:5763 (SITL "
+                    "SERIAL2), and measure separation from its positions")
+    fl.add_argument("--backend", choices=("pymavlink", "mavsdk"), default="pymavlink",
+                    help="how the companion talks to the autopilot: its own pymavlink link (default), or MAVSDK "
+                    "(mission_raw, action, mavlink_direct); planning, replanning and the report stay the same")
+    fl.add_argument("--report", type=Path, default=Path("fuseplan-report"), help="report directory")
+    fl.add_argument("--scenario-file", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
+    fl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    fl.add_argument("--seed", type=int, default=None)
+    fl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None)
+    fl.add_argument("-q", "--quiet", action="store_true")
+    sm = sub.add_parser("sim", help="run the built-in simulated autopilot alone")
+    sm.add_argument("scenario", type=Path)
+    sm.add_argument("--listen", default="udpin:127.0.0.1:14550", help="udpin:HOST:PORT or tcp:HOST:PORT "
+                    "(loopback unless you name another address)")
+    sm.add_argument("--speedup", type=float, default=1.0)
+    sm.add_argument("--loss", type=float, default=0.0, help="packet loss probability")
+    sm.add_argument("--latency", type=float, default=0.0, help="extra outgoing latency, s")
+    sm.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key (as for fly)")
+    bn = planner_parsers["bench"]
+    bn.add_argument("--speedup", type=float, default=1.0,
+                    help="bench replan only: simulator speed-up (1 = the latency target's condition)")
+    sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated autopilot "
+                   "at 20x, replanning around an intruder")
+    return p
+
+
+REPLAN_BENCH_SCENARIOS = ("rescue_dynamic.toml", "crossing_traffic.toml")
+
+
+def cmd_bench_replan(args: argparse.Namespace) -> int:
+    """Replan latency on the simulated autopilot (companion.flight.latency_bench)."""
+    from companion.flight.latency_bench import run_latency_bench
+
+    runs = 5 if args.runs is None else args.runs
+    if runs < 1 or not (math.isfinite(args.speedup) and args.speedup > 0):
+        raise FuseplanError("--runs must be >= 1 and --speedup a finite number > 0")
+    plans = [_plan_doc_for(SCENARIOS / name, None, list(args.overrides), None, for_flight=True)
+             for name in REPLAN_BENCH_SCENARIOS]
+    say = (lambda _t: None) if args.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
+    say(f"bench replan: {len(plans)} scenarios × {runs} flights at {args.speedup:g}× until the first replan")
+    try:
+        run_latency_bench(plans, runs, args.speedup, args.output, progress=say)
+    except OSError as e:
+        raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
+    print((args.output / "replan.md").read_text())
+    return EXIT_OK
+
+
+def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str], seed: int | None,
+                  feasible_only: bool = True, for_flight: bool = False) -> tuple[dict, object]:
+    """(PLAN.json document, scenario) from a PLAN.json or by planning a scenario TOML now. ``for_flight``:
+    dynamic threats are timed from the mission start (the vehicle reaches the route's start only after its
+    takeoff), as the companion sees them in flight."""
+    from planner.plan import plan, plan_to_json, problem_from_scenario
+    from planner.world.scenario import load_scenario
+
+    if source.suffix.lower() == ".json":
+        try:
+            doc = json.loads(source.read_text())
+        except (OSError, ValueError) as e:
+            raise FuseplanError(f"{source}: cannot read the plan: {e}") from e
+        if not isinstance(doc, dict) or "waypoints" not in doc:
+            raise FuseplanError(f"{source}: not a fuseplan PLAN.json (no waypoints)")
+        named = scenario_path or (Path(doc["scenario_file"]) if doc.get("scenario_file") else None)
+        if named is None:
+            raise FuseplanError(f"{source}: names no scenario file; pass --scenario")
+        sc = load_scenario(named, overrides)
+        _check_plan_matches(source, doc, sc)
+        return doc, sc
+    sc = load_scenario(source, overrides + ([f"planner.seed={seed}"] if seed is not None else []))
+    start_time = None
+    if len(sc.environment.threats):
+        from companion.mission.builder import time_to_start
+
+        start_time = time_to_start(sc) if for_flight else 0.0
+    res = plan(problem_from_scenario(sc, start_time), sc.planner, np.random.default_rng(sc.planner.seed),
+               seed=sc.planner.seed)
+    if feasible_only and not res.feasible:
+        raise FuseplanError(f"{source}: no feasible plan ({res.status.value}); nothing exported")
+    return plan_to_json(res, sc, start_time), sc
+
+
+def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
+    """A PLAN.json is only flown or exported with its own scenario: same name, home, start and goal."""
+    home = doc.get("home") or {}
+    same = (doc.get("scenario") == sc.name
+            and all(abs(float(home.get(k, math.nan)) - getattr(sc.home, k)) < 1e-9 for k in ("lat", "lon", "alt"))
+            and np.allclose(doc["waypoints"][0], sc.start) and np.allclose(doc["waypoints"][-1], sc.goal))
+    if not same:
+        raise FuseplanError(f"{source}: planned for scenario {doc.get('scenario')!r}, not {sc.name!r} "
+                            f"({sc.source}): home, start or goal differ; plan again for this scenario")
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from companion.mission.exports import export_from_plan_json
+
+    check_writable(args.output)
+    doc, sc = _plan_doc_for(args.source, args.scenario, args.overrides, args.seed)
+    try:
+        path = export_from_plan_json(doc, sc, args.format, args.output, args.autopilot, densify=args.densify)
+    except (KeyError, ValueError) as e:
+        raise FuseplanError(f"{args.source}: cannot export: {e}") from e
+    except OSError as e:
+        raise FuseplanError(f"{args.output}: cannot write: {e.strerror or e}") from e
+    print(f"wrote {path} ({args.format}, {args.autopilot})")
+    return EXIT_OK
+
+
+EXIT_LINK, EXIT_ABORTED = 4, 5
+
+
+def cmd_fly(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from companion.mavlink.errors import CompanionError
+    from companion.mission.events import EventLog
+    from companion.flight.fly import FlyOptions, fly
+    from companion.replanning.replan import ReplanConfig
+    from companion.mavlink.signing import SigningKey
+
+    if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.sim_loss < 1:
+        raise FuseplanError("--speedup must be a finite number > 0 and --sim-loss in [0, 1)")
+    if not args.sim and (args.speedup != 1.0 or args.sim_loss):
+        raise FuseplanError("--speedup and --sim-loss apply to the built-in simulator (--sim) only")
+    if getattr(args, "traffic", None) and args.sim:
+        raise FuseplanError("--traffic is for a real autopilot (--connect): the simulator flies the intruders itself")
+    backend = getattr(args, "backend", "pymavlink")
+    if backend == "mavsdk":
+        from companion.mavlink.mavsdk_backend import unsupported_options
+
+        why = unsupported_options(signing=getattr(args, "signing_key", None) is not None)
+        if why:
+            raise FuseplanError(why)
+    key = SigningKey.load(args.signing_key) if getattr(args, "signing_key", None) else None
+    overrides = list(args.overrides) + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else [])
+    try:
+        args.report.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise FuseplanError(f"{args.report}: cannot create the report directory: {e.strerror or e}") from e
+    say = (lambda *_: None) if args.quiet else (lambda text: print(text, flush=True))
+    say(f"planning {args.scenario.name} ...")
+    doc, sc = _plan_doc_for(args.scenario, args.scenario_file, overrides, args.seed, feasible_only=False,
+                            for_flight=True)
+    write_text(args.report / "PLAN.json", json.dumps(doc, indent=1, allow_nan=False) + "\n")
+    say(f"  {doc['status']}: cost {doc['cost']:.1f}, {doc['metrics']['length_m']:.0f} m, "
+        f"{doc['metrics']['plan_time_s']:.2f} s")
+    if doc["status"] not in ("exact", "approximate"):
+        print(f"fuseplan: no feasible plan ({doc['status']}); not flying. See {args.report / 'PLAN.json'}",
+              file=sys.stderr)
+        return EXIT_INFEASIBLE
+    replan_cfg = None
+    if getattr(args, "replan_budget", None) is not None:
+        if not (math.isfinite(args.replan_budget) and args.replan_budget > 0):
+            raise FuseplanError("--replan-budget must be a finite number of seconds > 0")
+        replan_cfg = ReplanConfig(budget_s=args.replan_budget)
+    opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
+                      arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report,
+                      replan=not getattr(args, "no_replan", False), replan_config=replan_cfg,
+                      signing_key=key, traffic=getattr(args, "traffic", None), backend=backend)
+    events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
+    try:
+        flight = asyncio.run(fly(doc, sc, opts, events))
+    except CompanionError as e:
+        events.log("failed", error=str(e))
+        write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e)}, indent=1) + "\n")
+        print(f"fuseplan: error: {e}", file=sys.stderr)
+        return EXIT_LINK
+    except KeyboardInterrupt:
+        events.log("aborted", reason="interrupted by the user")
+        write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": "interrupted"}) + "\n")
+        print("fuseplan: interrupted; the vehicle keeps its current mode and mission", file=sys.stderr)
+        return 130
+    finally:
+        events.close()
+    say(f"{'completed' if flight['completed'] else 'NOT completed'}: {flight['reason']}; "
+        f"{len(flight['items_reached'])} items reached, upload {flight['upload_s']:.2f} s, "
+        f"min clearance {flight['min_clearance_m']:.1f} m; report in {args.report}/")
+    if flight.get("min_separation_m"):
+        seps = ", ".join(f"{k} {v:.1f} m" for k, v in flight["min_separation_m"].items())
+        lat = flight.get("replan_latency_s") or {}
+        say(f"replans {flight['replans']}" + (f" (latency median {lat['median']:.2f} s, max {lat['max']:.2f} s)"
+                                               if lat else "")
+            + f"; min separation (truth): {seps}; d_coll {flight['d_coll_m']:g} m")
+        lost = [k for k, v in flight["min_separation_m"].items() if v < flight["d_coll_m"]]
+        if lost:
+            print(f"fuseplan: warning: separation below d_coll with {', '.join(lost)}"
+                  + (" (replanning was off)" if not flight["replanning"] else ""), file=sys.stderr)
+    return EXIT_OK if flight["completed"] else EXIT_ABORTED
+
+
+_ECHOED = ("reached", "statustext", "mode", "armed", "upload_verified", "mission_start", "ready", "connected",
+           "finished", "timeout", "arm_refused", "waiting_for_pilot_arm", "failed", "track",
+           "track_expired", "conflict_predicted", "hold", "resume", "threat_cleared", "replan_upload_failed",
+           "set_current", "replanner_failed", "upload_failed", "backup_failed", "mission_restored",
+           "mission_restore_failed", "link_lost", "link_restored", "resync", "resync_mismatch", "booting", "booted")
+
+
+def _echo_event(rec: dict) -> None:
+    """Progress lines for the events a person watching the flight cares about; replans spelled out."""
+    e = rec["event"]
+    detail = {k: v for k, v in rec.items() if k not in ("t", "event")}
+    if e == "conflict":
+        text = (f"CONFLICT with {rec['threat']} in {rec['in_s']:.1f} s: predicted separation "
+                f"{rec['separation_m']:.1f} m (d_coll {rec['d_coll_m']:g} m) -> replan {rec['n']}")
+    elif e == "replan_planned":
+        text = (f"replan {rec['n']}: {rec['status']} in {rec['plan_s']:.3f} s from {rec['commit']}, "
+                f"{rec['waypoints']} waypoints, predicted separation {rec['separation_after_m']:.1f} m")
+    elif e == "replanned":
+        text = (f"replan {rec['n']}: new mission current {rec['latency_s']:.3f} s after the conflict was seen "
+                f"(plan {rec['plan_s']:.3f} s, upload+verify+set-current {rec['upload_s']:.3f} s"
+                f"{', vehicle held meanwhile' if rec['held'] else ''})")
+    elif e in _ECHOED:
+        text = f"{e} " + " ".join(f"{k}={v}" for k, v in detail.items())
+    else:
+        return
+    print(f"  [{rec['t']:6.1f} s] {text}".rstrip(), flush=True)
+
+
+def cmd_sim(args: argparse.Namespace) -> int:
+    import asyncio
+
+    from companion.mavlink.signing import SigningKey
+    from companion.sim import serve
+    from planner.world.scenario import load_scenario
+
+    sc = load_scenario(args.scenario)
+    if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.loss < 1 or not (
+            math.isfinite(args.latency) and args.latency >= 0):
+        raise FuseplanError("--speedup must be a finite number > 0, --loss in [0, 1), --latency >= 0")
+    print(f"simulated {sc.vehicle.type} for {sc.name} on {args.listen} (speed-up {args.speedup:g}); Ctrl-C stops",
+          flush=True)
+    try:
+        key = SigningKey.load(args.signing_key) if args.signing_key else None
+        asyncio.run(serve(sc, args.listen, args.speedup, args.loss, args.latency, signing_key=key))
+    except KeyboardInterrupt:
+        pass
+    except OSError as e:
+        raise FuseplanError(f"{args.listen}: cannot listen: {e.strerror or e}") from e
+    return EXIT_OK
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """fly sitl_scenarios/rescue_dynamic.toml --sim --speedup 20 --report fuseplan-demo/"""
+    here = SCENARIOS / "rescue_dynamic.toml"
+    print("fuseplan demo: planning the dynamic rescue scenario and flying it on the built-in simulated autopilot "
+          "(20x); an intruder reported over ADS-B will cross the route and the companion replans around it")
+    ns = argparse.Namespace(scenario=here, connect=None, sim=True, speedup=20.0, sim_loss=0.0, arm=False,
+                            no_fence=False, densify=False, report=Path("fuseplan-demo"), scenario_file=None,
+                            overrides=[], seed=None, algorithm=None, quiet=False, no_replan=False,
+                            replan_budget=None)
+    return cmd_fly(ns)
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
+                        format="%(levelname)s %(name)s: %(message)s")
+    try:
+        if args.command == "plan":
+            return planner_cli.cmd_plan(args)
+        if args.command == "compare":
+            return planner_cli.cmd_compare(args)
+        if args.command == "export":
+            return cmd_export(args)
+        if args.command == "fly":
+            return cmd_fly(args)
+        if args.command == "sim":
+            return cmd_sim(args)
+        if args.command == "bench":
+            if args.name == "replan":
+                return cmd_bench_replan(args)
+            return planner_cli.cmd_bench(args, other_benches=("replan",))
+        return cmd_demo(args)
+    except FuseplanError as e:
+        print(f"fuseplan: error: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except MemoryError:
+        print("fuseplan: error: out of memory: reduce planner.pso.n_pop, n_waypoints or the map size",
+              file=sys.stderr)
+        return EXIT_BAD_INPUT
+    except BrokenPipeError:  # `fuseplan compare | head`: the reader left; files are already written
+        import os
+
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+        return EXIT_OK
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,203 @@
+"""`fuseplan fly`: plan → connect → build items for the autopilot found → upload, verify → start →
+monitor → report directory. With ``sim=True`` the built-in simulated autopilot runs in this process."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from companion.mission.builder import build_fence, mission_from_plan_json, spec_from_plan_json
+from companion.mission.events import EventLog
+from companion.mission.exports import write_geojson, write_qgc_plan, write_waypoints, zones_of
+from companion.mission.geo import geodetic_to_enu, lonlatalt
+from companion.mavlink.link import Link
+from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
+from companion.mavlink.protocol import MissionClient
+from companion.replanning.replan import ReplanConfig
+from companion.replanning.replanner import LiveReplanner
+from companion.flight.report import plot_track, write_json
+from companion.replanning.separation import min_separations
+from companion.mavlink.signing import SigningKey
+from companion.flight.supervisor import FlightOutcome, FlightSupervisor
+from companion.mavlink.telemetry import TelemetryRates
+from planner.trajectory.checks import obstacle_clearance
+from planner.world.scenario import Scenario
+
+if TYPE_CHECKING:
+    from companion.sim.traffic import TrafficFeed
+
+log = logging.getLogger(__name__)
+RATES_WAIT_S = 15.0  # wall seconds the first round of telemetry rate requests may delay the upload
+
+
+@dataclass
+class FlyOptions:
+    connect: str | None = None  # pymavlink URL of a real autopilot / SITL
+    sim: bool = False
+    speedup: float = 1.0
+    sim_loss: float = 0.0
+    arm: bool = False
+    fence: bool = True
+    densify: bool = False
+    report: Path = Path("fuseplan-report")
+    source_system: int = 1
+    replan: bool = True  # live replanning around dynamic threats (when the scenario has any)
+    replan_config: ReplanConfig | None = None  # None: ReplanConfig() defaults
+    signing_key: SigningKey | None = None  # MAVLink 2 signing (our simulator uses the same key)
+    traffic: str | None = None  # a real autopilot's spare port: fly the scenario's intruders there (TrafficFeed)
+    backend: str = "pymavlink"  # or "mavsdk": the vehicle through MAVSDK (companion.mavlink.mavsdk_backend)
+
+
+async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, events: EventLog) -> dict[str, Any]:
+    """Fly ``plan_doc`` (a PLAN.json document) and write the report; returns the flight.json document."""
+    from companion.sim import SimAutopilot
+    from companion.sim.traffic import TrafficFeed
+
+    sim = None
+    if opts.sim:
+        sim = SimAutopilot(scenario, listen="udpin:127.0.0.1:0", speedup=opts.speedup, loss=opts.sim_loss,
+                           seed=int(plan_doc.get("seed") or 0), signing_key=opts.signing_key)
+        await sim.start()
+        url = f"udpout:127.0.0.1:{sim.port}"
+        events.log("sim_started", port=sim.port, speedup=opts.speedup, loss=opts.sim_loss)
+    else:
+        url = opts.connect or ""
+    try:
+        if opts.signing_key is not None:
+            events.log("signing", key=opts.signing_key.fingerprint)
+        async with _link(url, opts) as link:
+            rates = TelemetryRates(link, on_results=lambda answers: events.log("telemetry_rates", **answers)).start()
+            await link.wait_heartbeat(timeout=15.0)
+            # the streams we do not read turned off before the first transfer (PX4 floods a companion link with
+            # ~500 messages/s times its speed-up: an upload in that flood timed out three times on a busy machine)
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(asyncio.shield(rates.wait()), RATES_WAIT_S)
+            autopilot = link.profile.layout  # the builder's layout key ("ardupilot", "px4")
+            items = mission_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)
+            spec = spec_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)
+            top = float(np.max(np.asarray(plan_doc["trajectory"]["points"])[:, 2]))
+            fence = build_fence(scenario.environment.cylinders, scenario.home, max_route_alt=top) \
+                if opts.fence and len(scenario.environment.cylinders) else []
+            _write_mission_files(opts.report, plan_doc, scenario, items, spec, fence)
+            client = MissionClient(link) if opts.backend == "pymavlink" else MavsdkMissionClient(link)
+            sup = FlightSupervisor(link, client, events, arm=opts.arm or opts.sim)
+            length = float(plan_doc["metrics"]["length_m"])
+            timeout = 120.0 + 4.0 * length / scenario.vehicle.cruise_speed / max(opts.speedup, 1e-3)
+            replanner = feed = None
+            async with contextlib.AsyncExitStack() as stack:
+                if opts.traffic and scenario.intruders:
+                    feed = await stack.enter_async_context(
+                        TrafficFeed(opts.traffic, scenario, plan_doc["waypoints"], system=link.target_system or 1))
+                    events.log("traffic", url=opts.traffic, intruders=[i.id for i in scenario.intruders])
+                if opts.replan and (len(scenario.environment.threats) or scenario.intruders or opts.connect):
+                    replanner = await stack.enter_async_context(LiveReplanner(
+                        link, client, events, scenario, spec, items, opts.replan_config,
+                        rate=opts.speedup if sim is not None else None, seed=int(plan_doc.get("seed") or 0)))
+                outcome = await sup.fly(items, fence, ready_timeout=60.0 if sim is None else 30.0,
+                                        flight_timeout=timeout, replanner=replanner)
+    finally:
+        if sim is not None:
+            await sim.stop()
+    return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, len(items), replanner, feed)
+
+
+def _link(url: str, opts: FlyOptions) -> Link:
+    """Our pymavlink link, or MAVSDK's (``opts.backend``)."""
+    if opts.backend == "mavsdk":
+        return MavsdkLink(url, source_system=opts.source_system, open_timeout=10.0)
+    return Link(url, source_system=opts.source_system, open_timeout=10.0, signing_key=opts.signing_key)
+
+
+def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,
+                         fence: list) -> None:
+    write_waypoints(report / "mission.waypoints", items, spec.home)
+    write_qgc_plan(report / "mission.plan", items, spec, zones_of(scenario, spec.home) if fence else ())
+    traj = lonlatalt(np.asarray(plan_doc["trajectory"]["points"], dtype=float), spec.home)
+    write_geojson(report / "mission.geojson", lonlatalt(np.asarray(plan_doc["waypoints"]), spec.home),
+                  zones_of(scenario, spec.home), traj, {"scenario": scenario.name})
+
+
+def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: Scenario, out: FlightOutcome,
+                         sim: Any, autopilot: str, n_items: int, replanner: LiveReplanner | None = None,
+                         feed: TrafficFeed | None = None) -> dict[str, Any]:
+    """flight.json and track.png; the flown track is the simulator's truth when we ran it, else telemetry.
+    Separations: the simulator's truth tracks, or a traffic feed's (the autopilot's positions against the
+    intruders' scripted tracks)."""
+    if sim is not None and sim.truth:
+        flown = np.array([(x, y, z) for _t, _lat, _lon, _alt, x, y, z in sim.truth])
+        source = "simulator truth"
+    elif out.track:
+        tr = np.array(out.track)
+        flown = geodetic_to_enu(tr[:, 1], tr[:, 2], scenario.home.alt + tr[:, 3], scenario.home)
+        source = "GLOBAL_POSITION_INT"
+    else:
+        flown, source = np.zeros((0, 3)), "none"
+    airborne = flown[:, 2] > 1.0 if len(flown) else np.zeros(0, dtype=bool)
+    clearance = obstacle_clearance(flown[airborne], None, scenario.environment) if airborne.any() else np.zeros(0)
+    min_clear = float(clearance.min()) if clearance.size else math.inf
+    seps = truth_separations(sim, scenario) if feed is None else feed.separations()
+    records = replanner.records if replanner is not None else []
+    done = [r for r in records if r.latency_s is not None]
+    doc = {
+        "completed": out.completed,
+        "reason": out.reason,
+        "holding": out.holding,
+        "items_reached": sorted(out.items_reached),
+        "mission_items": n_items,
+        "fence_items": out.fence_count,
+        "min_clearance_m": min_clear,
+        "d_coll_m": scenario.hazard.d_coll,
+        "replanning": bool(opts.replan),
+        "replans": len(done),
+        "replan_attempts": len(records),
+        "min_separation_m": {k: round(v.separation, 2) for k, v in seps.items()},
+        "min_separation_t_s": {k: round(v.t, 2) for k, v in seps.items()},
+        "separation_source": "simulator truth" if sim is not None else (
+            "GLOBAL_POSITION_INT against the scripted intruders (traffic feed)" if feed is not None else None),
+        "pace_m_s": None if replanner is None or replanner.pace is None else round(replanner.pace, 2),
+        "replan_latency_s": _stats([r.latency_s for r in done]),
+        "replan_plan_s": _stats([r.plan_s for r in records]),
+        "replan_log": [r.summary() for r in records],
+        "upload_s": round(out.upload_s, 3),
+        "flight_wall_s": round(out.flight_s, 3),
+        "autopilot": autopilot,
+        "link": "built-in simulator" if sim is not None else opts.connect,
+        "backend": opts.backend,
+        "speedup": opts.speedup if sim is not None else None,
+        "track_source": source,
+        "track_points": int(len(flown)),
+        "statustexts": out.statustexts[-20:],
+    }
+    write_json(opts.report / "flight.json", doc)
+    truth = sim.intruder_truth if sim is not None else (feed.intruders if feed is not None else {})
+    intr = {k: np.array([(x, y, z) for _t, x, y, z in v]).reshape(-1, 3) for k, v in truth.items()}
+    replans = [(np.array(r.old_route), np.array(r.new_route)) for r in records if r.new_route]
+    plot_track(opts.report / "track.png", scenario.environment, np.asarray(plan_doc["trajectory"]["points"]),
+               flown, f"{scenario.name}: planned vs flown ({'completed' if out.completed else 'not completed'}"
+               f", {len(done)} replans)", intr, replans)
+    return doc
+
+
+def truth_separations(sim: Any, scenario: Scenario) -> dict:
+    """Truth-track minimum separation to every intruder and scripted threat (simulator runs only)."""
+    if sim is None or not sim.truth:
+        return {}
+    vehicle = np.array([(t, x, y, z) for t, _lat, _lon, _alt, x, y, z in sim.truth])
+    radius = {i.id: i.radius for i in scenario.intruders}
+    tracks = {k: (np.array(v).reshape(-1, 4), radius[k]) for k, v in sim.intruder_truth.items()}
+    return min_separations(vehicle, tracks, scenario.environment.threats, sim.mission_start_time)
+
+
+def _stats(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    v = np.asarray(values, dtype=float)
+    return {"n": int(v.size), "min": round(float(v.min()), 3), "median": round(float(np.median(v)), 3),
+            "max": round(float(v.max()), 3)}

@@ -1,0 +1,395 @@
+"""Flight supervisor: readiness, verified upload, mode/arm/start, progress monitoring (SPEC §9).
+
+Top of the companion's layers (link → mission protocol → builder → supervisor). Every decision is written
+to the :class:`EventLog`; the CLI decides what the user sees.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.mavlink.errors import (CommandError, CompanionError, MissionTimeout, MissionUploadError, MissionVerifyError,
+                              UploadAborted)
+from companion.mission.events import EventLog
+from companion.mavlink.items import FENCE, MISSION, MissionItem
+from companion.mavlink.link import Link, Subscription
+from companion.mavlink.profiles import ARM, MODE, PILOT_ARM, START, profile_for
+from companion.mavlink.protocol import MissionClient
+from companion.replanning.replanner import LiveReplanner
+from companion.mission.restore import restore_mission
+
+log = logging.getLogger(__name__)
+PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
+EKF_GOOD = 0x33F  # attitude, velocities, horizontal/vertical position, predicted positions
+PILOT_ARM_TIMEOUT_S = 600.0
+REPLANNER_STOP_S = 5.0  # wall seconds a cancelled replanner may take to finish (a plan in progress)
+UPLOAD_ATTEMPTS = 3  # whole verified uploads tried before the flight when the link breaks one
+BOOT_TIMEOUT_S = 60.0  # wall seconds an autopilot may take to finish booting
+VERDICT_S = 3.0  # wall seconds PX4's navigator may take to accept a verified mission (measured: ≤ 0.21 s)
+BOOT_GRACE_S = 10.0  # a MAV_MISSION_NO_SPACE this soon after boot is the boot's, not the mission's size
+
+
+@dataclass
+class FlightOutcome:
+    completed: bool
+    reason: str
+    items_reached: list[int] = field(default_factory=list)
+    upload_s: float = 0.0
+    flight_s: float = 0.0
+    mission_count: int = 0
+    fence_count: int = 0
+    track: list[tuple[float, float, float, float]] = field(default_factory=list)  # (t, lat, lon, alt_rel)
+    statustexts: list[str] = field(default_factory=list)
+    holding: bool = False  # ended with the vehicle held (loitering) by the companion
+
+
+def _booting(hb: object) -> bool:
+    """A HEARTBEAT of an autopilot that has not finished booting (its profile's ``booting``)."""
+    return profile_for(hb.autopilot, hb.type).booting(hb.system_status, hb.custom_mode)  # type: ignore[attr-defined]
+
+
+def _mode_name(hb: object) -> str:
+    """The mode a HEARTBEAT reports, by name."""
+    return profile_for(hb.autopilot, hb.type).mode_name(hb.custom_mode)  # type: ignore[attr-defined]
+
+
+class FlightSupervisor:
+    """Flies one mission. ``arm``: may the companion arm the vehicle (only when asked, or our own sim)."""
+
+    def __init__(self, link: Link, client: MissionClient, events: EventLog, *, arm: bool) -> None:
+        self.link = link
+        self.client = client
+        self.events = events
+        self.arm = arm
+        self.booted_at: float | None = None  # time.monotonic() when the autopilot was seen booted
+
+    # -- readiness ---------------------------------------------------------------------------------
+    async def wait_booted(self, timeout: float = BOOT_TIMEOUT_S) -> None:
+        """Wait until the autopilot has finished booting before touching its mission: its HEARTBEAT no longer
+        says UNINIT/BOOT/CALIBRATING (nor, on ArduPlane, mode INITIALISING) and, from ArduPilot or PX4, a first
+        SYS_STATUS has come (the profile's boot fields). An ArduPilot that is still booting refuses every upload
+        with MAV_MISSION_NO_SPACE (AUTOPILOT_FACTS: a companion usually powers up with its autopilot)."""
+        t0 = time.monotonic()
+        hb, status_seen, said = self.link.last_heartbeat_msg, not self.link.profile.boot_needs_status, False
+        with self.link.subscribe("HEARTBEAT", "SYS_STATUS") as sub:
+            while hb is None or _booting(hb) or not status_seen:
+                if not said and hb is not None and _booting(hb):
+                    self.events.log("booting", system_status=hb.system_status, mode=_mode_name(hb))
+                    said = True
+                left = timeout - (time.monotonic() - t0)
+                if left <= 0:
+                    what = (f"HEARTBEAT system_status {hb.system_status}, mode {_mode_name(hb)}"
+                            if hb is not None and _booting(hb) else "no SYS_STATUS")
+                    raise CompanionError(f"the autopilot did not finish booting within {timeout:.0f} s ({what}); "
+                                         "nothing was uploaded")
+                try:
+                    msg = await sub.get(left)
+                except TimeoutError:
+                    continue
+                if msg.get_type() == "HEARTBEAT":
+                    hb = msg
+                else:
+                    status_seen = True
+        self.booted_at = time.monotonic()
+        if said:
+            self.events.log("booted", seconds=round(self.booted_at - t0, 2))
+
+    def _refused_while_booting(self, e: Exception) -> bool:
+        """An upload refused with MAV_MISSION_NO_SPACE by an autopilot that is booting or has just booted
+        (its mission storage is not ready yet): worth doing again, unlike a real lack of space. (A fence or
+        rally upload during the boot is not refused: ArduPilot answers it once booted.)"""
+        if not (isinstance(e, MissionUploadError) and e.result == mavlink.MAV_MISSION_NO_SPACE):
+            return False
+        hb = self.link.last_heartbeat_msg
+        recent = self.booted_at is not None and time.monotonic() - self.booted_at < BOOT_GRACE_S
+        return recent or (hb is not None and _booting(hb))
+
+    async def wait_ready(self, timeout: float) -> None:
+        """Wait for a 3-D GPS fix, a healthy pre-arm check and a good EKF (each only if the autopilot
+        reports it), instead of retrying arming blindly (AUTOPILOT_FACTS: 'System not initialised')."""
+        state = {"gps": None, "prearm": None, "ekf": None}
+
+        def ready() -> bool:
+            return all(v is None or v for v in state.values()) and state["gps"] is not None
+
+        deadline = time.monotonic() + timeout
+        health_only = self.link.profile.prearm_health_only
+        with self.link.subscribe("GPS_RAW_INT", "SYS_STATUS", "EKF_STATUS_REPORT") as sub:
+            while not ready():
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise CompanionError(f"vehicle not ready to arm after {timeout:.0f} s: {state}")
+                try:
+                    msg = await sub.get(left)
+                except TimeoutError:
+                    continue
+                kind = msg.get_type()
+                if kind == "GPS_RAW_INT":
+                    state["gps"] = msg.fix_type >= 3
+                elif kind == "SYS_STATUS" and (msg.onboard_control_sensors_present & PREARM_BIT or health_only):
+                    state["prearm"] = bool(msg.onboard_control_sensors_health & PREARM_BIT)
+                elif kind == "EKF_STATUS_REPORT":
+                    state["ekf"] = (msg.flags & EKF_GOOD) == EKF_GOOD
+        self.events.log("ready", **{k: v for k, v in state.items() if v is not None})
+
+    # -- upload ------------------------------------------------------------------------------------
+    async def upload(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (),
+                     attempts: int = UPLOAD_ATTEMPTS) -> float:
+        """Upload and verify by readback (mission, then fence if any); returns the seconds it took. Before the
+        flight a transfer the link broke (timeout, the autopilot's own timeout cancelling it, a readback that
+        differs) is simply done again, up to ``attempts`` times; a refusal of an item is not. Each list is read
+        first, so that if its upload fails for good the previous one can be restored (the stored list may be
+        part new, part old): raises :class:`UploadAborted` saying what the vehicle was left with."""
+        self.events.log("upload_start", mission_items=len(items), fence_items=len(fence))
+        dt = 0.0  # the uploads' own time, not the backups' (the replanner's first guess at a replan upload)
+        if items and self.link.profile.first_item_current_on_upload:
+            # PX4 keeps its current item across uploads: the first item flagged current resets it
+            items = [replace(items[0], current=1), *items[1:]]
+        for kind, payload in ((MISSION, items), (FENCE, fence)):
+            if not payload:
+                continue
+            previous = await self._backup(kind)
+            t0 = time.monotonic()
+            for attempt in range(1, attempts + 1):
+                try:
+                    await self.client.upload_verified(payload, kind)
+                    break
+                except (MissionTimeout, MissionVerifyError, MissionUploadError) as e:
+                    booting = self._refused_while_booting(e)
+                    transient = booting or not (isinstance(e, MissionUploadError) and e.refused)
+                    self.events.log("upload_failed", mission_type=kind, attempt=attempt, error=str(e),
+                                    retrying=transient and attempt < attempts)
+                    if not transient or attempt == attempts:
+                        _, left_with = await restore_mission(self.client, self.events, previous, kind)
+                        raise UploadAborted(e, left_with) from e
+                    if booting:
+                        await self.wait_booted()
+                        await asyncio.sleep(1.0)
+            dt += time.monotonic() - t0
+            if kind == MISSION and self.link.profile.awaits_mission_verdict:
+                await self._mission_verdict(len(payload))
+        self.events.log("upload_verified", seconds=round(dt, 3))
+        return dt
+
+    async def _mission_verdict(self, count: int, timeout: float = VERDICT_S) -> None:
+        """Wait for the navigator's verdict on a verified mission (the profile's ``awaits_mission_verdict``: PX4):
+        MISSION_CURRENT with the new total and mission_state NOT_STARTED/ACTIVE (valid) or NO_MISSION (rejected,
+        the reason only in PX4's EVENT messages). Starting before it is DENIED."""
+        valid = (mavlink.MISSION_STATE_NOT_STARTED, mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_PAUSED)
+        with self.link.subscribe("MISSION_CURRENT", predicate=lambda m: m.total == count) as sub:
+            deadline = time.monotonic() + timeout
+            state = None
+            while (left := deadline - time.monotonic()) > 0:
+                try:
+                    state = (await sub.get(left)).mission_state
+                except TimeoutError:
+                    break
+                if state in valid:
+                    self.events.log("mission_valid", items=count, mission_state=state)
+                    return
+        raise CompanionError(f"PX4 stored the {count} verified items but its navigator did not accept the mission "
+                             f"within {timeout:.0f} s (MISSION_CURRENT mission_state {state}: "
+                             "1 = NO_MISSION means it was rejected; PX4 says why in its events/log)")
+
+    async def _backup(self, kind: int) -> list[MissionItem] | None:
+        """The vehicle's ``kind`` list before we overwrite it (None if it cannot be read: a restore then
+        clears the list instead)."""
+        try:
+            previous = await self.client.download(kind)
+        except (CompanionError, TimeoutError) as e:
+            self.events.log("backup_failed", mission_type=kind, error=str(e))
+            return None
+        self.events.log("backup", mission_type=kind, items=len(previous))
+        return previous
+
+    async def resync(self, expected: Sequence[MissionItem]) -> None:
+        """After a link outage, read the mission back before acting again: it must still be the one we
+        verified (nobody else uploaded meanwhile, nothing half-written). A mismatch is an error."""
+        try:
+            got = await self.client.verify(expected, MISSION)
+        except MissionVerifyError as e:
+            self.events.log("resync_mismatch", seq=e.seq, field=e.field)
+            raise
+        self.events.log("resync", items=len(got), result="the vehicle still has our verified mission")
+
+    # -- start -------------------------------------------------------------------------------------
+    async def set_mode(self, name: str) -> None:
+        """MAV_CMD_DO_SET_MODE as the autopilot's profile packs it."""
+        profile = self.link.profile
+        await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE,
+                                       *profile.set_mode_params(profile.mode_number(name)))
+        self.events.log("mode", mode=name)
+
+    async def arm_vehicle(self, attempts: int = 5) -> None:
+        for attempt in range(attempts):
+            try:
+                await self.client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+                self.events.log("armed")
+                return
+            except CommandError as e:
+                self.events.log("arm_refused", result=e.result, attempt=attempt + 1)
+                if e.result is None or attempt == attempts - 1:
+                    raise
+                await asyncio.sleep(1.0)
+
+    async def start(self, first_seq: int) -> None:
+        """Make the first item current, then the autopilot's start sequence (its profile's; the pilot arms
+        unless the companion may): ArduPlane AUTO → arm → start; ArduCopter GUIDED → arm → AUTO → start; PX4
+        arm → mission → start."""
+        profile = self.link.profile
+        await self.client.set_current(first_seq)
+        self.events.log("set_current", seq=first_seq)
+        for step in profile.start_sequence if self.arm else profile.pilot_arm_sequence:
+            if step.startswith(MODE):
+                await self.set_mode(step.removeprefix(MODE))
+            elif step == ARM:
+                await self.arm_vehicle()
+            elif step == PILOT_ARM:
+                await self._wait_pilot_arm()
+            elif step == START:  # (the profile has checked its steps)
+                await self.client.command_long(mavlink.MAV_CMD_MISSION_START, 0, 0)
+                self.events.log("mission_start")
+
+    async def _wait_pilot_arm(self) -> None:
+        self.events.log("waiting_for_pilot_arm", note="the companion arms only with --arm")
+        try:
+            await self.link.wait_for("HEARTBEAT", timeout=PILOT_ARM_TIMEOUT_S,
+                                     predicate=lambda m: m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
+        except TimeoutError:
+            raise CompanionError(f"the vehicle was not armed within {PILOT_ARM_TIMEOUT_S:.0f} s "
+                                 "(pass --arm to let the companion arm it)") from None
+
+    # -- monitor -----------------------------------------------------------------------------------
+    MONITORED = ("MISSION_ITEM_REACHED", "MISSION_CURRENT", "GLOBAL_POSITION_INT", "STATUSTEXT", "HEARTBEAT")
+
+    async def monitor(self, items: Sequence[MissionItem], timeout: float, outcome: FlightOutcome,
+                      sub: Subscription | None = None, replanner: LiveReplanner | None = None) -> None:
+        """Follow progress until the goal waypoint is reached (or the autopilot says the mission is
+        complete); fills ``outcome``. ``timeout`` in wall seconds. Pass a subscription opened before the
+        start so nothing sent right after MISSION_START is missed. With a ``replanner`` (run here as its own
+        task) the goal is that of the mission it made live, and its failure (vehicle held) ends the flight."""
+        t0 = time.monotonic()
+        task = asyncio.create_task(replanner.run(), name="replanner") if replanner is not None else None
+        try:
+            with sub if sub is not None else self.link.subscribe(*self.MONITORED) as sub:
+                await self._follow(sub, items, timeout, outcome, replanner, task)
+        finally:
+            if task is not None and not task.done():
+                task.cancel()
+                done, _ = await asyncio.wait({task}, timeout=REPLANNER_STOP_S)
+                if not done:
+                    log.error("the replanner did not stop within %.0f s of being cancelled", REPLANNER_STOP_S)
+        outcome.flight_s = time.monotonic() - t0
+        outcome.holding = replanner is not None and replanner.holding is not None
+
+    async def _follow(self, sub: Subscription, items: Sequence[MissionItem], timeout: float,
+                      outcome: FlightOutcome, replanner: LiveReplanner | None, task: asyncio.Task | None) -> None:
+        fixed_goal = max(it.seq for it in items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
+        t0 = time.monotonic()
+        last_current = None
+        lost_at: float | None = None  # when the link was found lost
+        while True:
+            if task is not None and task.done():
+                exc = task.exception()
+                outcome.reason = str(exc) if exc is not None else "replanner stopped"
+                self.events.log("replanner_failed", error=outcome.reason)
+                if exc is not None and not isinstance(exc, CompanionError):
+                    log.error("replanner failed", exc_info=exc)
+                if replanner is not None and replanner.holding is None:
+                    # it saw a conflict it could not resolve, or broke: do not fly on unsupervised into it
+                    try:
+                        await replanner.hold(f"replanner stopped: {outcome.reason}")
+                    except CompanionError as e:
+                        self.events.log("hold_failed", error=str(e))
+                return
+            goal_seq = replanner.goal_seq if replanner is not None else fixed_goal
+            left = timeout - (time.monotonic() - t0)
+            if left <= 0:
+                outcome.reason = f"timeout after {timeout:.0f} s"
+                self.events.log("timeout", seconds=timeout)
+                return
+            try:
+                msg = await sub.get(min(left, 0.2 if task is not None else 1.0))
+            except TimeoutError:
+                if self.link.heartbeat_age > self.link.heartbeat_timeout and lost_at is None:
+                    age = self.link.heartbeat_age
+                    lost_at = time.monotonic() - (age if math.isfinite(age) else 0.0)  # the last HEARTBEAT heard
+                    self.events.log("link_lost", age_s=round(age, 1),
+                                    decision="the vehicle keeps flying its verified mission; waiting for the link")
+                    if replanner is not None:
+                        replanner.link_lost()
+                continue
+            if lost_at is not None and msg.get_type() == "HEARTBEAT":
+                self.events.log("link_restored", outage_s=round(time.monotonic() - lost_at, 1))
+                lost_at = None
+                expected = replanner.verified[-1][1] if replanner is not None else items
+                await self.resync(expected)
+                if replanner is not None:
+                    replanner.link_restored()
+            kind = msg.get_type()
+            t = time.monotonic() - t0
+            if kind == "GLOBAL_POSITION_INT":
+                outcome.track.append((t, msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0))
+            elif kind == "MISSION_ITEM_REACHED":
+                if msg.seq not in outcome.items_reached:
+                    outcome.items_reached.append(msg.seq)
+                    self.events.log("reached", seq=msg.seq, of=goal_seq)
+                if msg.seq == goal_seq and (replanner is None or replanner.near_goal()):
+                    outcome.completed, outcome.reason = True, "goal waypoint reached"
+                    return
+            elif kind == "MISSION_CURRENT" and msg.seq != last_current:
+                last_current = msg.seq
+                self.events.log("current", seq=msg.seq)
+                if msg.seq > goal_seq and (replanner is None or replanner.near_goal()):
+                    # past the goal (its REACHED may have been lost on the link)
+                    outcome.completed, outcome.reason = True, f"mission current item {msg.seq} is past the goal"
+                    return
+            elif kind == "STATUSTEXT":
+                text = msg.text.rstrip("\x00")
+                outcome.statustexts.append(text)
+                self.events.log("statustext", severity=msg.severity, text=text)
+                if "mission complete" in text.lower():
+                    outcome.completed, outcome.reason = True, text
+                    return
+            elif kind == "HEARTBEAT" and not msg.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED \
+                    and outcome.items_reached:
+                outcome.reason = "vehicle disarmed before the goal"
+                self.events.log("disarmed")
+                return
+
+    async def fly(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (), *,
+                  ready_timeout: float = 60.0, flight_timeout: float = 600.0,
+                  replanner: LiveReplanner | None = None) -> FlightOutcome:
+        """Ready → upload + verify → start → monitor (and replan, with a ``replanner``). Raises on link/upload
+        failures (the CLI maps them)."""
+        out = FlightOutcome(False, "", mission_count=len(items), fence_count=len(fence))
+        hb = await self.link.wait_heartbeat(timeout=10.0)
+        mode = _mode_name(hb)
+        self.events.log("connected", system=self.link.target_system, autopilot=hb.autopilot,
+                        vehicle_type=hb.type, mode=mode, armed=bool(hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED))
+        if hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED:
+            # an upload is not atomic: it would change, item by item, the mission the vehicle may be flying
+            raise CompanionError(f"the vehicle is armed (mode {mode}): fuseplan fly uploads a mission only to a "
+                                 "disarmed vehicle; nothing was uploaded")
+        await self.wait_booted()
+        out.upload_s = await self.upload(items, fence)
+        if replanner is not None:
+            replanner.note_upload(out.upload_s)
+        await self.wait_ready(ready_timeout)
+        if replanner is not None:  # its planner process warmed up before take-off, not at the first conflict
+            await replanner.ready()
+        first = next(it.seq for it in items if it.command != mavlink.MAV_CMD_NAV_WAYPOINT or it.seq > 0)
+        with self.link.subscribe(*self.MONITORED) as sub:
+            await self.start(first)
+            if replanner is not None:
+                replanner.mission_started(time.monotonic())
+            await self.monitor(items, flight_timeout, out, sub, replanner)
+        self.events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
+        return out

@@ -1,0 +1,531 @@
+"""MAVLink link layer: one pymavlink connection driven by the asyncio loop (SPEC §9, STYLE "Async companion").
+
+:class:`Link` owns the socket (or serial port), sends our 1 Hz HEARTBEAT as an onboard controller, learns which
+system is the vehicle from its first autopilot HEARTBEAT, and hands incoming messages to subscribers. Nothing in
+here knows about missions: the mission protocol (``companion.mavlink.protocol``) sits on top.
+
+Receiving uses ``loop.add_reader`` on the connection's file descriptor and drains pymavlink's non-blocking
+``recv_msg()`` until it has nothing more: no thread and no polling. pymavlink's parser runs in robust mode, so
+garbage (ArduPilot SITL starts its TCP stream with plain text) and bad CRCs become ``BAD_DATA`` and are counted,
+never raised. A socket error or a closed TCP peer makes the link re-create the pymavlink connection with a capped
+exponential back-off (0.5 s doubling to 8 s by default); subscriptions survive the reconnect.
+
+Only messages from the target autopilot (system *and* component) reach subscribers unless they ask for
+``any_source=True``: other vehicles, cameras, ground stations and our own echo are ignored for protocol purposes.
+A subscription can name further components *of the target system* per message type (``extra_components``), e.g.
+ADSB_VEHICLE from an ADS-B receiver (component 156) on the vehicle; other systems stay excluded.
+
+:meth:`Link.on_target_acquired` registers callbacks run whenever the target autopilot is (re)acquired: its first
+HEARTBEAT, the first on each new connection (after a reconnect) and the first after a heartbeat loss. Layers
+above use it to redo per-connection setup (``companion.mavlink.telemetry`` asks for message rates there).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import math
+import struct
+from collections.abc import AsyncIterator, Callable, Iterable, Mapping
+from types import ModuleType
+from typing import Any
+
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import ardupilotmega
+
+from companion.mavlink.errors import LinkError
+from companion.mavlink.profiles import AutopilotProfile, profile_for
+from companion.mavlink.signing import SigningKey, enable_signing
+
+log = logging.getLogger(__name__)
+
+Message = Any  # a pymavlink MAVLink_message; pymavlink has no usable type for it
+Predicate = Callable[[Message], bool]
+
+MAV_COMP_ID_ONBOARD_COMPUTER = ardupilotmega.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
+MAV_COMP_ID_AUTOPILOT1 = ardupilotmega.MAV_COMP_ID_AUTOPILOT1
+MAV_COMP_ID_ADSB = ardupilotmega.MAV_COMP_ID_ADSB  # 156: an ADS-B receiver on the vehicle
+MAV_AUTOPILOT_INVALID = ardupilotmega.MAV_AUTOPILOT_INVALID
+_READ_BURST = 256  # messages handled per readable event before yielding to the loop (add_reader fires again)
+
+
+class HeartbeatTimeout(LinkError, TimeoutError):
+    """No HEARTBEAT from the target autopilot in time (a :class:`LinkError` and a ``TimeoutError``)."""
+
+
+class _PeerClosed(ConnectionError):
+    """pymavlink saw EOF / reset on a stream socket (raised from its handle_eof/handle_disconnect hooks)."""
+
+
+class Subscription:
+    """Incoming messages of some types, in arrival order; registered when created, so nothing sent after it
+    exists can be missed. Use as a (sync or async) context manager, iterate it, or call :meth:`get`.
+
+    The queue holds at most ``maxsize`` messages; beyond that the oldest are dropped (and logged), so a
+    forgotten subscription cannot grow without bound.
+    """
+
+    def __init__(self, link: Link, types: frozenset[str] | None, predicate: Predicate | None,
+                 any_source: bool, maxsize: int,
+                 extra_components: Mapping[str, frozenset[int]] | None = None) -> None:
+        self._link = link
+        self.types = types
+        self._predicate = predicate
+        self.any_source = any_source
+        self.extra_components: Mapping[str, frozenset[int]] = extra_components or {}
+        self._maxsize = maxsize
+        self._queue: asyncio.Queue[Message] = asyncio.Queue()
+        self.dropped = 0
+        self.closed = False
+
+    def _matches(self, msg: Message, from_target: bool, sibling: int | None) -> bool:
+        """``from_target``: sent by the target autopilot; ``sibling``: the sender's component when it is another
+        component of the target system (else None)."""
+        mtype = msg.get_type()
+        if self.types is not None and mtype not in self.types:
+            return False
+        if not (from_target or self.any_source
+                or (sibling is not None and sibling in self.extra_components.get(mtype, ()))):
+            return False
+        if self._predicate is None:
+            return True
+        try:
+            return bool(self._predicate(msg))
+        except Exception:  # a subscriber's bug must not break the receive path of everyone else
+            log.exception("subscription predicate failed on %s", msg.get_type())
+            return False
+
+    def _offer(self, msg: Message) -> None:
+        if self._queue.qsize() >= self._maxsize:
+            self._queue.get_nowait()
+            self.dropped += 1
+            if self.dropped == 1 or self.dropped % 100 == 0:
+                log.warning("subscription %s overflowing: %d messages dropped", self.types, self.dropped)
+        self._queue.put_nowait(msg)
+
+    async def get(self, timeout: float | None = None) -> Message:
+        """The next message; raises ``TimeoutError`` after ``timeout`` s, :class:`LinkError` once closed."""
+        if self.closed and self._queue.empty():
+            raise LinkError("subscription closed")
+        # asyncio.timeout, not wait_for: on Python 3.11 wait_for can swallow a cancellation that arrives as the
+        # message does, leaving a cancelled task running for ever (seen with the replanner's watch loop)
+        async with asyncio.timeout(timeout):
+            msg = await self._queue.get()
+        if msg is None:  # close() sentinel
+            raise LinkError("subscription closed")
+        return msg
+
+    def drain(self) -> list[Message]:
+        """Every message queued now, without waiting (none after :meth:`close`)."""
+        out = []
+        while not self._queue.empty():
+            msg = self._queue.get_nowait()
+            if msg is None:  # close() sentinel: keep it for a pending get()
+                self._queue.put_nowait(None)
+                break
+            out.append(msg)
+        return out
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            self._link._subscriptions.discard(self)
+            self._queue.put_nowait(None)  # wake a pending get()
+
+    def __aiter__(self) -> Subscription:
+        return self
+
+    async def __anext__(self) -> Message:
+        try:
+            return await self.get()
+        except LinkError:
+            raise StopAsyncIteration from None
+
+    def __enter__(self) -> Subscription:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    async def __aenter__(self) -> Subscription:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        self.close()
+
+
+class Link:
+    """An asyncio MAVLink connection to one autopilot.
+
+    ``url`` is a pymavlink connection string: ``udpin:HOST:PORT``, ``udpout:HOST:PORT``, ``udp:HOST:PORT``
+    (= udpin), ``tcp:HOST:PORT`` or a serial device (``/dev/ttyACM0``, with ``baud``). The TCP connect itself
+    is pymavlink's single blocking ``connect()`` (immediate on localhost; make sure a remote host is
+    reachable). ``target_system`` / ``target_component`` pin the vehicle; otherwise the first HEARTBEAT with
+    ``autopilot != MAV_AUTOPILOT_INVALID`` decides. Times are seconds. ``open_timeout`` > 0 keeps retrying
+    the first connection with back-off for that long before :meth:`open` raises :class:`LinkError`.
+    """
+
+    def __init__(self, url: str, *, source_system: int = 1,
+                 source_component: int = MAV_COMP_ID_ONBOARD_COMPUTER,
+                 target_system: int | None = None, target_component: int | None = None,
+                 baud: int = 57600, heartbeat_interval: float = 1.0, heartbeat_timeout: float = 5.0,
+                 reconnect_min: float = 0.5, reconnect_max: float = 8.0, open_timeout: float = 0.0,
+                 dialect: ModuleType = ardupilotmega, signing_key: SigningKey | None = None) -> None:
+        self.url = url
+        self._signing_key = signing_key  # MAVLink 2 signing: sign all we send, drop unsigned input
+        self._signing_timestamp = 0  # the last signing timestamp of a closed connection (10 µs units)
+        self.source_system = source_system
+        self.source_component = source_component
+        self.baud = baud
+        self.heartbeat_interval = heartbeat_interval
+        self.heartbeat_timeout = heartbeat_timeout
+        self.reconnect_min = reconnect_min
+        self.reconnect_max = reconnect_max
+        self.open_timeout = open_timeout
+        self.dialect = dialect
+
+        self.target_system: int | None = target_system
+        self.target_component: int | None = target_component
+        self.autopilot: int | None = None  # MAV_AUTOPILOT_* of the target
+        self.vehicle_type: int | None = None  # MAV_TYPE_* of the target
+        self.last_heartbeat: float | None = None  # loop.time() of the target's last HEARTBEAT
+        self.last_heartbeat_msg: Message | None = None
+        self.heartbeat_lost = False
+        self.bad_packets = 0  # BAD_DATA / unparsable input seen
+        self.reconnects = 0  # successful re-creations of the connection
+        self._target_heard = False  # the target's HEARTBEAT has been heard on the current connection
+        self._on_target: list[Callable[[Message], None]] = []
+
+        self._conn: Any = None  # pymavlink mavfile
+        self._fd: int | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._subscriptions: set[Subscription] = set()
+        self._expectations: list[tuple[frozenset[str] | None, Predicate | None, bool, asyncio.Future]] = []
+        self._heartbeat_task: asyncio.Task | None = None
+        self._reconnect_task: asyncio.Task | None = None
+        self._closing = False
+        self._heartbeat_msg = dialect.MAVLink_heartbeat_message(
+            dialect.MAV_TYPE_ONBOARD_CONTROLLER, MAV_AUTOPILOT_INVALID, 0, 0, dialect.MAV_STATE_ACTIVE, 3)
+
+    # ------------------------------------------------------------------ lifecycle
+    async def __aenter__(self) -> Link:
+        await self.open()
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.close()
+
+    @property
+    def connected(self) -> bool:
+        return self._conn is not None
+
+    @property
+    def profile(self) -> AutopilotProfile:
+        """What the target autopilot does where the companion must know it (:mod:`companion.mavlink.profiles`), from its
+        last HEARTBEAT's autopilot and type; the generic profile until one is heard."""
+        return profile_for(self.autopilot, self.vehicle_type)
+
+    async def open(self) -> None:
+        """Create the connection, start receiving and heartbeating."""
+        if self._loop is not None:
+            raise LinkError("link already opened")
+        self._loop = asyncio.get_running_loop()
+        self._closing = False
+        deadline = self._loop.time() + self.open_timeout
+        delay = self.reconnect_min
+        while True:
+            try:
+                self._connect()
+                break
+            except OSError as exc:
+                if self._loop.time() + delay > deadline:
+                    self._loop = None
+                    raise LinkError(f"cannot open {self.url}: {exc}") from exc
+                log.info("cannot open %s (%s); retrying in %.1f s", self.url, exc, delay)
+                await asyncio.sleep(delay)
+                delay = min(delay * 2, self.reconnect_max)
+        self._heartbeat_task = asyncio.create_task(self._heartbeat_loop(), name=f"link-heartbeat {self.url}")
+
+    async def close(self) -> None:
+        """Stop everything this link started and close the socket; idempotent."""
+        self._closing = True
+        tasks = [t for t in (self._heartbeat_task, self._reconnect_task) if t is not None]
+        self._heartbeat_task = self._reconnect_task = None
+        for task in tasks:
+            task.cancel()
+        for task in tasks:
+            try:
+                await task
+            except asyncio.CancelledError:
+                pass
+        self._disconnect()
+        for sub in list(self._subscriptions):
+            sub.close()
+        for *_, fut in list(self._expectations):
+            if not fut.done():
+                fut.set_exception(LinkError("link closed"))
+        self._expectations.clear()
+        self._loop = None
+
+    def _connect(self) -> None:
+        """(Re-)create the pymavlink connection and register its fd with the loop."""
+        try:
+            conn = mavutil.mavlink_connection(self.url, baud=self.baud, source_system=self.source_system,
+                                              source_component=self.source_component, retries=0)
+        except OSError:
+            raise  # transient: retried with back-off
+        except (ValueError, ImportError, TypeError) as exc:  # a malformed URL, or serial without pyserial
+            raise LinkError(f"cannot use connection {self.url!r}: {exc}") from exc
+        # Our own MAVLink 2 encoder/parser: pymavlink's default is chosen from process-wide state (and its
+        # auto-switch to MAVLink 2 rewrites os.environ and the global dialect), which we do not want to touch.
+        conn.mav = self.dialect.MAVLink(conn, srcSystem=self.source_system, srcComponent=self.source_component)
+        conn.mav.robust_parsing = True
+        if self._signing_key is not None:
+            # a new connection goes on from the last timestamp used or learned from the peer (pymavlink
+            # takes a signed peer's when it is ahead): SITL's clock runs ahead of ours under speed-up, and
+            # it ignores a stream more than 60 s behind its own
+            enable_signing(conn.mav, self._signing_key, timestamp=self._signing_timestamp)
+        conn.robust_parsing = True
+        conn.first_byte = False
+        conn.WIRE_PROTOCOL_VERSION = "2.0"
+        # pymavlink prints and (without autoreconnect) silently carries on when a TCP peer goes away; make
+        # those hooks raise so the receive path can reconnect.
+        conn.handle_eof = conn.handle_disconnect = _raise_peer_closed
+        try:
+            conn.mav.send(self._heartbeat_msg)  # so a udpin peer (MAVSDK, SITL on UDP) learns our address now
+        except (OSError, _PeerClosed) as exc:
+            conn.close()
+            raise OSError(f"greeting HEARTBEAT failed: {exc}") from exc
+        fd = conn.fd if conn.fd is not None else conn.port.fileno()
+        assert self._loop is not None
+        self._loop.add_reader(fd, self._on_readable)
+        self._conn, self._fd = conn, fd
+        self._target_heard = False
+        log.info("link %s open (fd %d)", self.url, fd)
+
+    def _disconnect(self) -> None:
+        conn, fd = self._conn, self._fd
+        self._conn = self._fd = None
+        if conn is None:
+            return
+        if self._signing_key is not None:
+            self._signing_timestamp = max(self._signing_timestamp, conn.mav.signing.timestamp)
+        if fd is not None and self._loop is not None:
+            self._loop.remove_reader(fd)
+        try:
+            conn.close()
+        except OSError as exc:
+            log.debug("closing %s: %s", self.url, exc)
+
+    def _connection_lost(self, exc: BaseException) -> None:
+        if self._conn is None or self._closing:
+            return
+        log.warning("link %s lost: %s", self.url, exc or "peer closed")
+        self._disconnect()
+        if self._reconnect_task is None or self._reconnect_task.done():
+            self._reconnect_task = asyncio.create_task(self._reconnect_loop(), name=f"link-reconnect {self.url}")
+
+    async def _reconnect_loop(self) -> None:
+        delay = self.reconnect_min
+        while not self._closing:
+            await asyncio.sleep(delay)
+            try:
+                self._connect()
+            except OSError as exc:
+                delay = min(delay * 2, self.reconnect_max)
+                log.info("reconnect to %s failed (%s); next try in %.1f s", self.url, exc, delay)
+                continue
+            self.reconnects += 1
+            log.info("link %s reconnected", self.url)
+            return
+
+    # ------------------------------------------------------------------ sending
+    def send(self, msg: Message) -> None:
+        """Send one pymavlink message object (built with ``link.dialect`` or any v2 dialect's classes),
+        signed with our system/component id. Raises :class:`LinkError` while disconnected."""
+        conn = self._conn
+        if conn is None:
+            raise LinkError(f"link {self.url} is not connected")
+        try:
+            conn.mav.send(msg)
+        except (OSError, _PeerClosed) as exc:
+            self._connection_lost(exc)
+            raise LinkError(f"send on {self.url} failed: {exc}") from exc
+
+    async def _heartbeat_loop(self) -> None:
+        """1 Hz HEARTBEAT, and the heartbeat-loss watch on the target."""
+        assert self._loop is not None
+        while True:
+            await asyncio.sleep(self.heartbeat_interval)  # the first one went out with the connection
+            if self._conn is not None:
+                try:
+                    self.send(self._heartbeat_msg)
+                except LinkError as exc:
+                    log.debug("heartbeat not sent: %s", exc)
+            now = self._loop.time()
+            if (self.last_heartbeat is not None and not self.heartbeat_lost
+                    and now - self.last_heartbeat > self.heartbeat_timeout):
+                self.heartbeat_lost = True
+                log.warning("no HEARTBEAT from system %s for %.1f s", self.target_system,
+                            now - self.last_heartbeat)
+                if self._conn is not None and self.url.startswith("tcp"):
+                    self._connection_lost(ConnectionError("heartbeat timeout"))  # half-open TCP: start over
+
+    # ------------------------------------------------------------------ receiving
+    def _on_readable(self) -> None:
+        conn = self._conn
+        for _ in range(_READ_BURST):
+            if conn is None or conn is not self._conn:
+                return
+            try:
+                msg = conn.recv_msg()
+            except (OSError, _PeerClosed) as exc:
+                self._connection_lost(exc)
+                return
+            except (ardupilotmega.MAVError, struct.error, ValueError, IndexError) as exc:
+                # robust parsing normally returns BAD_DATA instead; be as tolerant if it does not
+                self.bad_packets += 1
+                log.debug("unparsable input on %s: %s", self.url, exc)
+                continue
+            if msg is None:
+                return
+            self._dispatch(msg)
+
+    def _dispatch(self, msg: Message) -> None:
+        mtype = msg.get_type()
+        if mtype == "BAD_DATA":
+            self.bad_packets += 1
+            return
+        src = (msg.get_srcSystem(), msg.get_srcComponent())
+        if src == (self.source_system, self.source_component):
+            return  # our own echo (broadcast / forwarding peers)
+        if mtype == "HEARTBEAT":
+            self._on_heartbeat(msg, src)
+        from_target = self.target_system is not None and src == (self.target_system, self.target_component)
+        sibling = src[1] if not from_target and src[0] == self.target_system else None
+        for sub in list(self._subscriptions):
+            if sub._matches(msg, from_target, sibling):
+                sub._offer(msg)
+        if self._expectations:
+            for entry in list(self._expectations):
+                types, predicate, any_source, fut = entry
+                if fut.done() or (types is not None and mtype not in types) or not (from_target or any_source):
+                    continue
+                try:
+                    ok = predicate is None or predicate(msg)
+                except Exception as exc:
+                    fut.set_exception(exc)
+                    continue
+                if ok:
+                    fut.set_result(msg)
+
+    def _on_heartbeat(self, msg: Message, src: tuple[int, int]) -> None:
+        if msg.autopilot == MAV_AUTOPILOT_INVALID:
+            return  # GCS, companion, camera…: not a vehicle
+        if self.target_system is None:
+            self.target_system = src[0]
+            log.info("target vehicle: system %d component %d (autopilot %d, type %d)",
+                     src[0], src[1], msg.autopilot, msg.type)
+        if src[0] != self.target_system:
+            return
+        if self.target_component is None:
+            self.target_component = src[1]
+        if src[1] != self.target_component:
+            return
+        assert self._loop is not None
+        self.autopilot, self.vehicle_type = msg.autopilot, msg.type
+        self.last_heartbeat, self.last_heartbeat_msg = self._loop.time(), msg
+        acquired = not self._target_heard or self.heartbeat_lost
+        self._target_heard = True
+        if self.heartbeat_lost:
+            self.heartbeat_lost = False
+            log.info("HEARTBEAT from system %d back", src[0])
+        if acquired:
+            for callback in list(self._on_target):
+                try:
+                    callback(msg)
+                except Exception:  # a callback's bug must not break the receive path
+                    log.exception("target-acquired callback %r failed", callback)
+
+    def on_target_acquired(self, callback: Callable[[Message], None]) -> Callable[[], None]:
+        """Run ``callback(heartbeat)`` each time the target autopilot is (re)acquired: its first HEARTBEAT, the
+        first one on every new connection (each reconnect), and the first one after the heartbeat was lost (an
+        autopilot that rebooted behind a UDP or serial link). It runs synchronously in the receive path, before
+        subscribers see that HEARTBEAT: it must not block (start a task for anything that waits). Returns a
+        function that unregisters it."""
+        self._on_target.append(callback)
+
+        def remove() -> None:
+            if callback in self._on_target:
+                self._on_target.remove(callback)
+        return remove
+
+    # ------------------------------------------------------------------ subscribing
+    def subscribe(self, *types: str, predicate: Predicate | None = None, any_source: bool = False,
+                  maxsize: int = 1000, extra_components: Mapping[str, Iterable[int]] | None = None) -> Subscription:
+        """A :class:`Subscription` to messages of ``types`` (all types if none), live from this call on.
+        Only the target autopilot's messages unless ``any_source``; ``extra_components`` maps a message type to
+        further components of the *target system* whose messages of that type are delivered too (e.g.
+        ``{"ADSB_VEHICLE": [MAV_COMP_ID_ADSB]}``: an ADS-B receiver's reports, but not its HEARTBEAT; never
+        another system's)."""
+        extra = {t: frozenset(c) for t, c in (extra_components or {}).items()}
+        sub = Subscription(self, frozenset(types) if types else None, predicate, any_source, maxsize, extra)
+        self._subscriptions.add(sub)
+        return sub
+
+    async def messages(self, *types: str, predicate: Predicate | None = None, any_source: bool = False,
+                       extra_components: Mapping[str, Iterable[int]] | None = None) -> AsyncIterator[Message]:
+        """Async generator over incoming messages; unsubscribes when the consumer stops or the link closes.
+        It subscribes on the first ``__anext__``: use :meth:`subscribe` when nothing may be missed before."""
+        sub = self.subscribe(*types, predicate=predicate, any_source=any_source, extra_components=extra_components)
+        try:
+            async for msg in sub:
+                yield msg
+        finally:
+            sub.close()
+
+    def expect(self, *types: str, predicate: Predicate | None = None,
+               any_source: bool = False) -> asyncio.Future:
+        """A future for the next matching message, registered now: create it *before* sending the request it
+        answers. Cancelling the future unregisters it."""
+        if self._loop is None:
+            raise LinkError("link is not open")
+        fut = self._loop.create_future()
+        entry = (frozenset(types) if types else None, predicate, any_source, fut)
+        self._expectations.append(entry)
+        fut.add_done_callback(lambda _f: self._expectations.remove(entry) if entry in self._expectations else None)
+        return fut
+
+    async def wait_for(self, *types: str, predicate: Predicate | None = None, timeout: float = 1.5,
+                       any_source: bool = False) -> Message:
+        """The next matching message; ``TimeoutError`` after ``timeout`` s."""
+        fut = self.expect(*types, predicate=predicate, any_source=any_source)
+        try:
+            async with asyncio.timeout(timeout):  # not wait_for: see Subscription.get
+                return await fut
+        finally:
+            fut.cancel()
+
+    async def wait_heartbeat(self, timeout: float = 5.0) -> Message:
+        """The target's HEARTBEAT: the last one if it is fresher than ``heartbeat_timeout``, else the next
+        (which also picks the target when none is known yet). :class:`HeartbeatTimeout` after ``timeout`` s."""
+        if (self.last_heartbeat is not None and self._loop is not None
+                and self._loop.time() - self.last_heartbeat <= self.heartbeat_timeout):
+            return self.last_heartbeat_msg
+        try:
+            return await self.wait_for("HEARTBEAT", predicate=lambda m: m.autopilot != MAV_AUTOPILOT_INVALID,
+                                       timeout=timeout)
+        except TimeoutError:
+            who = "an autopilot" if self.target_system is None else f"system {self.target_system}"
+            raise HeartbeatTimeout(f"no HEARTBEAT from {who} on {self.url} within {timeout:g} s") from None
+
+    @property
+    def heartbeat_age(self) -> float:
+        """Seconds since the target's last HEARTBEAT (inf if never heard)."""
+        if self.last_heartbeat is None or self._loop is None:
+            return math.inf
+        return self._loop.time() - self.last_heartbeat
+
+
+def _raise_peer_closed() -> None:
+    raise _PeerClosed("connection closed by peer")

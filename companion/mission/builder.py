@@ -1,0 +1,305 @@
+"""Mission builder: planned route (ENU) → MAVLink mission and fence items (SPEC §9, AUTOPILOT_FACTS.md).
+
+Mission layout (``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``, altitude = ENU z = metres above home):
+
+    [ArduPilot only] 0  NAV_WAYPOINT at home, frame GLOBAL, AMSL alt   (the layout's ``home_item``)
+                        NAV_TAKEOFF at the start, z = max(takeoff_alt, start z)
+                        DO_CHANGE_SPEED (airspeed for planes, ground speed for copters)
+                        NAV_WAYPOINT × route (waypoints after the start, or trajectory samples if densified)
+                        end action: NAV_LOITER_UNLIM / NAV_RETURN_TO_LAUNCH / NAV_LAND at the goal
+
+The layout key (``"ardupilot"``, ``"px4"``; :data:`companion.mavlink.profiles.LAYOUTS`) says what differs: the home
+item (PX4 has none, so its first item is the takeoff at seq 0), the yaw of NAV commands, the acceptance radius.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any, Literal
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.mission.geo import Circle, as_circles, enu_to_geodetic, geodetic_to_enu, to_int_e7
+from companion.mavlink.items import (
+    FENCE,
+    FRAME_GLOBAL,
+    FRAME_GLOBAL_INT,
+    FRAME_MISSION,
+    FRAME_REL_ALT,
+    FRAME_REL_ALT_INT,
+    MissionItem,
+    normalise_frame,
+)
+from companion.mavlink.profiles import MissionLayout, mission_layout
+from planner.world.config import VehicleLimits
+from planner.world.environment import Cylinders
+from planner.world.home import Home
+from planner.world.scenario import Scenario
+from planner.trajectory.smoothing import sample_trajectory
+
+logger = logging.getLogger(__name__)
+
+Autopilot = Literal["ardupilot", "px4"]
+
+TAKEOFF_MIN_PITCH_DEG = 10.0  # plane NAV_TAKEOFF param1 (ArduPilot reads 0 as 4°)
+SPEED_TYPE_AIRSPEED = 0.0
+SPEED_TYPE_GROUNDSPEED = 1.0
+NO_CHANGE = -1.0  # DO_CHANGE_SPEED param3: throttle unchanged
+DENSIFY_SAMPLE_M = 2.0  # arc-length resolution used when the builder samples the trajectory itself
+MATCH_TOLERANCE_M = 0.5  # an item this close to a planned waypoint is that waypoint (encoding error is ~1 cm)
+
+CMD_WAYPOINT = mavlink.MAV_CMD_NAV_WAYPOINT
+CMD_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF
+CMD_LOITER_UNLIM = mavlink.MAV_CMD_NAV_LOITER_UNLIM
+CMD_RTL = mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH
+CMD_LAND = mavlink.MAV_CMD_NAV_LAND
+CMD_CHANGE_SPEED = mavlink.MAV_CMD_DO_CHANGE_SPEED
+CMD_FENCE_CIRCLE_EXCLUSION = mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION
+LOCATION_COMMANDS = frozenset({CMD_WAYPOINT, CMD_TAKEOFF, CMD_LOITER_UNLIM, CMD_LAND})
+
+
+@dataclass(frozen=True)
+class MissionSpec:
+    """How to turn a route into items: target autopilot, vehicle conventions, ENU origin, densification.
+
+    ``fly_to_start`` adds a NAV_WAYPOINT at the planned start (the route's index 0) right after the takeoff,
+    so the vehicle joins the planned route where the planner's checks begin (without it the first leg runs
+    from wherever the takeoff ends straight to P_1, a leg nobody planned). The climb-out from home to the
+    start is not part of the plan: choose the start so that leg is clear.
+    """
+
+    autopilot: Autopilot
+    vehicle: VehicleLimits
+    home: Home
+    densify: bool = False
+    densify_spacing_m: float = 50.0
+    fly_to_start: bool = True
+
+    def __post_init__(self) -> None:
+        mission_layout(self.autopilot)  # ValueError for an unknown key
+        if not self.densify_spacing_m > 0:
+            raise ValueError(f"densify_spacing_m must be positive, got {self.densify_spacing_m!r}")
+
+    @property
+    def layout(self) -> MissionLayout:
+        return mission_layout(self.autopilot)
+
+    @property
+    def yaw_param(self) -> float:
+        """param4 of NAV commands (the layout's ``nav_yaw``)."""
+        return self.layout.nav_yaw
+
+
+COPTER_CLIMB_RATE_M_S = 2.5  # ArduCopter WPNAV_SPEED_UP default (250 cm/s)
+
+
+def time_to_start(scenario: Scenario) -> float:
+    """Estimated mission seconds from MISSION_START to the route's start: the takeoff (a plane climbs
+    straight ahead at its climb limit and cruise speed, a copter straight up) and the leg to the start.
+    Dynamic threats run on mission time, so a flight plan is timed from here (the estimate is within a
+    second of the simulator on rescue_dynamic; replanning absorbs the rest)."""
+    v = scenario.vehicle
+    start = np.asarray(scenario.start, dtype=float)
+    alt = max(v.takeoff_alt, float(start[2]))
+    horizontal = float(np.hypot(start[0], start[1]))
+    if v.type == "plane":
+        climb = alt / (v.cruise_speed * math.sin(v.max_climb))
+        covered = alt / math.tan(v.max_climb)
+    else:
+        climb, covered = alt / COPTER_CLIMB_RATE_M_S, 0.0
+    return climb + max(horizontal - covered, 0.0) / v.cruise_speed
+
+
+def is_home_item(item: MissionItem) -> bool:
+    """True for ArduPilot's item 0 (home: NAV_WAYPOINT at seq 0 in an absolute GLOBAL frame)."""
+    return item.seq == 0 and item.command == CMD_WAYPOINT and normalise_frame(item.frame) == FRAME_GLOBAL
+
+
+def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any = None) -> list[MissionItem]:
+    """Mission items for a planned route.
+
+    waypoints_enu (N, 3) ENU m, start and goal included (N ≥ 2). ``trajectory`` is the smoothed trajectory
+    the route was checked on — (M, 3) ENU points, a ``planner.trajectory.checks.Trajectory`` or PLAN.json's
+    ``{"points": ...}`` — used only when ``spec.densify``; without it the builder samples the same Bézier
+    smoothing itself. Waypoints (and samples) within the acceptance radius of the previous kept one are dropped,
+    the goal never is. Returns items with consecutive seq from 0.
+    """
+    wps = np.asarray(waypoints_enu, dtype=float)
+    if wps.ndim != 2 or wps.shape[1] != 3 or len(wps) < 2:
+        raise ValueError(f"waypoints must be (N >= 2, 3) ENU metres, got shape {wps.shape}")
+    if not np.isfinite(wps).all():
+        raise ValueError("waypoints contain non-finite coordinates")
+    vehicle, home = spec.vehicle, spec.home
+    route = _route_points(wps, spec, trajectory)
+    lat, lon, _ = enu_to_geodetic(np.vstack([wps[:1], route]), home)
+    x = [to_int_e7(v) for v in lat]
+    y = [to_int_e7(v) for v in lon]
+    yaw = spec.yaw_param
+    plane = vehicle.type == "plane"
+
+    items: list[MissionItem] = []
+    if spec.layout.home_item:
+        items.append(MissionItem(0, FRAME_GLOBAL, CMD_WAYPOINT, x=to_int_e7(home.lat), y=to_int_e7(home.lon),
+                                 z=float(home.alt)))
+    takeoff_alt = max(vehicle.takeoff_alt, float(wps[0, 2]))
+    items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_TAKEOFF, param1=TAKEOFF_MIN_PITCH_DEG if plane else 0.0,
+                             param4=yaw, x=x[0], y=y[0], z=takeoff_alt))
+    items.append(MissionItem(0, FRAME_MISSION, CMD_CHANGE_SPEED,
+                             param1=SPEED_TYPE_AIRSPEED if plane else SPEED_TYPE_GROUNDSPEED,
+                             param2=float(vehicle.cruise_speed), param3=NO_CHANGE))
+    items.extend(waypoint_items(route, spec))
+    gx, gy, gz = x[-1], y[-1], float(route[-1, 2])
+    if vehicle.end_action == "loiter":
+        items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_LOITER_UNLIM, param4=yaw, x=gx, y=gy, z=gz))
+    elif vehicle.end_action == "rtl":
+        items.append(MissionItem(0, FRAME_MISSION, CMD_RTL))  # no position (PX4 refuses any other frame)
+    elif vehicle.end_action == "land":
+        items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_LAND, param4=yaw, x=gx, y=gy, z=0.0))
+    else:  # VehicleLimits is validated at the scenario boundary; this guards hand-made ones
+        raise ValueError(f"unknown end action {vehicle.end_action!r}")
+    return [item.with_seq(seq) for seq, item in enumerate(items)]
+
+
+def waypoint_items(points_enu: np.ndarray, spec: MissionSpec) -> list[MissionItem]:
+    """NAV_WAYPOINT items (seq 0, renumber when placing them) for ENU points (K, 3), z = metres above home.
+
+    The one place a route point becomes an item: the mission builder and the live replanner's splice use it.
+    """
+    pts = np.asarray(points_enu, dtype=float).reshape(-1, 3)
+    lat, lon, _ = enu_to_geodetic(pts, spec.home)
+    accept = spec.layout.acceptance_param(spec.vehicle.acceptance_radius, spec.vehicle.type)
+    return [MissionItem(0, FRAME_REL_ALT_INT, CMD_WAYPOINT, param1=0.0, param2=accept, param4=spec.yaw_param,
+                        x=to_int_e7(a), y=to_int_e7(o), z=float(p[2])) for a, o, p in zip(lat, lon, pts)]
+
+
+def _route_points(wps: np.ndarray, spec: MissionSpec, trajectory: Any) -> np.ndarray:
+    """ENU points (K, 3) to fly after the takeoff, goal last."""
+    radius = spec.vehicle.acceptance_radius
+    kept = [0]  # start: the reference for the first drop test, flown only with fly_to_start
+    for i in range(1, len(wps)):
+        if i == len(wps) - 1 or np.linalg.norm(wps[i] - wps[kept[-1]]) >= radius:
+            kept.append(i)
+        else:
+            logger.debug("dropping waypoint %d: within %.1f m of waypoint %d", i, radius, kept[-1])
+    if not spec.densify:
+        points = wps[kept]
+    else:
+        traj = _trajectory_points(trajectory, wps)
+        points = _densify(wps[kept], traj, spec.densify_spacing_m, radius)
+    return points if spec.fly_to_start else points[1:]
+
+
+def _trajectory_points(trajectory: Any, wps: np.ndarray) -> np.ndarray:
+    if trajectory is None:
+        return sample_trajectory(wps, DENSIFY_SAMPLE_M)["points"]
+    if isinstance(trajectory, Mapping):
+        trajectory = trajectory["points"]
+    pts = np.asarray(getattr(trajectory, "points", trajectory), dtype=float)
+    if pts.ndim != 2 or pts.shape[1] != 3 or len(pts) < 2:
+        raise ValueError(f"trajectory must be (M >= 2, 3) ENU metres, got shape {pts.shape}")
+    return pts
+
+
+def _densify(anchors: np.ndarray, traj: np.ndarray, spacing: float, min_gap: float) -> np.ndarray:
+    """Anchors (K, 3), start first, with samples of ``traj`` between consecutive anchors.
+
+    Each anchor is matched to the nearest trajectory sample at or after the previous match (the smoothed
+    trajectory passes through the waypoints); each piece between matches gets evenly spaced interior
+    points at most ``spacing`` apart along the arc, but never closer than ``min_gap`` (acceptance radius).
+    The anchors themselves are kept exactly, so items at planned waypoints stay recognisable.
+    """
+    out = [anchors[0]]
+    j = int(np.argmin(np.linalg.norm(traj - anchors[0], axis=1)))
+    for anchor in anchors[1:]:
+        rest = traj[j:]
+        k = j + int(np.argmin(np.linalg.norm(rest - anchor, axis=1)))
+        piece = np.vstack([out[-1], traj[j + 1:k], anchor])
+        arc = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(piece, axis=0), axis=1))])
+        n = max(1, math.ceil(arc[-1] / spacing))
+        if min_gap > 0 and arc[-1] / n < min_gap:
+            n = max(1, math.floor(arc[-1] / min_gap))
+        targets = arc[-1] * np.arange(1, n) / n
+        out.extend(np.stack([np.interp(targets, arc, piece[:, c]) for c in range(3)], axis=-1))
+        out.append(anchor)
+        j = k
+    return np.array(out)
+
+
+def build_fence(zones: Cylinders | Sequence[Circle], home: Home,
+                max_route_alt: float | None = None) -> list[MissionItem]:
+    """MAV_MISSION_TYPE_FENCE exclusion circles (MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION), one per no-fly zone.
+
+    Fence circles have no top, so a zone with a finite top below ``max_route_alt`` (m above home) is left
+    out: the route may legally pass over it and the fence would call that a breach. Radii are rounded up to
+    whole metres (a slightly larger exclusion, and what every autopilot stores exactly).
+    """
+    items = []
+    for c in as_circles(zones, home):
+        if max_route_alt is not None and c.top_m < max_route_alt:
+            logger.info("fence: leaving out the zone at (%.6f, %.6f): top %.0f m is below the route's %.0f m",
+                        c.lat, c.lon, c.top_m, max_route_alt)
+            continue
+        items.append(MissionItem(len(items), FRAME_GLOBAL_INT, CMD_FENCE_CIRCLE_EXCLUSION,
+                                 param1=float(math.ceil(c.radius_m)), param2=0.0, x=to_int_e7(c.lat),
+                                 y=to_int_e7(c.lon), z=0.0, mission_type=FENCE))
+    return items
+
+
+def mission_waypoint_index(items: Sequence[MissionItem], waypoints_enu: np.ndarray, home: Home,
+                           tol_m: float = MATCH_TOLERANCE_M) -> dict[int, int]:
+    """Item seq → index of the last planned waypoint at or behind that item, for every located route item.
+
+    An item within ``tol_m`` of a planned waypoint (searched forward in route order) is that waypoint;
+    anything else (takeoff, densified samples, the end action at the goal) maps to the last waypoint matched
+    before it, 0 (the start) at first. ArduPilot's home item, DO commands and RTL have no entry. Works on a
+    downloaded mission too (frames normalised). So MISSION_ITEM_REACHED(seq) means the route is done up to
+    ``waypoints[index]``: the remaining route is ``waypoints[index + 1:]``.
+    """
+    wps = np.asarray(waypoints_enu, dtype=float)
+    out: dict[int, int] = {}
+    last, next_k = 0, 0
+    for item in items:
+        if item.command not in LOCATION_COMMANDS or normalise_frame(item.frame) != FRAME_REL_ALT or (
+                is_home_item(item)):
+            continue
+        p = geodetic_to_enu(item.lat, item.lon, home.alt + item.z, home)
+        if item.command != CMD_TAKEOFF:  # the takeoff climbs at the start; it never reaches a waypoint
+            # altitude is relative to home, not a geodetic height: compare z directly
+            d = np.hypot(np.linalg.norm(wps[next_k:, :2] - p[:2], axis=1), wps[next_k:, 2] - item.z)
+            hits = np.flatnonzero(d <= tol_m)
+            if hits.size:
+                last = next_k + int(hits[0])
+                next_k = last + 1
+        out[item.seq] = last
+    return out
+
+
+def _vehicle_of(source: VehicleLimits | Scenario) -> VehicleLimits:
+    return source.vehicle if isinstance(source, Scenario) else source
+
+
+def mission_from_plan_json(doc: Mapping[str, Any], vehicle: VehicleLimits | Scenario,
+                           autopilot: Autopilot = "ardupilot", **options: Any) -> list[MissionItem]:
+    """Mission items for a PLAN.json document (``fuseplan plan`` output); home from ``doc["home"]``, the
+    densified route from ``doc["trajectory"]["points"]``; ``options`` are :class:`MissionSpec` fields."""
+    spec = spec_from_plan_json(doc, vehicle, autopilot, **options)
+    trajectory = doc.get("trajectory", {}).get("points") if spec.densify else None
+    return build_mission(np.asarray(doc["waypoints"], dtype=float), spec, trajectory)
+
+
+def spec_from_plan_json(doc: Mapping[str, Any], vehicle: VehicleLimits | Scenario,
+                        autopilot: Autopilot = "ardupilot", **options: Any) -> MissionSpec:
+    """The :class:`MissionSpec` for a PLAN.json document (its home; the given vehicle)."""
+    h = doc["home"]
+    return MissionSpec(autopilot, _vehicle_of(vehicle), Home(float(h["lat"]), float(h["lon"]), float(h["alt"])),
+                       **options)
+
+
+__all__ = [
+    "Autopilot", "MissionSpec", "build_fence", "build_mission", "is_home_item", "mission_from_plan_json",
+    "mission_waypoint_index", "spec_from_plan_json", "time_to_start", "waypoint_items",
+]

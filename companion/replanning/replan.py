@@ -1,0 +1,209 @@
+"""Live replanning, the pure part (SPEC §9): vehicle clock, the flown mission as a route, commit point,
+the replanning problem with its warm start, and the splice of a new route into the mission.
+
+The MAVLink choreography (upload while flying, guard, hold, set-current) is in :mod:`companion.replanning.replanner`.
+Times here are *mission time*: vehicle seconds since the mission started, the clock the scenario's scripted
+threats run on; ADS-B tracks are put on it too.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.mission.builder import CMD_WAYPOINT, MissionSpec, waypoint_items
+from companion.mission.geo import geodetic_to_enu
+from companion.mavlink.items import FRAME_REL_ALT, MissionItem, normalise_frame
+from companion.replanning.threats import route_distances, route_points
+from planner.world.config import PlannerSettings
+from planner.world.environment import Threats
+from planner.problem import PlanningProblem
+from planner.world.home import Home
+from planner.world.scenario import Scenario
+
+
+@dataclass(frozen=True)
+class ReplanConfig:
+    """Replanning settings; each default lives here only. ``*_s`` in vehicle seconds unless ``wall``."""
+
+    enabled: bool = True
+    budget_s: float = 0.15  # wall seconds the planner may use for one replan
+    population: int = 100  # swarm size for a replan (the scenario's other planner settings are kept)
+    detour_offsets_m: tuple[float, ...] = (-400.0, -250.0, -120.0, 120.0, 250.0, 400.0)  # warm-start bulges
+    horizon_s: float = 90.0  # how far ahead conflicts are predicted
+    margin_m: float = 15.0  # a conflict is a predicted separation below d_coll + margin
+    sample_dt_s: float = 0.5  # route sampling for the prediction (18 m/s + 15 m/s → 8 m between samples)
+    track_radius_m: float = 40.0  # protected radius assumed for an ADS-B contact (ADS-B carries none)
+    track_growth_m_s: float = 0.5  # uncertainty growth per second of track age and prediction (ADS-B NACv ~1 m/s)
+    track_max_age_s: float = 10.0  # drop a contact not heard from for this long
+    lead_margin_s: float = 2.0  # added to the commit lead beyond planning and upload time
+    min_interval_s: float = 5.0  # rate limit: vehicle seconds between two replans
+    guard_s: float = 1.5  # hold if the vehicle could finish its active item this soon, new mission unverified
+    upload_attempts: int = 3  # verified uploads tried (holding after the first failure) before giving up
+    hold_retry_s: float = 3.0  # while holding: retry planning this often (vehicle s)
+    check_interval_wall_s: float = 0.05  # conflict checks at most this often (wall)
+    # a plane held in LOITER circles its hold point: when it resumes it may be back on its route up to one circle
+    # later (2π r / v); resuming needs the route clear for every such delay (SITL's plane.parm: WP_LOITER_RAD 80)
+    plane_loiter_radius_m: float = 80.0
+    rejoin_step_s: float = 2.0  # delays between 0 and one circle checked this far apart
+
+    def __post_init__(self) -> None:
+        if not (self.budget_s > 0 and self.population >= 2 and self.upload_attempts >= 1 and self.horizon_s > 0
+                and self.sample_dt_s > 0 and self.guard_s >= 0):
+            raise ValueError(f"invalid replanning settings: {self}")
+
+
+class VehicleClock:
+    """Vehicle time in seconds from ``time_boot_ms`` (simulated time in SITL), extrapolated between messages.
+
+    The rate (vehicle seconds per wall second) is given (our simulator's speed-up) or measured from the
+    messages over at least one wall second; a reboot (time going backwards) restarts the measurement.
+    """
+
+    def __init__(self, rate: float | None = None) -> None:
+        self._hint = rate
+        self._first: tuple[float, float] | None = None
+        self._last: tuple[float, float] | None = None
+
+    def observe(self, boot_ms: int, wall: float) -> None:
+        t = boot_ms / 1000.0
+        if self._last is not None and t < self._last[0]:
+            self._first = None
+        if self._first is None:
+            self._first = (t, wall)
+        self._last = (t, wall)
+
+    @property
+    def rate(self) -> float:
+        if self._hint is not None:
+            return self._hint
+        if self._first is None or self._last is None or self._last[1] - self._first[1] < 1.0:
+            return 1.0
+        return max((self._last[0] - self._first[0]) / (self._last[1] - self._first[1]), 1e-3)
+
+    @property
+    def synced(self) -> bool:
+        return self._last is not None
+
+    def now(self, wall: float) -> float:
+        if self._last is None:
+            return 0.0
+        return self._last[0] + (wall - self._last[1]) * self.rate
+
+
+@dataclass(frozen=True)
+class MissionRoute:
+    """The mission as flown: ENU points of its route waypoints (NAV_WAYPOINT in the relative frame, after
+    the takeoff) keyed by seq, and the goal's seq (the last such waypoint)."""
+
+    items: tuple[MissionItem, ...]
+    seqs: np.ndarray  # (K,) seq of each route waypoint, increasing
+    points: np.ndarray  # (K, 3) ENU m
+
+    @classmethod
+    def of(cls, items: Sequence[MissionItem], home: Home) -> MissionRoute:
+        wps = [it for it in items if it.command == CMD_WAYPOINT and normalise_frame(it.frame) == FRAME_REL_ALT]
+        if not wps:
+            raise ValueError("the mission has no waypoints in the relative frame")
+        pts = np.array([geodetic_to_enu(it.lat, it.lon, home.alt + it.z, home) for it in wps], dtype=float)
+        pts[:, 2] = [it.z for it in wps]  # relative altitude is z above home, not a geodetic height
+        return cls(tuple(items), np.array([it.seq for it in wps]), pts)
+
+    @property
+    def goal_seq(self) -> int:
+        return int(self.seqs[-1])
+
+    @property
+    def goal(self) -> np.ndarray:
+        return self.points[-1]
+
+    def remaining(self, position: np.ndarray, current_seq: int) -> tuple[np.ndarray, np.ndarray]:
+        """(route (M, 3) from ``position`` through every waypoint from ``current_seq`` on, the seq of each
+        route vertex, −1 for the position). Past the goal: just the position."""
+        ahead = self.seqs >= current_seq
+        route = np.vstack([np.asarray(position, dtype=float)[None], self.points[ahead]])
+        return route, np.concatenate([[-1], self.seqs[ahead]])
+
+
+@dataclass(frozen=True)
+class CommitPoint:
+    """Where the new route starts: ``point`` on the current route, ``lead_m`` ahead of the vehicle, reached
+    at mission time ``t``. Items with seq < ``first_new_seq`` stay as they are; the new route's first item
+    (``point`` itself) gets ``first_new_seq``."""
+
+    point: np.ndarray
+    lead_m: float
+    t: float
+    first_new_seq: int
+    old_tail: np.ndarray  # (J, 3) the old route from the commit point to the goal (the warm start)
+
+
+def commit_point(route: np.ndarray, route_seqs: np.ndarray, current_seq: int, lead_m: float, speed: float,
+                 t_now: float) -> CommitPoint:
+    """The point ``lead_m`` ahead along ``route`` (from :meth:`MissionRoute.remaining`), kept short of the
+    goal so a route remains to plan. The vehicle flies every unchanged waypoint up to it, so the first new
+    item is the one after the last route vertex passed before it (the current item when it lies on the leg
+    being flown)."""
+    cum = route_distances(route)
+    lead = float(np.clip(lead_m, 0.0, max(cum[-1] - 1.0, 0.0)))
+    p, seg = route_points(route, np.array([lead]))
+    k = int(seg[0])  # on leg route[k] → route[k+1]
+    first_new = current_seq if k == 0 else int(route_seqs[k]) + 1
+    tail = np.vstack([p, route[k + 1:]])
+    return CommitPoint(p[0], lead, t_now + lead / max(speed, 1e-6), first_new, tail)
+
+
+def warm_starts(tail: np.ndarray, offsets_m: Sequence[float], n_points: int = 10) -> np.ndarray:
+    """Seeds for the replanning swarm (k, n_points, 3): the old route from the commit point, resampled
+    evenly along its length, and copies bent sideways by each offset (a half-sine bulge perpendicular to
+    the commit→goal line, zero at both ends).
+
+    A crossing threat can only be dodged by passing ahead of or behind it; the old route alone leaves the
+    swarm to discover that in a fraction of a second, the bent copies hand it both sides at once (with
+    them the budgeted replans of the shipped scenarios went from mostly infeasible to feasible).
+    """
+    tail = np.asarray(tail, dtype=float)
+    cum = route_distances(tail)
+    u = np.linspace(0.0, cum[-1], n_points)
+    base = np.stack([np.interp(u, cum, tail[:, k]) for k in range(3)], axis=1)
+    d = tail[-1, :2] - tail[0, :2]
+    norm = float(np.linalg.norm(d))
+    if norm == 0.0 or cum[-1] == 0.0:
+        return base[None]
+    perp = np.array([-d[1] / norm, d[0] / norm, 0.0])
+    bulge = np.sin(np.pi * u / cum[-1])[:, None] * perp
+    return np.stack([base] + [base + o * bulge for o in offsets_m])
+
+
+def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, threats: Threats,
+                   start_time: float, speed: float | None = None) -> PlanningProblem:
+    """The scenario's static world with the current threat picture, from ``start`` to ``goal``, flown from
+    mission time ``start_time`` (time-aware threats, SPEC §4) at ``speed`` (default: the scenario's cruise
+    speed; the replanner passes the vehicle's measured pace)."""
+    env = dataclasses.replace(scenario.environment, threats=threats)
+    s = scenario.planner
+    vehicle = scenario.vehicle if speed is None else dataclasses.replace(scenario.vehicle, cruise_speed=speed)
+    return PlanningProblem(env, np.asarray(start, dtype=float), np.asarray(goal, dtype=float), vehicle,
+                           scenario.hazard, s.weights, s.penalty, start_time)
+
+
+def replan_settings(settings: PlannerSettings, cfg: ReplanConfig) -> PlannerSettings:
+    """The scenario's planner settings with the replanning swarm size."""
+    return dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=cfg.population))
+
+
+def splice(items: Sequence[MissionItem], first_new_seq: int, new_route: np.ndarray, goal_seq: int,
+           spec: MissionSpec) -> list[MissionItem]:
+    """``items[:first_new_seq]`` unchanged, then a waypoint per point of ``new_route`` (commit point first,
+    goal last), then the old items after the goal (the end action), renumbered.
+
+    Keeping the prefix identical means an upload in flight rewrites those slots with what they already hold,
+    so the vehicle, still on one of them, never reads a half-written item before the new part is verified.
+    """
+    if not 0 < first_new_seq <= goal_seq:
+        raise ValueError(f"first new item {first_new_seq} must be in 1..{goal_seq}")
+    new = list(items[:first_new_seq]) + waypoint_items(new_route, spec) + list(items[goal_seq + 1:])
+    return [it.with_seq(seq) for seq, it in enumerate(new)]

@@ -1,0 +1,722 @@
+"""Live replanning around dynamic threats, the MAVLink part (SPEC §9): watch, predict, plan, swap missions.
+
+Runs beside the supervisor's monitor as its own task with its own subscription. On a predicted conflict:
+
+1. commit point ahead of the vehicle (where it will be when the new mission can be live), planned from there
+   to the goal with the threat picture, warm-started from the old remaining route, within a wall budget;
+2. the new mission keeps every item before the commit point unchanged and is uploaded while the vehicle
+   flies (ArduPilot keeps flying its active item); a guard holds the vehicle (LOITER) if it could finish its
+   active item before the upload is verified, because uploads are not atomic and the next item may be
+   half-written;
+3. verified by readback, then MAV_CMD_DO_SET_MISSION_CURRENT to the commit point if the vehicle's active item
+   was replaced (and MISSION_CURRENT must confirm it), AUTO again if it was held.
+
+A failed upload holds the vehicle and re-uploads; no safe plan holds it and retries until a plan is found or
+the old route is clear again. Every decision goes to the event log.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import math
+import multiprocessing
+import time
+from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures.process import BrokenProcessPool
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.mission.builder import MissionSpec
+from companion.mavlink.errors import CommandError, CompanionError, MissionUploadError, VehicleHolding
+from companion.mission.events import EventLog
+from companion.mission.geo import geodetic_to_enu
+from companion.mavlink.items import MissionItem
+from companion.mavlink.link import MAV_COMP_ID_ADSB, Link, Message, Subscription
+from companion.mavlink.protocol import MissionClient
+from companion.mission.restore import restore_mission
+from companion.replanning.replan import (
+    CommitPoint,
+    MissionRoute,
+    ReplanConfig,
+    VehicleClock,
+    commit_point,
+    replan_problem,
+    replan_settings,
+    splice,
+    warm_starts,
+)
+from companion.replanning.threats import Conflict, TrackPicture, predict_conflicts, route_separations
+
+from planner.world.environment import Threats
+from planner.plan import PlanStatus, plan
+from planner.world.scenario import Scenario
+
+log = logging.getLogger(__name__)
+WATCHED = ("GLOBAL_POSITION_INT", "ADSB_VEHICLE", "MISSION_CURRENT", "MISSION_ITEM_REACHED", "HEARTBEAT")
+# ADS-B reports come from the autopilot (its own receiver, forwarded) or from a receiver that is a MAVLink component
+# of the same vehicle; that receiver's other messages (its HEARTBEAT) and every other system's are not ours
+ADSB_SOURCES = {"ADSB_VEHICLE": (MAV_COMP_ID_ADSB,)}
+BAND_INSET_M = 0.5  # a commit point is moved at least this far inside the altitude band
+GOOD = (PlanStatus.EXACT.value, PlanStatus.APPROXIMATE.value)
+PACE_TAU_S = 8.0  # vehicle seconds over which the ground speed along the route is smoothed
+
+
+def watch(link: Link) -> Subscription:
+    """The replanner's subscription: :data:`WATCHED` from the target autopilot, and ADSB_VEHICLE also from an
+    ADS-B receiver of the same vehicle (:data:`ADSB_SOURCES`)."""
+    return link.subscribe(*WATCHED, extra_components=ADSB_SOURCES)
+
+
+@dataclass(frozen=True)
+class WorkerPlan:
+    """What a replan sends back from the worker process (small: no swarm, no trajectory)."""
+
+    status: str
+    waypoints: np.ndarray
+    violations: dict[str, int]
+    optimiser_s: float
+
+
+def _plan_job(problem: Any, settings: Any, seed: list[int], initial: np.ndarray, budget_s: float) -> WorkerPlan:
+    """One replan in the worker process."""
+    result = plan(problem, settings, np.random.default_rng(seed), initial, budget_s)
+    violations = {k: int(v[0]) for k, v in result.evaluation.violations.items() if int(v[0])}
+    return WorkerPlan(result.status.value, np.asarray(result.waypoints), violations, result.optimiser.time_s)
+
+
+def _warm_up(problem: Any, settings: Any) -> None:
+    """Import, allocate and run every code path once in the worker, before the first real replan."""
+    from planner.search.alloc import tune_allocator
+
+    tune_allocator()
+    if problem is not None:
+        _plan_job(problem, settings, [0], None, 0.03)
+
+
+class PlanWorker:
+    """A planner in its own process: the companion's event loop (and an in-process simulator) keep running at
+    full speed while it plans, and the planner gets a whole core for its budget. ``problem`` and
+    ``settings`` (optional) are planned once, briefly, to warm the worker up."""
+
+    def __init__(self, problem: Any = None, settings: Any = None) -> None:
+        self._pool: ProcessPoolExecutor | None = ProcessPoolExecutor(
+            max_workers=1, mp_context=multiprocessing.get_context("spawn"))
+        self._warm = asyncio.get_running_loop().run_in_executor(self._pool, _warm_up, problem, settings)
+        self._warm.add_done_callback(lambda f: f.cancelled() or f.exception())  # no "never retrieved" noise
+        self._overhead_s = 0.035  # running estimate: wall time of a job beyond its optimiser's search
+
+    async def ready(self) -> float:
+        """Wait for the warm-up (process start, imports, a first short plan); returns the seconds waited. A
+        process that failed to start is left to :meth:`plan`, which then plans in a thread."""
+        t0 = time.monotonic()
+        if self._pool is not None:
+            with contextlib.suppress(Exception):
+                await asyncio.shield(self._warm)
+        return time.monotonic() - t0
+
+    async def plan(self, problem: Any, settings: Any, seed: list[int], initial: np.ndarray,
+                   budget_s: float) -> WorkerPlan:
+        """Plan within ``budget_s`` of wall time in all: the search gets what the smoothing, the checks and
+        the hand-over to and from the process (measured on earlier jobs) leave of it. If the process cannot
+        be started or has died, plans in a thread instead (slower: it shares the interpreter)."""
+        loop = asyncio.get_running_loop()
+        t0 = time.monotonic()
+        search = max(budget_s - self._overhead_s, 0.2 * budget_s)
+        args = (problem, settings, seed, initial, search)
+        if self._pool is not None:
+            try:
+                await self._warm
+                out = await loop.run_in_executor(self._pool, _plan_job, *args)
+            except BrokenProcessPool as e:
+                log.warning("planner process failed (%s); planning in a thread from now on", e)
+                self._pool.shutdown(wait=False, cancel_futures=True)
+                self._pool = None
+        if self._pool is None:
+            out = await asyncio.to_thread(_plan_job, *args)
+        self._overhead_s = 0.5 * self._overhead_s + 0.5 * max(time.monotonic() - t0 - out.optimiser_s, 0.0)
+        return out
+
+    def close(self) -> None:
+        if self._pool is not None:
+            self._pool.shutdown(wait=True, cancel_futures=True)
+
+
+@dataclass
+class ReplanRecord:
+    """One replan, as written to flight.json and drawn on the report."""
+
+    n: int
+    reason: str
+    threat: str
+    t_mission: float
+    conflict_in_s: float
+    sep_before_m: float
+    sep_after_m: float | None = None
+    plan_status: str = ""
+    plan_s: float = 0.0
+    upload_s: float = 0.0
+    latency_s: float | None = None  # conflict detected → new mission current (wall)
+    held: bool = False
+    outcome: str = ""
+    commit: list[float] = field(default_factory=list)
+    old_route: list[list[float]] = field(default_factory=list)
+    new_route: list[list[float]] = field(default_factory=list)
+
+    def summary(self) -> dict[str, Any]:
+        """The event-log view (routes left out)."""
+        d = {k: v for k, v in self.__dict__.items() if k not in ("old_route", "new_route")}
+        return {k: round(v, 3) if isinstance(v, float) else v for k, v in d.items()}
+
+
+class LiveReplanner:
+    """Watches the flight and replaces the mission when a threat will come too close.
+
+    ``items`` is the verified mission being flown; ``rate`` the vehicle's seconds per wall second if known
+    (our simulator's speed-up), else measured; ``seed`` makes the replans reproducible for a given picture.
+    """
+
+    def __init__(self, link: Link, client: MissionClient, events: EventLog, scenario: Scenario,
+                 spec: MissionSpec, items: Sequence[MissionItem], cfg: ReplanConfig | None = None, *,
+                 rate: float | None = None, seed: int = 0) -> None:
+        self.link, self.client, self.events = link, client, events
+        self.scenario, self.spec = scenario, spec
+        self.cfg = cfg or ReplanConfig()
+        self.clock = VehicleClock(rate)
+        self.tracks = TrackPicture(scenario.home)
+        self.route = MissionRoute.of(items, scenario.home)
+        # every mission known verified on the vehicle, with the (monotonic) time its readback matched
+        self.verified: list[tuple[float, list[MissionItem]]] = [(time.monotonic(), list(items))]
+        self.records: list[ReplanRecord] = []
+        self.seed = seed
+        self.position: np.ndarray | None = None
+        self.current_seq = 0
+        self._mission_wall: float | None = None  # wall time of the mission start
+        self._mission_t0: float | None = None  # vehicle time of the mission start, once the clock is synced
+        self.holding: str | None = None  # why the vehicle is held, or None
+        self._held_since: float | None = None  # mission time the current hold began
+        self._last_replan = -math.inf  # mission time
+        self._last_check = -math.inf  # wall
+        self._upload_wall_s = 0.05  # running estimate of one verified upload (wall s)
+        self._announced: set[int] = set()
+        self.custom_mode: int | None = None  # the vehicle's mode, from HEARTBEAT
+        self.groundspeed = 0.0
+        self.pace: float | None = None  # smoothed ground speed along the route (m/s), once measured
+        self._pace_t: float | None = None  # vehicle time of the last ground speed
+        self._paused_in: int | None = None  # a mode we did not command, while replanning is paused
+        self._link_down = False  # between the supervisor's link_lost and its re-sync: no telemetry, no uploads
+        self._fresh_since = 0.0  # monotonic: position and active item must be newer than this to predict from
+        # monotonic time of the latest position and (if the autopilot streams it) active item
+        self._seen: dict[str, float] = {"GLOBAL_POSITION_INT": 0.0}
+        self._sub: Any = None
+        # started now, and warmed up on the whole route, so the first conflict finds it ready
+        self._worker = PlanWorker(
+            replan_problem(scenario, self.route.points[0], self.route.goal, scenario.environment.threats, 0.0),
+            replan_settings(scenario.planner, self.cfg))
+
+    # -- picture ------------------------------------------------------------------------------------
+    @property
+    def goal_seq(self) -> int:
+        return self.route.goal_seq
+
+    async def ready(self) -> None:
+        """Wait until the planner is warm (call before the flight starts: a replan made while the planner
+        process is still starting takes seconds instead of its budget)."""
+        waited = await self._worker.ready()
+        self.events.log("planner_ready", waited_s=round(waited, 3))
+
+    def mission_started(self, wall: float) -> None:
+        """Call when MISSION_START was accepted (at ``wall``, monotonic s): mission time (the scripted
+        threats' clock) starts there."""
+        self._mission_wall = wall
+
+    @property
+    def mission_t0(self) -> float | None:
+        """Vehicle time of the mission start (None before it, or before any telemetry)."""
+        if self._mission_t0 is None and self._mission_wall is not None and self.clock.synced:
+            self._mission_t0 = self.clock.now(self._mission_wall)
+        return self._mission_t0
+
+    def now(self) -> float:
+        """Mission time (vehicle s since the mission start; vehicle time before it)."""
+        return self.clock.now(time.monotonic()) - (self.mission_t0 or 0.0)
+
+    def near_goal(self) -> bool:
+        """Whether the last position is near the goal: a completion report from before a swap (different
+        numbering) must not end the flight."""
+        if self.position is None:
+            return True
+        return float(np.linalg.norm(self.position - self.route.goal)) < max(
+            5 * self.scenario.vehicle.acceptance_radius, 150.0)
+
+    def observe(self, msg: Message) -> None:
+        kind = msg.get_type()
+        if kind in ("GLOBAL_POSITION_INT", "MISSION_CURRENT"):
+            self._seen[kind] = time.monotonic()
+        if kind == "GLOBAL_POSITION_INT":
+            self.clock.observe(msg.time_boot_ms, time.monotonic())
+            p = geodetic_to_enu(msg.lat / 1e7, msg.lon / 1e7, self.scenario.home.alt + msg.relative_alt / 1000,
+                                self.scenario.home)
+            self.position = np.array([p[0], p[1], msg.relative_alt / 1000.0])
+            self.groundspeed = math.hypot(msg.vx, msg.vy) / 100.0
+            self._track_pace(self.groundspeed, msg.time_boot_ms / 1000.0)
+        elif kind == "HEARTBEAT":
+            self.custom_mode = int(msg.custom_mode)
+        elif kind == "ADSB_VEHICLE" and self.mission_t0 is not None:
+            if self.tracks.update(msg, self.now()) is not None and msg.ICAO_address not in self._announced:
+                self._announced.add(msg.ICAO_address)
+                self.events.log("track", id=f"adsb-{msg.ICAO_address:06x}", callsign=str(msg.callsign))
+        elif kind == "MISSION_CURRENT":
+            self.current_seq = int(msg.seq)
+        elif kind == "MISSION_ITEM_REACHED":
+            self.current_seq = max(self.current_seq, int(msg.seq) + 1)
+
+    def threats(self, now: float) -> Threats:
+        """Scripted threats (mission-time laws) and live ADS-B tracks."""
+        for tid in self.tracks.expire(now, self.cfg.track_max_age_s):
+            self.events.log("track_expired", id=tid)
+        return self.tracks.threats(now, self.cfg.track_radius_m, self.cfg.track_growth_m_s,
+                                   self.scenario.environment.threats)
+
+    @property
+    def speed(self) -> float:
+        """Speed for ETAs along the route: the vehicle's own pace over the ground while it flies the route in
+        AUTO (:meth:`_track_pace`), the commanded cruise speed until that is known. ArduPlane SITL asked for
+        18 m/s airspeed flies 19.2 m/s over the ground: predicted at cruise speed, a conflict 20 s ahead
+        was 25 m out, more than the margin (measured on crossing_traffic)."""
+        return self.pace if self.pace is not None else self.scenario.vehicle.cruise_speed
+
+    def _track_pace(self, groundspeed: float, t_vehicle: float) -> None:
+        """Smooth the ground speed over :data:`PACE_TAU_S`, starting from cruise, while flying the route in AUTO
+        (not in a hold or the climb-out); each sample kept within ±30 % of cruise."""
+        cruise = self.scenario.vehicle.cruise_speed
+        flying = self.holding is None and self.on_route() and (
+            self.custom_mode is None or self.custom_mode == self._number("AUTO"))
+        last, self._pace_t = self._pace_t, t_vehicle
+        if not flying or last is None or t_vehicle <= last:
+            return
+        v = float(np.clip(groundspeed, 0.7 * cruise, 1.3 * cruise))
+        keep = math.exp(-(t_vehicle - last) / PACE_TAU_S)
+        # from cruise, not from the first sample: a plane joining its route is still levelling off and turning,
+        # and a jump of the pace would move every predicted conflict (1 m/s over 30 s: 30 m) at once
+        self.pace = keep * (cruise if self.pace is None else self.pace) + (1.0 - keep) * v
+
+    def _number(self, name: str) -> int:
+        return self.link.profile.mode_number(name)
+
+    def _name(self, custom_mode: int) -> str:
+        return self.link.profile.mode_name(custom_mode)
+
+    @property
+    def hold_mode(self) -> str:
+        return self.link.profile.hold_mode
+
+    def in_control(self) -> bool:
+        """The vehicle flies our mission in AUTO, or holds in the mode we put it in. Any other mode (the pilot
+        took over, a failsafe's RTL) belongs to someone else: the replanner then only watches."""
+        if self.custom_mode is None:
+            return True
+        ours = self._number(self.hold_mode) if self.holding is not None else self._number("AUTO")
+        mine = self.custom_mode == ours
+        if not mine and self._paused_in != self.custom_mode:
+            self._paused_in = self.custom_mode
+            self.events.log("replanning_paused", mode=self._name(self.custom_mode))
+        elif mine and self._paused_in is not None:
+            self._paused_in = None
+            self.events.log("replanning_resumed")
+        return mine
+
+    def link_lost(self) -> None:
+        """The supervisor found the link lost: positions are stale and nothing can be uploaded, so stop
+        predicting until :meth:`link_restored` (the vehicle flies, or holds on, its verified mission)."""
+        if not self._link_down:
+            self._link_down = True
+            self.events.log("replanning_paused", reason="link lost", decision=(
+                "the vehicle holds" if self.holding is not None else "the vehicle flies its verified mission"))
+
+    def link_restored(self) -> None:
+        """The link is back and the supervisor has re-synced the mission: predict again from fresh telemetry."""
+        if self._link_down:
+            self._link_down = False
+            self._fresh_since = time.monotonic()  # position and active item are from before the outage
+            self.events.log("replanning_resumed", reason="link restored, mission re-synced")
+
+    def remaining(self) -> tuple[np.ndarray, np.ndarray]:
+        assert self.position is not None
+        return self.route.remaining(self.position, max(self.current_seq, int(self.route.seqs[0])))
+
+    def predict(self, now: float, threats: Threats) -> list[Conflict]:
+        """Conflicts on the remaining route, flown from now; for a held vehicle, flown from any moment it may
+        be back on it after resuming (:meth:`rejoin_delays`): the earliest conflict of all."""
+        route, _ = self.remaining()
+        c = self.cfg
+        found = [predict_conflicts(route, self.speed, 0.0, now + d, threats, c.horizon_s,
+                                   self.scenario.hazard.d_coll, c.margin_m, c.sample_dt_s)
+                 for d in self.rejoin_delays()]
+        return sorted((x for f in found for x in f), key=lambda x: x.t)
+
+    def rejoin_delays(self) -> np.ndarray:
+        """Vehicle seconds a vehicle resumed now may take to be flying its route again: none when it is not
+        held or stops dead (a copter in BRAKE); for a plane circling in LOITER, anything up to one circle,
+        which is why a hold that merely delays a plane by a few seconds must not look like a cleared threat."""
+        if self.holding is None or not self.link.profile.hold_circles:
+            return np.zeros(1)
+        circle = 2.0 * math.pi * self.cfg.plane_loiter_radius_m / self.speed
+        held = self.now() - self._held_since if self._held_since is not None else circle
+        # having turned away for ``held`` seconds it needs about as long to turn back; never more than a circle
+        longest = min(circle, 2.0 * held + self.cfg.rejoin_step_s)
+        return np.arange(0.0, longest + self.cfg.rejoin_step_s, self.cfg.rejoin_step_s)
+
+    def on_route(self) -> bool:
+        """Flying the route (past the takeoff and the speed item): the start waypoint or later."""
+        return self.current_seq >= int(self.route.seqs[0]) and self.current_seq <= self.goal_seq
+
+    # -- task ---------------------------------------------------------------------------------------
+    async def run(self) -> None:
+        """Watch until cancelled; raises :class:`VehicleHolding` when no verified mission can be made live."""
+        with watch(self.link) as sub:
+            self._sub = sub
+            while True:
+                try:
+                    self.observe(await sub.get(self.cfg.check_interval_wall_s))
+                except TimeoutError:
+                    pass
+                for msg in sub.drain():
+                    self.observe(msg)
+                wall = time.monotonic()
+                if wall - self._last_check < self.cfg.check_interval_wall_s or self.position is None \
+                        or self.mission_t0 is None:
+                    continue
+                self._last_check = wall
+                await self.step()
+
+    async def aclose(self) -> None:
+        """Stop the planner process (waits for a plan in progress to end, at most its budget)."""
+        await asyncio.to_thread(self._worker.close)
+
+    async def __aenter__(self) -> LiveReplanner:
+        return self
+
+    async def __aexit__(self, *exc: object) -> None:
+        await self.aclose()
+
+    def _pump(self) -> None:
+        for msg in self._sub.drain() if self._sub is not None else ():
+            self.observe(msg)
+
+    async def step(self) -> None:
+        """One look at the picture: replan on a conflict, or, while holding, retry or resume."""
+        if self._link_down or min(self._seen.values()) < self._fresh_since:
+            return
+        now = self.now()
+        threats = self.threats(now)
+        if not self.in_control():
+            return
+        if self.holding is not None:
+            if now - self._last_replan >= self.cfg.hold_retry_s:
+                await self._retry_from_hold(now, threats)
+            return
+        if not len(threats) or self.current_seq > self.goal_seq:
+            return
+        conflicts = self.predict(now, threats)
+        if not conflicts:
+            return
+        if now - self._last_replan < self.cfg.min_interval_s:
+            return
+        await self.replan(conflicts[0], now, threats)
+
+    # -- replanning ---------------------------------------------------------------------------------
+    async def replan(self, conflict: Conflict, now: float, threats: Threats, lead_m: float | None = None) -> bool:
+        """Plan from a commit point and make the result the live mission; True when it is."""
+        t_detect = time.monotonic()
+        self._last_replan = now
+        cfg = self.cfg
+        rec = ReplanRecord(len(self.records) + 1, "conflict" if self.holding is None else "retry while holding",
+                           conflict.threat_id, round(now, 2), round(conflict.t - now, 2),
+                           round(conflict.separation, 2), held=self.holding is not None)
+        self.records.append(rec)
+        self.events.log("conflict", n=rec.n, threat=rec.threat, in_s=rec.conflict_in_s,
+                        separation_m=rec.sep_before_m, d_coll_m=self.scenario.hazard.d_coll)
+        route, seqs = self.remaining()
+        if lead_m is None:
+            lead_m = self._commit_lead_m(conflict, now)
+        current = max(self.current_seq, int(self.route.seqs[0]))
+        departing = not self.on_route()
+        if departing:  # still climbing out: the new route starts at the planned start, which stays as it is
+            start = self.route.points[0]
+            cp = CommitPoint(start.copy(), 0.0, now + float(np.linalg.norm(start - route[0])) / self.speed,
+                             int(self.route.seqs[0]) + 1, self.route.points.copy())
+        else:
+            cp = commit_point(route, seqs, current, lead_m, self.speed, now)
+        env = self.scenario.environment  # the vehicle's own height may sit a hair outside the band
+        ground = float(env.ground(cp.point[0], cp.point[1]))
+        cp.point[2] = cp.old_tail[0, 2] = np.clip(cp.point[2], ground + env.z_min + BAND_INSET_M,
+                                                  ground + env.z_max - BAND_INSET_M)
+        rec.commit = [round(float(v), 1) for v in cp.point]
+        rec.old_route = cp.old_tail.round(1).tolist()
+        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed)
+        settings = replan_settings(self.scenario.planner, cfg)
+        t0 = time.monotonic()
+        seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
+        # a plan that overruns (a loaded machine, a planner process still starting) must not let the vehicle fly
+        # on into the rewritten items and the conflict while it waits: the swap's guard applies already
+        plan = asyncio.create_task(self._worker.plan(problem, settings, [self.seed, rec.n], seeds, cfg.budget_s),
+                                   name="replan-plan")
+        await self._guarded(plan, cp.first_new_seq, self._guard_threshold_s(),
+                            "the plan is late: the vehicle could reach the commit point before it is ready", rec)
+        job = plan.result()
+        rec.plan_s = round(time.monotonic() - t0, 3)
+        rec.plan_status = status = job.status
+        self._pump()
+        if not departing and self.current_seq > cp.first_new_seq + 1:
+            # the plan took so long (a loaded machine) that the vehicle is past the commit point and its next
+            # item: the new route would start behind it and its timing is gone. Plan again from here, now.
+            rec.outcome = "stale: the vehicle passed the commit point while it was planned"
+            self.events.log("replan_stale", n=rec.n, plan_s=rec.plan_s, first_new=cp.first_new_seq,
+                            current=self.current_seq)
+            self._last_replan = -math.inf
+            return False
+        new_route = job.waypoints.astype(float)
+        after = route_separations(new_route, self.speed, 0.0, cp.t, threats, cfg.horizon_s, cfg.sample_dt_s)
+        rec.sep_after_m = round(min((c.separation for c in after), default=math.inf), 2)
+        rec.new_route = new_route.round(1).tolist()
+        d_coll = self.scenario.hazard.d_coll
+        # good: clear by the margin; else still used if it is safe and better than the route being flown
+        safe = status in GOOD and (rec.sep_after_m >= d_coll + cfg.margin_m
+                                   or rec.sep_after_m >= max(d_coll, conflict.separation))
+        self.events.log("replan_planned", n=rec.n, status=rec.plan_status, plan_s=rec.plan_s,
+                        separation_after_m=rec.sep_after_m, commit=rec.commit, waypoints=len(new_route),
+                        violations=job.violations)
+        if not safe and self.holding is None and conflict.separation >= d_coll:
+            rec.outcome = "no better route: the current one (inside the margin, outside d_coll) is kept"
+            self.events.log("replan_skipped", n=rec.n, reason=rec.outcome)
+            return False
+        if not safe:
+            rec.outcome = "no safe plan: holding"
+            await self.hold(f"no safe plan within {cfg.budget_s:g} s ({rec.plan_status}, predicted separation "
+                            f"{rec.sep_after_m:.0f} m)")
+            rec.held = True
+            return False
+        items = splice(self.route.items, cp.first_new_seq, new_route[1:] if departing else new_route,
+                       self.goal_seq, self.spec)
+        t_up = time.monotonic()
+        live = await self.swap(items, cp.first_new_seq, rec)
+        rec.upload_s = round(time.monotonic() - t_up, 3)
+        if not live:
+            rec.outcome = "verified but no longer clear: holding"
+            self.events.log("replan_not_live", **rec.summary())
+            return False
+        rec.latency_s = round(time.monotonic() - t_detect, 3)
+        rec.outcome = "new mission current"
+        self.events.log("replanned", **rec.summary())
+        return True
+
+    async def _guarded(self, task: asyncio.Task, first_new_seq: int, threshold_s: float, reason: str,
+                       rec: ReplanRecord) -> None:
+        """Wait for ``task`` (a plan or an upload) watching the vehicle meanwhile: hold it, saying ``reason``,
+        once it could step into item ``first_new_seq`` or a later one within ``threshold_s`` of vehicle time
+        while the task still runs. On any exception (a cancel included) the task is cancelled first."""
+        try:
+            while not task.done():
+                await asyncio.wait({task}, timeout=0.01)
+                self._pump()
+                if self.holding is None and not task.done() and \
+                        self._eta_leave_prefix(first_new_seq) < threshold_s:
+                    await self.hold(reason)
+                    rec.held = True
+        except BaseException:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+            raise
+
+    async def swap(self, items: list[MissionItem], first_new_seq: int, rec: ReplanRecord) -> bool:
+        """Upload ``items`` while flying and make them the live mission (see the module docstring); False
+        when they were verified but are no longer safe to join (the vehicle is then held)."""
+        cfg = self.cfg
+        self._pump()
+        if self.holding is None and not self.link.profile.flies_copy_during_upload:
+            await self.hold("the vehicle would re-read its items from storage during the upload")
+            rec.held = True
+        elif self.holding is None and self._eta_leave_prefix(first_new_seq) < self._guard_threshold_s():
+            await self.hold("the vehicle could finish its active item before the new mission is verified")
+            rec.held = True
+        for attempt in range(1, cfg.upload_attempts + 1):
+            t0 = time.monotonic()
+            upload = asyncio.create_task(self.client.upload_verified(items), name="replan-upload")
+            try:
+                await self._guarded(upload, first_new_seq, cfg.guard_s,
+                                    "upload not verified yet and the vehicle is about to leave its item", rec)
+            except asyncio.CancelledError:
+                # cancelled mid-upload (flight ended, Ctrl-C): the stored mission may be mixed, so hold first
+                if self.holding is None:
+                    await asyncio.shield(self.hold("cancelled during an upload: the stored mission may be mixed"))
+                raise
+            try:
+                upload.result()
+            except (CompanionError, TimeoutError) as e:
+                self.events.log("replan_upload_failed", n=rec.n, attempt=attempt, error=str(e))
+                if self.holding is None:  # the stored mission may now be part old, part new
+                    await self.hold("upload failed: the stored mission may be mixed")
+                    rec.held = True
+                refused = isinstance(e, MissionUploadError) and e.refused
+                if refused or attempt == cfg.upload_attempts:
+                    # a refusal will likely come again: first put the last verified mission back, so that what
+                    # is stored is verified while the vehicle holds and whatever happens next
+                    restored, left_with = await restore_mission(self.client, self.events, self.verified[-1][1])
+                    if restored:
+                        self.verified.append((time.monotonic(), list(self.verified[-1][1])))
+                    if attempt == cfg.upload_attempts:
+                        raise VehicleHolding(f"replan {rec.n}: no verified upload after {attempt} attempts ({e}); "
+                                             f"{left_with}; the vehicle is holding") from e
+                continue
+            self._upload_wall_s = 0.7 * self._upload_wall_s + 0.3 * (time.monotonic() - t0)
+            break
+        self.route = MissionRoute.of(items, self.scenario.home)
+        self.verified.append((time.monotonic(), list(items)))
+        self.events.log("replan_verified", n=rec.n, items=len(items), first_new=first_new_seq)
+        self._pump()
+        target = self.current_seq
+        if self.current_seq >= first_new_seq:  # its active item was replaced: join the new route
+            target = self._join_seq(first_new_seq)
+        if not self._clear_from(target):
+            reason = "no safe plan: the new route is no longer clear from where the vehicle is"
+            await self.hold(reason)
+            self.holding = reason  # retried from here like any plan that is not safe
+            rec.held = True
+            if target != self.current_seq:
+                await self.set_current(target)
+            return False
+        if target != self.current_seq:  # else AUTO resumes (restarts) the current, unchanged item by itself
+            await self.set_current(target)
+        if self.holding is not None:
+            await self.resume()
+        return True
+
+    def _guard_threshold_s(self) -> float:
+        """Vehicle seconds before leaving its unchanged items below which a swap holds the vehicle first."""
+        return self.cfg.guard_s + 2.0 * self._upload_wall_s * self.clock.rate
+
+    def _switch_m(self) -> float:
+        """How far before a waypoint the vehicle may count it reached (ArduPlane switches early)."""
+        return max(self.scenario.vehicle.acceptance_radius, self.link.profile.early_switch_m)
+
+    def _commit_lead_m(self, conflict: Conflict, now: float) -> float:
+        """How far ahead of the vehicle the new route starts. Far enough that the vehicle, flying on while the
+        plan is made, cannot reach the first new item before the upload is verified: the swap's guard then
+        has no reason to hold it. A plane held in LOITER for a guard turns off its route for seconds (at SITL's
+        speed-up, for every wall second of upload, ten), which spoils the timing the new route was planned for
+        and starts the next conflict; so the lead covers the guard's own threshold and the early waypoint
+        switching it counts. Shortened to the planning-and-upload time alone when the conflict is too close
+        for that (the guard then holds if it must)."""
+        cfg = self.cfg
+        plan_s = (cfg.budget_s + cfg.check_interval_wall_s) * self.clock.rate
+        full = (plan_s + self._guard_threshold_s() + cfg.lead_margin_s) * self.speed + self._switch_m()
+        short = (plan_s + self._upload_wall_s * self.clock.rate + cfg.lead_margin_s) * self.speed
+        room = (conflict.t - now) * self.speed * 0.5  # keep the first half of the way to the conflict for the detour
+        return full if full <= room else short
+
+    def _join_seq(self, first_new_seq: int) -> int:
+        """The commit point's item, or the next one if the vehicle is already past the commit point (it
+        would otherwise turn back for it)."""
+        seqs, pts = self.route.seqs, self.route.points
+        k = int(np.flatnonzero(seqs == first_new_seq)[0])
+        if self.position is None or k + 1 >= len(seqs):
+            return first_new_seq
+        ahead = pts[k + 1] - pts[k]
+        passed = float(np.dot(self.position - pts[k], ahead)) > self.scenario.vehicle.acceptance_radius * \
+            float(np.linalg.norm(ahead))
+        if passed:
+            self.events.log("commit_point_passed", joining=int(seqs[k + 1]))
+            return int(seqs[k + 1])
+        return first_new_seq
+
+    def _clear_from(self, seq: int) -> bool:
+        """Whether the mission from item ``seq`` on, flown from where the vehicle is now (and, if it is held,
+        from whenever it may be back on it: :meth:`rejoin_delays`), keeps every threat at d_coll or more (the
+        plan was checked from the commit point at its ETA; this checks the join)."""
+        if self.position is None:
+            return True
+        now = self.now()
+        route, _ = self.route.remaining(self.position, max(seq, int(self.route.seqs[0])))
+        threats = self.threats(now)
+        seps = [c for d in self.rejoin_delays() for c in route_separations(
+            route, self.speed, 0.0, now + d, threats, self.cfg.horizon_s, self.cfg.sample_dt_s)]
+        worst = min(seps, key=lambda c: c.separation, default=None)
+        if worst is not None:
+            self.events.log("join_check", seq=seq, threat=worst.threat_id, separation_m=round(worst.separation, 1),
+                            in_s=round(worst.t - now, 1))
+        return worst is None or worst.separation >= self.scenario.hazard.d_coll
+
+    async def set_current(self, seq: int) -> None:
+        """DO_SET_MISSION_CURRENT and wait until MISSION_CURRENT shows it (the vehicle took it)."""
+        with self.link.subscribe("MISSION_CURRENT", predicate=lambda m: m.seq == seq) as sub:
+            await self.client.set_current(seq)
+            try:
+                await sub.get(2.0)
+            except TimeoutError:
+                raise CommandError(0, None, f"MISSION_CURRENT did not confirm item {seq}") from None
+        self.current_seq = seq
+        self.events.log("set_current", seq=seq)
+
+    def _eta_leave_prefix(self, first_new_seq: int) -> float:
+        """Vehicle seconds until it could step into an item at or after ``first_new_seq`` (being rewritten):
+        when it completes item ``first_new_seq − 1``, or its active item if that is already being replaced.
+        Pessimistic: the faster of cruise and ground speed, and ArduPlane's early waypoint switching."""
+        if self.position is None:
+            return math.inf
+        route, seqs = self.remaining()
+        target = max(self.current_seq, first_new_seq - 1)
+        hit = np.flatnonzero(seqs >= target)
+        if not hit.size:
+            return math.inf
+        legs = np.linalg.norm(np.diff(route[:hit[0] + 1], axis=0), axis=1)
+        return max(float(legs.sum()) - self._switch_m(), 0.0) / max(self.speed, self.groundspeed, 1.0)
+
+    def note_upload(self, seconds: float) -> None:
+        """The initial mission's verified upload took ``seconds`` (wall): the first guess for a replan's."""
+        self._upload_wall_s = max(self._upload_wall_s, float(seconds))
+
+    # -- holding ------------------------------------------------------------------------------------
+    async def _mode(self, name: str) -> None:
+        custom = self._number(name)
+        await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE, *self.link.profile.set_mode_params(custom))
+        self.custom_mode = custom  # accepted; the next HEARTBEAT will say so too
+
+    async def hold(self, reason: str) -> None:
+        """Stop the vehicle advancing through its mission where it is (its profile's ``hold_mode``)."""
+        if self.holding is not None:
+            return
+        if self.custom_mode is not None and self.custom_mode != self._number("AUTO"):
+            # not flying the mission (a failsafe, the pilot): it cannot step into a mixed item; leave it be
+            self.events.log("not_holding", reason=reason, mode=self._name(self.custom_mode))
+            return
+        await self._mode(self.hold_mode)
+        self.holding = reason
+        self._held_since = self.now()
+        self.events.log("hold", mode=self.hold_mode, reason=reason)
+
+    async def resume(self) -> None:
+        """Back to AUTO at the current item, unless someone else has changed the mode meanwhile."""
+        if self.custom_mode is not None and self.custom_mode != self._number(self.hold_mode):
+            self.events.log("not_resuming", reason="the mode was changed by someone else",
+                            mode=self._name(self.custom_mode))
+            self.holding = None
+            return
+        await self._mode("AUTO")
+        self.events.log("resume", reason=self.holding, seq=self.current_seq)
+        self.holding = None
+
+    async def _retry_from_hold(self, now: float, threats: Threats) -> None:
+        """While holding: resume if the old route is clear again, else plan from here."""
+        self._last_replan = now
+        conflicts = self.predict(now, threats) if len(threats) else []
+        if not conflicts:
+            self.events.log("threat_cleared", rejoin_s=float(self.rejoin_delays()[-1]))
+            await self.resume()
+            return
+        await self.replan(conflicts[0], now, threats, lead_m=0.0)

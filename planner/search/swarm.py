@@ -1,0 +1,162 @@
+"""What every swarm optimiser shares: the personal/global-best memory, the loop with its stop criteria,
+and the result it returns.
+
+An optimiser supplies a decision space (an object with ``sample``, ``encode``, ``decode``, ``lo`` and
+``hi``, like :class:`planner.search.encoding.Encoding`) and a *step*: a function ``(it, state) → new positions``
+that moves the swarm once (it may keep velocities in ``state.v``). :func:`run_swarm` evaluates, updates
+the bests, records the history and stops on ``max_iterations``, ``stagnation``, ``diversity`` or
+``timeout`` (:mod:`planner.search.termination`). Used by SPSO and all four baselines, so they stop and report alike.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Protocol
+
+import numpy as np
+
+from planner.world.config import SPSOConfig
+from planner.problem import Evaluation, PlanningProblem
+from planner.search.termination import AnyOf, Diversity, MaxIterations, Progress, Stagnation, WallClock
+
+log = logging.getLogger(__name__)
+
+
+class DecisionSpace(Protocol):
+    """A swarm lives in a box ``lo``/``hi`` (shape of one particle); ``decode`` gives full paths."""
+
+    lo: np.ndarray
+    hi: np.ndarray
+
+    def decode(self, x: np.ndarray) -> np.ndarray: ...  # (P, …) → paths (P, n + 2, 3)
+
+    def encode(self, paths: np.ndarray) -> np.ndarray: ...  # paths (k, n + 2, 3) → (k, …)
+
+    def sample(self, rng: np.random.Generator, count: int) -> np.ndarray: ...  # → (count, …)
+
+
+@dataclass
+class SwarmState:
+    """Positions, costs and best-so-far memory of a swarm; arrays (P, …) in the decision space."""
+
+    x: np.ndarray  # (P, …) positions
+    f: np.ndarray  # (P,) current costs
+    pbest_x: np.ndarray
+    pbest_f: np.ndarray
+    gbest_x: np.ndarray  # (…) one particle
+    gbest_f: float
+    gbest_eval: Evaluation  # breakdown of the gbest path (batch of one)
+    v: np.ndarray | None = None  # (P, …) velocities, for the optimisers that have them
+    w: float = math.nan  # inertia of the last step (mean over particles if per particle)
+    stagnant: int = 0  # iterations since gbest last improved
+
+    @classmethod
+    def start(cls, x: np.ndarray, ev: Evaluation) -> SwarmState:
+        """Memory of a freshly evaluated swarm: pbest = x, gbest = its best particle."""
+        f = ev.total
+        ib = int(np.argmin(f))
+        return cls(x, f, x.copy(), f.copy(), x[ib].copy(), float(f[ib]), take(ev, ib))
+
+    def observe(self, x: np.ndarray, ev: Evaluation) -> None:
+        """Move to positions ``x`` with costs ``ev``; update pbests, gbest and the stagnation count."""
+        self.x = x
+        self.f = ev.total
+        better = self.f < self.pbest_f
+        self.pbest_x[better] = x[better]
+        self.pbest_f[better] = self.f[better]
+        ib = int(np.argmin(self.f))
+        if self.f[ib] < self.gbest_f:
+            self.gbest_f = float(self.f[ib])
+            self.gbest_x = x[ib].copy()
+            self.gbest_eval = take(ev, ib)
+            self.stagnant = 0
+        else:
+            self.stagnant += 1
+
+
+@dataclass
+class OptimiserResult:
+    """Best path found and how the search went."""
+
+    path: np.ndarray  # (n + 2, 3) ENU metres, start and goal included
+    cost: float
+    evaluation: Evaluation  # batch of one
+    history: list[float]  # best cost after initialisation (index 0) and after each iteration
+    iterations: int
+    stop_reason: str
+    time_s: float
+    evaluations: int
+    state: SwarmState | None = field(default=None, repr=False)
+
+
+Step = Callable[[int, SwarmState], np.ndarray]  # (0-based iteration, state) → new positions (P, …)
+
+
+def initial_swarm(space: DecisionSpace, rng: np.random.Generator, n_pop: int,
+                  initial_paths: np.ndarray | None = None) -> np.ndarray:
+    """``n_pop`` sampled particles; ``initial_paths`` (k, n + 2, 3) replace the first k (warm start)."""
+    x = space.sample(rng, n_pop)
+    if initial_paths is not None and len(initial_paths):
+        seeds = space.encode(np.asarray(initial_paths, dtype=float)[:n_pop])
+        x[: len(seeds)] = seeds
+    return x
+
+
+def diversity(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
+    """σ²(t) = mean ‖x_i − x̄‖² in coordinates normalised to [0, 1] by the bounds."""
+    span = np.where(hi > lo, hi - lo, 1.0)
+    u = (x - lo) / span
+    return float(np.mean(np.sum((u - u.mean(axis=0)) ** 2, axis=tuple(range(1, u.ndim)))))
+
+
+def run_swarm(
+    name: str, problem: PlanningProblem, budget: SPSOConfig, space: DecisionSpace, x0: np.ndarray,
+    step: Step, budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
+    v0: np.ndarray | None = None,
+) -> OptimiserResult:
+    """Evaluate ``x0``, then apply ``step`` until a stop criterion fires.
+
+    ``budget`` gives max_iter, stagnation_iters and diversity_min (the shared Table 6 budget);
+    ``budget_s`` adds a wall-clock limit that counts the initial evaluation too. ``progress(it, max_iter,
+    best)`` is called after every iteration. Evaluations = n_pop × (iterations + 1).
+    """
+    t0 = time.perf_counter()
+    stop = AnyOf([MaxIterations(budget.max_iter), Stagnation(budget.stagnation_iters),
+                  Diversity(budget.diversity_min)])  # its clock starts now: the budget counts init too
+    st = SwarmState.start(x0, problem.evaluate(space.decode(x0)))
+    st.v = v0
+    history = [st.gbest_f]
+    if budget_s is not None:
+        stop.criteria.append(WallClock(budget_s))
+    it = 0
+    while True:
+        x = step(it, st)
+        st.observe(x, problem.evaluate(space.decode(x)))
+        it += 1
+        history.append(st.gbest_f)
+        prog = Progress(it, st.gbest_f, st.stagnant, diversity(st.x, space.lo, space.hi), stop.elapsed())
+        if progress is not None:
+            progress(it, budget.max_iter, st.gbest_f)
+        if stop.done(prog):
+            break
+    log.debug("%s stopped after %d iterations (%s), cost %.3f", name, it, stop.fired, st.gbest_f)
+    path = space.decode(st.gbest_x[None])[0]
+    return OptimiserResult(path, st.gbest_f, st.gbest_eval, history, it, stop.fired or "",
+                           time.perf_counter() - t0, len(x0) * (it + 1), st)
+
+
+def take(ev: Evaluation, i: int) -> Evaluation:
+    """The i-th particle's breakdown as a batch of one."""
+    sl = slice(i, i + 1)
+    return Evaluation(ev.total[sl].copy(), {k: v[sl].copy() for k, v in ev.terms.items()},
+                      ev.penalty[sl].copy(), {k: v[sl].copy() for k, v in ev.violations.items()})
+
+
+def damped_inertia(cfg: SPSOConfig, it: int) -> float:
+    """w = w0 · w_damp^it for 0-based iteration ``it`` (Table 5)."""
+    return cfg.w0 * cfg.w_damp**it
+

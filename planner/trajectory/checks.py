@@ -1,0 +1,149 @@
+"""Constraint check and metrics on the smoothed, sampled trajectory (SPEC §7).
+
+This is the independent verdict on a plan: it samples the Bézier curve the vehicle will fly, point by
+point, instead of the closed forms the cost uses, and counts violations per category.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planner.world.config import CATEGORIES, HazardConfig, VehicleLimits
+from planner.world.environment import Environment
+from planner.world.geometry import cylinder_signed_distance, horizontal_turn
+from planner.trajectory.smoothing import climb_angle, sample_trajectory
+
+_TOL_M = 1e-6  # metres of slack for samples exactly on a limit (start on the band floor, say)
+_TOL_REL = 1e-6
+MAX_REPORTED = 5
+
+
+@dataclass
+class Trajectory:
+    """Smoothed samples of one path: points (M, 3), times (M,) s, arc length (M,) m, curvature (M,)."""
+
+    points: np.ndarray
+    times: np.ndarray
+    s: np.ndarray
+    curvature: np.ndarray
+    tangent: np.ndarray
+
+    @property
+    def length(self) -> float:
+        return float(self.s[-1])
+
+
+def smooth(waypoints: np.ndarray, spacing: float, speed: float, t0: float = 0.0) -> Trajectory:
+    """Bézier-smooth waypoints (N, 3) and sample them every ~``spacing`` m, timed at ``speed`` m/s."""
+    smp = sample_trajectory(waypoints, spacing)
+    return Trajectory(smp["points"], t0 + smp["s"] / speed, smp["s"], smp["curvature"], smp["tangent"])
+
+
+@dataclass
+class CheckResult:
+    """Violation counts per category (runs of consecutive offending samples) and where they start."""
+
+    counts: dict[str, int]
+    locations: dict[str, list[list[float]]] = field(default_factory=dict)
+    clearance: np.ndarray | None = None  # (M,) signed distance to the nearest obstacle surface, m
+
+    @property
+    def feasible(self) -> bool:
+        return not any(self.counts.values())
+
+    @property
+    def min_clearance(self) -> float:
+        return float(self.clearance.min()) if self.clearance is not None and self.clearance.size else np.inf
+
+
+def obstacle_clearance(
+    points: np.ndarray, times: np.ndarray | None, env: Environment, include_radars: bool = True
+) -> np.ndarray:
+    """Signed distance (M,) from each sample to the nearest obstacle or threat surface; radars count
+    from their detection range. Threats only when ``times`` is given."""
+    m = len(points)
+    parts = [np.full(m, np.inf)]
+    cyl = env.cylinders
+    if len(cyl):
+        col = (slice(None), None)
+        parts.append(cylinder_signed_distance(points[None], cyl.x[col], cyl.y[col],
+                                              cyl.radius[col], cyl.top[col]).min(axis=0))
+    if len(env.spheres):
+        d = np.linalg.norm(points[None] - env.spheres.center[:, None], axis=-1)
+        parts.append((d - env.spheres.radius[:, None]).min(axis=0))
+    if include_radars:
+        parts.append(_radar_clearance(points, env))
+    if len(env.threats) and times is not None:
+        c = env.threats.positions(times)  # (k, M, 3)
+        d = np.linalg.norm(points[None] - c, axis=-1) - env.threats.radii(times)
+        parts.append(d.min(axis=0))
+    return np.min(np.stack(parts), axis=0)
+
+
+def check_trajectory(
+    traj: Trajectory, waypoints: np.ndarray, env: Environment, hazard: HazardConfig,
+    vehicle: VehicleLimits, timed: bool = False,
+) -> CheckResult:
+    """Count violations of collision (clearance < d_coll; radars: inside detection range), altitude
+    band above terrain, region bounds, turn (curvature > 1/R_min or a waypoint turn > max) and climb."""
+    p = traj.points
+    times = traj.times if timed else None
+    solid = obstacle_clearance(p, times, env, include_radars=False)
+    radar = _radar_clearance(p, env)
+    bad: dict[str, np.ndarray] = {}
+    # obstacles are violated inside d_coll, radars inside their detection range
+    bad["collision"] = (solid < hazard.d_coll - _TOL_M) | (radar < -_TOL_M)
+    h = p[:, 2] - env.ground(p[:, 0], p[:, 1])
+    bad["altitude"] = (h < env.z_min - _TOL_M) | (h > env.z_max + _TOL_M)
+    bad["bounds"] = ((p[:, 0] < -_TOL_M) | (p[:, 0] > env.size_x + _TOL_M)
+                     | (p[:, 1] < -_TOL_M) | (p[:, 1] > env.size_y + _TOL_M))
+    bad["turn"] = traj.curvature * vehicle.min_turn_radius > 1.0 + _TOL_REL
+    bad["climb"] = np.abs(climb_angle(traj.tangent)) > vehicle.max_climb * (1.0 + _TOL_REL)
+    counts = {c: _runs(bad[c]) for c in CATEGORIES}
+    locations = {c: p[_run_starts(bad[c])][:MAX_REPORTED].round(1).tolist() for c in CATEGORIES}
+    # waypoint turn angles beyond the vehicle's limit (horizontal heading change)
+    seg = np.diff(np.asarray(waypoints, dtype=float), axis=0)
+    sharp = np.flatnonzero(horizontal_turn(seg) > vehicle.max_turn * (1.0 + _TOL_REL))
+    counts["turn"] += len(sharp)
+    locations["turn"] += np.asarray(waypoints)[sharp + 1][:MAX_REPORTED].round(1).tolist()
+    return CheckResult(counts, {k: v for k, v in locations.items() if v}, np.minimum(solid, radar))
+
+
+def _radar_clearance(points: np.ndarray, env: Environment) -> np.ndarray:
+    if not len(env.radars):
+        return np.full(len(points), np.inf)
+    d = np.linalg.norm(points[None] - env.radars.center[:, None], axis=-1)
+    return (d - env.radars.r_det[:, None]).min(axis=0)
+
+
+def _run_starts(mask: np.ndarray) -> np.ndarray:
+    return np.flatnonzero(mask & ~np.concatenate([[False], mask[:-1]]))
+
+
+def _runs(mask: np.ndarray) -> int:
+    return int(len(_run_starts(mask)))
+
+
+# --- metrics (SPEC §7) ------------------------------------------------------------------------------
+def smoothness(waypoints: np.ndarray) -> float:
+    """Σ of 3-D turning angles at interior waypoints, radians."""
+    d = np.diff(np.asarray(waypoints, dtype=float), axis=0)
+    u = d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    return float(np.arccos(np.clip(np.sum(u[:-1] * u[1:], axis=1), -1.0, 1.0)).sum())
+
+
+def robustness(clearance: np.ndarray, curvature_: np.ndarray, d_safe: float) -> float:
+    """R = mean over samples of clip((D_obs − D_safe)/D_safe, 0, 1) · 1/(1 + κ²) (§P 4.5, eq. 52)."""
+    safety = np.clip((clearance - d_safe) / d_safe, 0.0, 1.0)
+    return float(np.mean(safety / (1.0 + curvature_**2)))
+
+
+def convergence_iteration(history: list[float] | np.ndarray) -> int:
+    """First iteration reaching 90 % of the total reduction of the best cost (0 if it never fell)."""
+    h = np.asarray(history, dtype=float)
+    drop = h[0] - h[-1]
+    if drop <= 0:
+        return 0
+    return int(np.argmax(h[0] - h >= 0.9 * drop))

@@ -1,0 +1,228 @@
+"""The planning environment as arrays: bounds, altitude band, obstacles, terrain, dynamic threats (SPEC §2).
+
+Every obstacle family is stored column-wise so the cost can broadcast over all obstacles at once.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from planner.world.terrain import Terrain
+
+BOLTZMANN = 1.380649e-23  # J/K
+
+
+def _frozen(a: object, shape_tail: tuple[int, ...] = ()) -> np.ndarray:
+    arr = np.array(a, dtype=float).reshape((-1, *shape_tail))
+    arr.setflags(write=False)
+    return arr
+
+
+@dataclass(frozen=True, eq=False)
+class Cylinders:
+    """Vertical no-fly cylinders from the ground to ``top`` (``inf`` = unlimited); ``z_ref`` is for drawing."""
+
+    x: np.ndarray
+    y: np.ndarray
+    radius: np.ndarray
+    top: np.ndarray
+    z_ref: np.ndarray
+
+    def __post_init__(self) -> None:
+        for name in ("x", "y", "radius", "top", "z_ref"):
+            object.__setattr__(self, name, _frozen(getattr(self, name)))
+
+    def __len__(self) -> int:
+        return len(self.x)
+
+    @classmethod
+    def empty(cls) -> "Cylinders":
+        return cls([], [], [], [], [])
+
+
+@dataclass(frozen=True, eq=False)
+class Spheres:
+    """Spherical (or, centred on the ground, hemispherical) no-fly zones: forbidden where ‖p − c‖ < R."""
+
+    center: np.ndarray  # (k, 3)
+    radius: np.ndarray  # (k,)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center", _frozen(self.center, (3,)))
+        object.__setattr__(self, "radius", _frozen(self.radius))
+
+    def __len__(self) -> int:
+        return len(self.radius)
+
+    @classmethod
+    def empty(cls) -> "Spheres":
+        return cls(np.zeros((0, 3)), [])
+
+
+def radar_detection_range(
+    pt_w: float, gain: float, wavelength_m: float, rcs_m2: float, ts_k: float, bn_hz: float,
+    loss: float, snr_threshold: float,
+) -> float:
+    """Range where SNR(R) = P_t G² λ² σ / ((4π)³ k T_s B_n L R⁴) equals the threshold (SPEC §2, §P eq. 1)."""
+    num = pt_w * gain**2 * wavelength_m**2 * rcs_m2
+    den = (4 * math.pi) ** 3 * BOLTZMANN * ts_k * bn_hz * loss * snr_threshold
+    return (num / den) ** 0.25
+
+
+@dataclass(frozen=True, eq=False)
+class Radars:
+    """Radar sites: inside ``r_det`` a hard violation; outside a soft cost ``soft_weight · (r_det / R)⁴``.
+
+    The soft term is §P eq. 2's α / R⁴ with α = soft_weight · r_det⁴, so it equals ``soft_weight`` at
+    the detection range and is unit-free.
+    """
+
+    center: np.ndarray  # (k, 3)
+    r_det: np.ndarray  # (k,)
+    soft_weight: np.ndarray  # (k,)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "center", _frozen(self.center, (3,)))
+        object.__setattr__(self, "r_det", _frozen(self.r_det))
+        object.__setattr__(self, "soft_weight", _frozen(self.soft_weight))
+
+    def __len__(self) -> int:
+        return len(self.r_det)
+
+    @classmethod
+    def empty(cls) -> "Radars":
+        return cls(np.zeros((0, 3)), [], [])
+
+
+LOITER, PATROL, TRACK = 0, 1, 2
+THREAT_KINDS = {"loiter": LOITER, "patrol": PATROL, "track": TRACK}
+
+
+@dataclass(frozen=True)
+class Threat:
+    """One dynamic threat: a sphere of ``radius`` moving on a known law (SPEC §2).
+
+    loiter: ``p0`` = circle centre, ``circle_radius``, ``speed`` (m/s), ``phase`` (rad at t=0),
+            ``direction`` +1 counter-clockwise / −1 clockwise.
+    patrol: back and forth between ``p0`` and ``p1`` at ``speed``, starting at ``p0`` at t=0.
+    track:  ``p0`` at time ``t_ref`` moving with velocity ``p1`` (m/s); radius grows by ``radius_growth``
+            m per second of prediction.
+    """
+
+    id: str
+    kind: str
+    radius: float
+    p0: tuple[float, float, float]
+    p1: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    speed: float = 0.0
+    circle_radius: float = 0.0
+    phase: float = 0.0
+    direction: float = 1.0
+    t_ref: float = 0.0
+    radius_growth: float = 0.0
+
+
+@dataclass(frozen=True, eq=False)
+class Threats:
+    """All dynamic threats as arrays, so positions at many times are computed in one broadcast."""
+
+    items: tuple[Threat, ...] = ()
+    kind: np.ndarray = field(init=False)
+    radius: np.ndarray = field(init=False)
+    p0: np.ndarray = field(init=False)
+    p1: np.ndarray = field(init=False)
+    speed: np.ndarray = field(init=False)
+    circle_radius: np.ndarray = field(init=False)
+    phase: np.ndarray = field(init=False)
+    direction: np.ndarray = field(init=False)
+    t_ref: np.ndarray = field(init=False)
+    radius_growth: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        it = self.items
+        cols = {
+            "kind": [THREAT_KINDS[t.kind] for t in it],
+            "radius": [t.radius for t in it],
+            "speed": [t.speed for t in it],
+            "circle_radius": [t.circle_radius for t in it],
+            "phase": [t.phase for t in it],
+            "direction": [t.direction for t in it],
+            "t_ref": [t.t_ref for t in it],
+            "radius_growth": [t.radius_growth for t in it],
+        }
+        for name, values in cols.items():
+            object.__setattr__(self, name, _frozen(values))
+        object.__setattr__(self, "p0", _frozen([t.p0 for t in it], (3,)))
+        object.__setattr__(self, "p1", _frozen([t.p1 for t in it], (3,)))
+
+    def __len__(self) -> int:
+        return len(self.items)
+
+    @property
+    def max_speed(self) -> float:
+        """Fastest any threat moves (m/s); bounds how far one goes between two time samples."""
+        if not len(self):
+            return 0.0
+        track = np.linalg.norm(self.p1, axis=-1)
+        return float(np.max(np.where(self.kind == TRACK, track, self.speed)))
+
+    def positions(self, t: np.ndarray) -> np.ndarray:
+        """Threat centres at times ``t`` (any shape S, seconds) → (k, *S, 3) metres ENU.
+
+        Each law is computed only for the threats that follow it (one broadcast per kind, not per threat).
+        """
+        t = np.asarray(t, dtype=float)
+        out = np.empty((len(self), *t.shape, 3))
+        ex = (slice(None),) + (None,) * t.ndim  # broadcast threat axis over t's axes
+        kind = self.kind
+        i = np.flatnonzero(kind == LOITER)
+        if i.size:
+            r = self.circle_radius[i]
+            omega = self.direction[i] * self.speed[i] / np.where(r > 0, r, 1.0)
+            ang = self.phase[i][ex] + omega[ex] * t
+            out[i, ..., 0] = self.p0[i, 0][ex] + r[ex] * np.cos(ang)
+            out[i, ..., 1] = self.p0[i, 1][ex] + r[ex] * np.sin(ang)
+            out[i, ..., 2] = self.p0[i, 2][ex]
+        i = np.flatnonzero(kind == PATROL)
+        if i.size:  # triangle wave along A→B
+            ab = self.p1[i] - self.p0[i]
+            length = np.linalg.norm(ab, axis=-1)
+            safe_len = np.where(length > 0, length, 1.0)
+            s = np.mod(self.speed[i][ex] * t, 2 * safe_len[ex])
+            u = np.where(s <= safe_len[ex], s, 2 * safe_len[ex] - s)
+            out[i] = self.p0[i][ex] + (ab / safe_len[:, None])[ex] * u[..., None]
+        i = np.flatnonzero(kind == TRACK)
+        if i.size:  # constant velocity from t_ref
+            out[i] = self.p0[i][ex] + self.p1[i][ex] * (t - self.t_ref[i][ex])[..., None]
+        return out
+
+    def radii(self, t: np.ndarray) -> np.ndarray:
+        """Threat radii at times ``t`` → (k, *S); track uncertainty grows with prediction time."""
+        t = np.asarray(t, dtype=float)
+        ex = (slice(None),) + (None,) * t.ndim
+        grow = self.radius_growth[ex] * np.maximum(t - self.t_ref[ex], 0.0)
+        return self.radius[ex] + np.where(self.kind[ex] == TRACK, grow, 0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Environment:
+    """Everything static or scripted that a route must respect; ENU metres, origin at home (SPEC §1–2)."""
+
+    size_x: float  # bounds: x ∈ [0, size_x]
+    size_y: float  # y ∈ [0, size_y]
+    z_min: float  # altitude band above terrain
+    z_max: float
+    cylinders: Cylinders = field(default_factory=Cylinders.empty)
+    spheres: Spheres = field(default_factory=Spheres.empty)
+    radars: Radars = field(default_factory=Radars.empty)
+    terrain: Terrain | None = None
+    threats: Threats = field(default_factory=Threats)
+
+    def ground(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Ground height at (x, y); zero on flat terrain."""
+        if self.terrain is None:
+            return np.zeros(np.broadcast_shapes(np.shape(x), np.shape(y)))
+        return self.terrain.height_at(x, y)

@@ -1,0 +1,663 @@
+"""Scenario files (``sitl_scenarios/*.toml``) → validated, frozen :class:`Scenario` objects (SPEC §1, §8)."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import re
+import tomllib
+import typing
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Annotated, Any, Literal
+
+import numpy as np
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
+from typing_extensions import TypedDict
+
+from planner.world import dem
+from planner.world.config import HazardConfig, PlannerSettings, VehicleLimits
+from planner.world.home import Home
+from planner.world.environment import Cylinders, Environment, Radars, Spheres, Threat, Threats, radar_detection_range
+from planner.errors import ScenarioError
+from planner.world.terrain import Terrain
+
+
+@dataclass(frozen=True)
+class Intruder:
+    """A scripted aircraft for the simulated autopilot (reported as ADSB_VEHICLE; companion issue)."""
+
+    id: str
+    icao: int
+    waypoints: tuple[tuple[float, float, float], ...]  # ENU metres
+    speed: float  # m/s
+    start_time: float = 0.0  # s after mission start (unused with ``meet``)
+    radius: float = 50.0  # m, protected radius
+    meet: tuple[float, float, float] | None = None  # on its path; timed to be there as the vehicle passes
+
+
+@dataclass(frozen=True, eq=False)
+class Scenario:
+    name: str
+    source: Path
+    home: Home
+    environment: Environment
+    start: np.ndarray  # (3,) ENU metres
+    goal: np.ndarray  # (3,)
+    vehicle: VehicleLimits
+    hazard: HazardConfig
+    planner: PlannerSettings
+    intruders: tuple[Intruder, ...] = field(default=())
+    description: str = ""
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# Loader: TOML → pydantic (shape, types, ranges) → frozen dataclasses → cross-field checks. Format documented in
+# docs/scenario_format.md. Every user mistake leaves as ScenarioError(file, dotted.field, reason).
+# ---------------------------------------------------------------------------------------------------------------
+
+logger = logging.getLogger(__name__)
+
+TOLERANCE = 1e-6  # m, slack for bounds, altitude band and obstacle surfaces
+MAX_DRAWS = 1000  # redraws allowed per random obstacle before giving up
+_STRICT_FILE = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, frozen=True)
+
+
+def _ordered(pair: list[float]) -> list[float]:
+    if pair[0] > pair[1]:
+        raise ValueError(f"min ({pair[0]:g}) must not exceed max ({pair[1]:g})")
+    return pair
+
+
+_Positive = Annotated[float, Field(gt=0)]
+_NonNegative = Annotated[float, Field(ge=0)]
+_Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+_PositiveRange = Annotated[list[_Positive], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
+_HeightRange = Annotated[list[_NonNegative], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
+_Ident = Annotated[str, Field(min_length=1)]
+
+
+def _strict_table(cls: type) -> type:
+    """A TypedDict mirroring a config dataclass (all keys optional), so its table is checked strictly.
+
+    The dataclasses carry their own lax pydantic config; validating the raw table against this mirror first
+    rejects strings for numbers etc. with exact field paths, while every default stays in the dataclass.
+    """
+    hints = typing.get_type_hints(cls)
+    fields = {
+        f.name: _strict_table(hints[f.name]) if dataclasses.is_dataclass(hints[f.name]) else hints[f.name]
+        for f in dataclasses.fields(cls)
+    }
+    table = TypedDict(f"{cls.__name__}Table", fields, total=False)  # type: ignore[operator]
+    table.__pydantic_config__ = _STRICT_FILE  # type: ignore[attr-defined]
+    return table
+
+
+_VehicleTable = _strict_table(VehicleLimits)
+_HazardTable = _strict_table(HazardConfig)
+_PlannerTable = _strict_table(PlannerSettings)
+
+
+class _Table(BaseModel):
+    model_config = _STRICT_FILE
+
+
+class _Home(_Table):
+    lat: Annotated[float, Field(ge=-90, le=90)]
+    lon: Annotated[float, Field(ge=-180, le=180)]
+    alt: float
+
+
+class _Bounds(_Table):
+    x: _Positive
+    y: _Positive
+
+
+class _Altitude(_Table):
+    min: _NonNegative
+    max: _Positive  # min < max is checked in load_scenario, to name the field
+
+
+class _Route(_Table):
+    start: _Vec3
+    goal: _Vec3
+
+
+class _Cylinder(_Table):
+    x: float
+    y: float
+    radius: _Positive
+    top: _Positive | None = None  # None → unlimited
+    z_ref: float = 0.0  # drawing only
+
+
+class _Sphere(_Table):
+    x: float
+    y: float
+    z: float
+    radius: _Positive
+
+
+class _Hemisphere(_Table):
+    x: float
+    y: float
+    radius: _Positive
+
+
+RADAR_EQUATION = ("pt_w", "gain", "wavelength_m", "rcs_m2", "ts_k", "bn_hz", "loss", "snr_threshold")
+
+
+class _Radar(_Table):
+    x: float
+    y: float
+    z: float
+    soft_weight: _NonNegative = 1.0
+    r_det: _Positive | None = None
+    pt_w: _Positive | None = None
+    gain: _Positive | None = None
+    wavelength_m: _Positive | None = None
+    rcs_m2: _Positive | None = None
+    ts_k: _Positive | None = None
+    bn_hz: _Positive | None = None
+    loss: _Positive | None = None
+    snr_threshold: _Positive | None = None
+
+    @model_validator(mode="after")
+    def _one_range_source(self) -> "_Radar":
+        given = [n for n in RADAR_EQUATION if getattr(self, n) is not None]
+        if self.r_det is not None and given:
+            raise ValueError(f"give either r_det or the radar-equation parameters, not both (also got {given[0]})")
+        if self.r_det is None and len(given) < len(RADAR_EQUATION):
+            missing = [n for n in RADAR_EQUATION if n not in given]
+            raise ValueError(f"give r_det or all radar-equation parameters (missing {', '.join(missing)})")
+        return self
+
+    def detection_range(self) -> float:
+        """R_det in metres, given or from the radar equation."""
+        if self.r_det is not None:
+            return self.r_det
+        return radar_detection_range(**{n: getattr(self, n) for n in RADAR_EQUATION})
+
+
+class _RandomObstacles(_Table):
+    seed: Annotated[int, Field(ge=0)]
+    count: Annotated[int, Field(ge=0)]
+    kinds: Annotated[list[Literal["sphere", "cylinder", "hemisphere"]], Field(min_length=1)] = [
+        "sphere", "cylinder", "hemisphere"]
+    radius: _PositiveRange
+    height: _HeightRange  # sphere centre z; cylinder z_ref (drawing)
+    clearance: _NonNegative = 150.0
+
+
+class _FlatTerrain(_Table):
+    kind: Literal["none"]
+
+
+class _HillsTerrain(_Table):
+    kind: Literal["hills"]
+    seed: Annotated[int, Field(ge=0)]
+    count: Annotated[int, Field(ge=1)]
+    max_height: _Positive
+    sigma: _PositiveRange
+    spacing: _Positive = 25.0
+
+
+class _FileTerrain(_Table):
+    kind: Literal["file"]
+    path: _Ident
+    spacing: _Positive = 30.0  # resampling grid for .hgt; ESRI grids keep their own cellsize
+
+
+class _Loiter(_Table):
+    kind: Literal["loiter"]
+    id: _Ident
+    radius: _Positive
+    center: _Vec3
+    circle_radius: _Positive
+    speed: _Positive
+    phase_deg: float | None = None
+    direction: Literal["ccw", "cw"] | None = None
+
+    def to_threat(self) -> Threat:
+        optional: dict[str, float] = {}
+        if self.phase_deg is not None:
+            optional["phase"] = math.radians(self.phase_deg)
+        if self.direction is not None:
+            optional["direction"] = 1.0 if self.direction == "ccw" else -1.0
+        return Threat(self.id, "loiter", self.radius, tuple(self.center), speed=self.speed,
+                      circle_radius=self.circle_radius, **optional)
+
+
+class _Patrol(_Table):
+    kind: Literal["patrol"]
+    id: _Ident
+    radius: _Positive
+    a: _Vec3
+    b: _Vec3
+    speed: _Positive
+
+    def to_threat(self) -> Threat:
+        return Threat(self.id, "patrol", self.radius, tuple(self.a), tuple(self.b), speed=self.speed)
+
+
+class _Intruder(_Table):
+    id: _Ident
+    icao: Annotated[int, Field(ge=0, le=0xFFFFFF)]
+    waypoints: Annotated[list[_Vec3], Field(min_length=2)]
+    speed: _Positive
+    start_time: _NonNegative | None = None
+    radius: _Positive | None = None
+    meet: _Vec3 | None = None
+
+    def to_intruder(self) -> Intruder:
+        optional = self.model_dump(include={"start_time", "radius"}, exclude_none=True)
+        meet = {"meet": tuple(self.meet)} if self.meet is not None else {}
+        return Intruder(self.id, self.icao, tuple(tuple(w) for w in self.waypoints), self.speed, **optional, **meet)
+
+
+_TerrainTable = Annotated[_FlatTerrain | _HillsTerrain | _FileTerrain, Field(discriminator="kind")]
+_ThreatTable = Annotated[_Loiter | _Patrol, Field(discriminator="kind")]
+_UNION_TAGS = {"terrain": {"none", "hills", "file"}, "threats": {"loiter", "patrol"}}
+
+
+class _ScenarioFile(_Table):
+    name: _Ident | None = None
+    description: str | None = None
+    home: _Home
+    bounds: _Bounds
+    altitude: _Altitude
+    route: _Route
+    vehicle: _VehicleTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    hazard: _HazardTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    planner: _PlannerTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    cylinders: list[_Cylinder] = []
+    spheres: list[_Sphere] = []
+    hemispheres: list[_Hemisphere] = []
+    radars: list[_Radar] = []
+    random_obstacles: _RandomObstacles | None = None
+    terrain: _TerrainTable | None = None
+    threats: list[_ThreatTable] = []
+    intruders: list[_Intruder] = []
+
+
+def _field_path(loc: tuple[int | str, ...]) -> str:
+    """Pydantic ``loc`` → ``cylinders[2].radius`` (discriminator tags dropped)."""
+    out = ""
+    for i, item in enumerate(loc):
+        if isinstance(item, int):
+            out += f"[{item}]"
+        elif i > 0 and item in _UNION_TAGS.get(str(loc[0]), ()) and (i == 1 or isinstance(loc[i - 1], int)):
+            continue
+        else:
+            name = str(item)
+            if not re.fullmatch(r"[A-Za-z0-9_-]+", name):  # a key TOML would have to quote: quote it, one line
+                name = json.dumps(name)
+            out += f".{name}" if out else name
+    return out
+
+
+def _reason(error: Mapping[str, Any]) -> str:
+    """One short line for a pydantic error."""
+    kind = error["type"]
+    if kind in ("extra_forbidden", "unexpected_keyword_argument"):
+        return "unknown key (not part of the scenario format; check the spelling)"
+    if kind == "missing":
+        return "required key is missing"
+    msg = str(error["msg"]).removeprefix("Value error, ")
+    value = error.get("input")
+    if kind.endswith("_type") and isinstance(value, (str, int, float, bool)):
+        msg += f" (got {type(value).__name__} {value!r})"
+    return " ".join(msg.split())
+
+
+def _from_validation_error(file: str, exc: ValidationError, prefix: tuple[int | str, ...] = ()) -> ScenarioError:
+    first = exc.errors()[0]
+    if len(exc.errors()) > 1:
+        logger.debug("%s: %d validation errors, reporting the first", file, len(exc.errors()))
+    return ScenarioError(file, _field_path(prefix + tuple(first["loc"])), _reason(first))
+
+
+# --- overrides -------------------------------------------------------------------------------------------------
+
+_KEY_STEP = re.compile(r"([A-Za-z0-9_-]+)(?:\[(\d+)\])?")
+
+
+def _parse_override(text: str) -> tuple[list[str | int], Any]:
+    """``"planner.pso.n_pop=100"`` → (["planner", "pso", "n_pop"], 100); the value is read as a TOML value."""
+    key, sep, value_text = text.partition("=")
+    if not sep or not key.strip():
+        raise ValueError(f"expected KEY=VALUE, got {text!r}")
+    steps: list[str | int] = []
+    for part in key.strip().split("."):
+        match = _KEY_STEP.fullmatch(part.strip())
+        if match is None:
+            raise ValueError(f"bad key {key.strip()!r} in {text!r} (use section.key or list[index].key)")
+        steps.append(match[1])
+        if match[2] is not None:
+            steps.append(int(match[2]))
+    value_text = value_text.strip()
+    if not value_text or "\n" in value_text:
+        raise ValueError(f"missing or multi-line value in {text!r}")
+    try:
+        value = tomllib.loads(f"v = {value_text}")["v"]
+    except tomllib.TOMLDecodeError:
+        value = value_text  # a bare word, e.g. vehicle.type=copter
+    return steps, value
+
+
+def _apply_override(raw: dict[str, Any], text: str) -> None:
+    """Set one ``KEY=VALUE`` in the raw TOML dict, creating missing tables."""
+    steps, value = _parse_override(text)
+    node: Any = raw
+    for depth, (step, nxt) in enumerate(zip(steps[:-1], steps[1:])):
+        where = ".".join(str(s) for s in steps[: depth + 1])
+        if isinstance(step, str):
+            if not isinstance(node, dict):
+                raise ValueError(f"{where} is not a table in {text!r}")
+            if step not in node and isinstance(nxt, str):
+                node[step] = {}
+            if step not in node:
+                raise ValueError(f"{where} does not exist in {text!r}")
+            node = node[step]
+        else:
+            if not isinstance(node, list) or not -len(node) <= step < len(node):
+                raise ValueError(f"index {step} out of range in {text!r}")
+            node = node[step]
+    last = steps[-1]
+    if isinstance(last, str) and isinstance(node, dict):
+        node[last] = value
+    elif isinstance(last, int) and isinstance(node, list) and -len(node) <= last < len(node):
+        node[last] = value
+    else:
+        raise ValueError(f"cannot set {steps[-1]!r} in {text!r}: parent is not a table or index out of range")
+
+
+# --- building --------------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Obstacles:
+    """Obstacle columns being assembled, with a human label per entry for error messages."""
+
+    cyl: list[tuple[float, float, float, float, float]] = field(default_factory=list)  # x, y, r, top, z_ref
+    cyl_labels: list[str] = field(default_factory=list)
+    sph: list[tuple[float, float, float, float]] = field(default_factory=list)  # x, y, z, r
+    sph_labels: list[str] = field(default_factory=list)
+
+
+def _random_obstacles(
+    spec: _RandomObstacles, size: tuple[float, float], keep_clear: np.ndarray, obstacles: _Obstacles, file: str,
+) -> None:
+    """Append ``spec.count`` seeded obstacles, redrawing any closer than ``clearance`` to ``keep_clear`` (k, 3) m."""
+    rng = np.random.default_rng(spec.seed)
+    for i in range(spec.count):
+        kind = spec.kinds[int(rng.integers(len(spec.kinds)))]
+        for _ in range(MAX_DRAWS):
+            x, y = rng.uniform(0.0, size[0]), rng.uniform(0.0, size[1])
+            r, h = rng.uniform(*spec.radius), rng.uniform(*spec.height)
+            z = h if kind == "sphere" else 0.0
+            if kind == "cylinder":
+                gap = np.hypot(keep_clear[:, 0] - x, keep_clear[:, 1] - y) - r
+            else:
+                gap = np.linalg.norm(keep_clear - (x, y, z), axis=1) - r
+            if gap.min() >= spec.clearance:
+                break
+        else:
+            raise ScenarioError(file, "random_obstacles", f"could not place obstacle {i} {spec.clearance:g} m clear "
+                                f"of start and goal in {MAX_DRAWS} draws; lower clearance, radius or count")
+        label = f"random_obstacles #{i} ({kind} x={x:.0f}, y={y:.0f}, r={r:.0f})"
+        if kind == "cylinder":
+            obstacles.cyl.append((x, y, r, math.inf, h))
+            obstacles.cyl_labels.append(label)
+        else:
+            obstacles.sph.append((x, y, z, r))
+            obstacles.sph_labels.append(label)
+
+
+def _build_terrain(spec: _FlatTerrain | _HillsTerrain | _FileTerrain | None, bounds: _Bounds, home: Home,
+                   source: Path, file: str) -> Terrain | None:
+    """The scenario's DEM in metres above home, or None for flat ground."""
+    if spec is None or isinstance(spec, _FlatTerrain):
+        return None
+    if isinstance(spec, _HillsTerrain):
+        try:
+            return dem.synthetic_hills(bounds.x, bounds.y, np.random.default_rng(spec.seed), spec.count,
+                                       spec.max_height, (spec.sigma[0], spec.sigma[1]), spec.spacing)
+        except ValueError as exc:
+            raise ScenarioError(file, "terrain", str(exc)) from exc
+    dem_path = Path(spec.path)
+    if not dem_path.is_absolute():
+        dem_path = source.parent / dem_path
+    try:
+        if dem_path.suffix.lower() == ".hgt":
+            terrain = dem.read_hgt(dem_path, home, bounds.x, bounds.y, spec.spacing)
+        elif dem_path.suffix.lower() in (".asc", ".txt"):
+            terrain = dem.read_esri_ascii(dem_path, home)
+        else:
+            raise ValueError(f"{dem_path.name}: unknown DEM format (use an SRTM .hgt or an ESRI ASCII .asc file)")
+    except ValueError as exc:
+        raise ScenarioError(file, "terrain.path", str(exc)) from exc
+    ny, nx = terrain.heights.shape
+    x1, y1 = terrain.x0 + (nx - 1) * terrain.dx, terrain.y0 + (ny - 1) * terrain.dy
+    if terrain.x0 > 0 or terrain.y0 > 0 or x1 < bounds.x or y1 < bounds.y:
+        logger.warning("%s: terrain grid [%g, %g]×[%g, %g] m does not cover the bounds; edge heights extend",
+                       file, terrain.x0, x1, terrain.y0, y1)
+    return terrain
+
+
+MIN_ROUTE_LENGTH = 10.0  # m between start and goal
+# Caps that keep a typo in --set from asking for gigabytes: far above any real use on a companion computer.
+MAX_POPULATION = 20_000
+MAX_WAYPOINTS = 200
+MAX_ITERATIONS = 100_000
+
+
+def _check_configs(file: str, vehicle: VehicleLimits, hazard: HazardConfig, planner: PlannerSettings) -> None:
+    """Range checks the config dataclasses do not make themselves."""
+    pso = planner.pso
+    checks: list[tuple[str, float, bool, str]] = [
+        ("vehicle.cruise_speed", vehicle.cruise_speed, vehicle.cruise_speed > 0, "must be > 0 m/s"),
+        ("vehicle.max_bank_deg", vehicle.max_bank_deg, 0 < vehicle.max_bank_deg < 90, "must be in (0, 90) deg"),
+        ("vehicle.max_climb_deg", vehicle.max_climb_deg, 0 < vehicle.max_climb_deg < 90, "must be in (0, 90) deg"),
+        ("vehicle.max_turn_deg", vehicle.max_turn_deg, 0 < vehicle.max_turn_deg <= 180, "must be in (0, 180] deg"),
+        ("vehicle.takeoff_alt", vehicle.takeoff_alt, vehicle.takeoff_alt > 0, "must be > 0 m"),
+        ("vehicle.acceptance_radius", vehicle.acceptance_radius, vehicle.acceptance_radius > 0, "must be > 0 m"),
+        ("hazard.d_coll", hazard.d_coll, hazard.d_coll >= 0, "must be >= 0 m"),
+        ("hazard.d_safe", hazard.d_safe, hazard.d_safe > 0 and hazard.d_safe >= hazard.d_coll,
+         f"must be > 0 and >= d_coll ({hazard.d_coll:g} m)"),
+        ("planner.seed", planner.seed, planner.seed >= 0, "must be >= 0"),
+        ("planner.sample_spacing", planner.sample_spacing, 0.1 <= planner.sample_spacing <= 1000,
+         "must be in [0.1, 1000] m"),
+        ("planner.pso.n_pop", pso.n_pop, pso.n_pop <= MAX_POPULATION, f"must be <= {MAX_POPULATION}"),
+        ("planner.pso.n_waypoints", pso.n_waypoints, pso.n_waypoints <= MAX_WAYPOINTS, f"must be <= {MAX_WAYPOINTS}"),
+        ("planner.pso.max_iter", pso.max_iter, pso.max_iter <= MAX_ITERATIONS, f"must be <= {MAX_ITERATIONS}"),
+        ("planner.pso.w_damp", pso.w_damp, 0 < pso.w_damp <= 1, "must be in (0, 1]"),
+        ("planner.pso.w0", pso.w0, pso.w0 <= 10, "must be <= 10"),
+        ("planner.pso.velocity_limit", pso.velocity_limit, pso.velocity_limit > 0, "must be > 0"),
+        ("planner.pso.w_min", pso.w_min, 0 <= pso.w_min <= pso.w_max, f"must be in [0, w_max={pso.w_max:g}]"),
+        ("planner.pso.psi_max_deg", pso.psi_max_deg, 0 < pso.psi_max_deg <= 90, "must be in (0, 90] deg"),
+        ("planner.pso.cone_half_deg", pso.cone_half_deg, 0 < pso.cone_half_deg <= 180, "must be in (0, 180] deg"),
+    ]
+    aco, bpso = planner.aco, planner.bpso
+    checks += [
+        ("planner.aco.n_ants", aco.n_ants, 1 <= aco.n_ants <= MAX_POPULATION, f"must be in [1, {MAX_POPULATION}]"),
+        ("planner.aco.max_iter", aco.max_iter, 1 <= aco.max_iter <= MAX_ITERATIONS,
+         f"must be in [1, {MAX_ITERATIONS}]"),
+        ("planner.aco.stagnation_iters", aco.stagnation_iters, aco.stagnation_iters >= 1, "must be >= 1"),
+        ("planner.aco.rho", aco.rho, 0 < aco.rho < 1, "must be in (0, 1)"),
+        ("planner.aco.tau0", aco.tau0, aco.tau0 > 0, "must be > 0"),
+        ("planner.aco.sigma", aco.sigma, aco.sigma > 0, "must be > 0 m"),
+        ("planner.aco.tau_min", aco.tau_min, 0 < aco.tau_min <= aco.tau_max, f"must be in (0, tau_max={aco.tau_max:g}]"),
+        ("planner.aco.w_end", aco.w_end, 0 < aco.w_end <= 1, "must be in (0, 1]"),
+        ("planner.aco.lattice_growth", aco.lattice_growth, 1 <= aco.lattice_growth <= 10, "must be in [1, 10]"),
+        ("planner.aco.cross_step", aco.cross_step, aco.cross_step > 0, "must be > 0 m"),
+        ("planner.aco.vert_step", aco.vert_step, aco.vert_step > 0, "must be > 0 m"),
+        ("planner.aco.cross_half", aco.cross_half, 0 <= aco.cross_half <= 20, "must be in [0, 20]"),
+        ("planner.aco.vert_half", aco.vert_half, 0 <= aco.vert_half <= 10, "must be in [0, 10]"),
+        ("planner.aco.smooth_floor", aco.smooth_floor, 0 < aco.smooth_floor <= 1, "must be in (0, 1]"),
+        ("planner.aco.budget_share", aco.budget_share, 0 <= aco.budget_share < 1, "must be in [0, 1)"),
+        ("planner.qpso.beta_end", planner.qpso.beta_end, planner.qpso.beta_end > 0, "must be > 0"),
+        ("planner.bpso.bits_cross", bpso.bits_cross, 1 <= bpso.bits_cross <= 10, "must be in [1, 10]"),
+        ("planner.bpso.bits_alt", bpso.bits_alt, 1 <= bpso.bits_alt <= 10, "must be in [1, 10]"),
+        ("planner.bpso.corridor_frac", bpso.corridor_frac, 0 < bpso.corridor_frac <= 2, "must be in (0, 2]"),
+        ("planner.bpso.v_max", bpso.v_max, bpso.v_max > 0, "must be > 0"),
+    ]
+    for group, obj in (("planner.weights", planner.weights), ("planner.penalty", planner.penalty),
+                       ("planner.pso", {"c1": pso.c1, "c2": pso.c2, "w0": pso.w0, "w_damp": pso.w_damp}),
+                       ("planner.aco", {"alpha": aco.alpha, "beta": aco.beta, "gamma": aco.gamma, "c1": aco.c1,
+                                        "c2": aco.c2, "amplitude": aco.amplitude, "hard_boost": aco.hard_boost,
+                                        "deposit": aco.deposit}),
+                       ("planner.qpso", planner.qpso), ("planner.psogsa", planner.psogsa)):
+        values = obj if isinstance(obj, dict) else dataclasses.asdict(obj)
+        checks += [(f"{group}.{k}", v, v >= 0, "must be >= 0") for k, v in values.items()]
+    for path, value, ok, reason in checks:
+        if not ok:
+            raise ScenarioError(file, path, f"{value:g} {reason}")
+
+
+def _check_point(file: str, name: str, p: np.ndarray, env: Environment, obstacles: _Obstacles,
+                 radar_labels: list[str]) -> None:
+    """A route end must lie inside the bounds, inside the altitude band over terrain and outside every obstacle."""
+    field_name = f"route.{name}"
+    x, y, z = (float(v) for v in p)
+    for axis, value, size in (("x", x, env.size_x), ("y", y, env.size_y)):
+        if not -TOLERANCE <= value <= size + TOLERANCE:
+            raise ScenarioError(file, field_name, f"{axis}={value:g} outside bounds [0, {size:g}] m")
+    above = z - float(env.ground(x, y))
+    if not env.z_min - TOLERANCE <= above <= env.z_max + TOLERANCE:
+        raise ScenarioError(file, field_name, f"z={z:g} m is {above:.1f} m above terrain, outside the altitude "
+                            f"band [{env.z_min:g}, {env.z_max:g}] m")
+    cyl, sph, rad = env.cylinders, env.spheres, env.radars
+    hits = (
+        ((np.hypot(cyl.x - x, cyl.y - y) < cyl.radius - TOLERANCE) & (z < cyl.top), obstacles.cyl_labels),
+        (np.linalg.norm(sph.center - p, axis=1) < sph.radius - TOLERANCE, obstacles.sph_labels),
+        (np.linalg.norm(rad.center - p, axis=1) < rad.r_det - TOLERANCE, radar_labels),
+    )
+    for inside, labels in hits:
+        if np.any(inside):
+            raise ScenarioError(file, field_name, f"inside {labels[int(np.flatnonzero(inside)[0])]}")
+
+
+MEET_TOLERANCE_M = 1.0  # an intruder's meet point must lie this close to its path
+
+
+def _check_meet_points(file: str, spec: _ScenarioFile) -> None:
+    """An intruder timed by ``meet`` has no ``start_time``, and ``meet`` lies on its path."""
+    for i, it in enumerate(spec.intruders):
+        if it.meet is None:
+            continue
+        if it.start_time is not None:
+            raise ScenarioError(file, f"intruders[{i}].start_time", "give start_time or meet, not both")
+        pts, m = np.asarray(it.waypoints, dtype=float), np.asarray(it.meet, dtype=float)
+        a, ab = pts[:-1], np.diff(pts, axis=0)
+        u = np.clip(np.einsum("ij,ij->i", m - a, ab) / np.maximum(np.einsum("ij,ij->i", ab, ab), 1e-12), 0, 1)
+        off = float(np.min(np.linalg.norm(a + u[:, None] * ab - m, axis=1)))
+        if off > MEET_TOLERANCE_M:
+            raise ScenarioError(file, f"intruders[{i}].meet", f"must lie on the intruder's path ({off:.1f} m off it)")
+
+
+def _check_unique_ids(file: str, spec: _ScenarioFile) -> None:
+    """Threat and intruder ids share one namespace (the companion tracks both by id)."""
+    seen: dict[str, str] = {}
+    entries = [(f"threats[{i}].id", t.id) for i, t in enumerate(spec.threats)]
+    entries += [(f"intruders[{i}].id", t.id) for i, t in enumerate(spec.intruders)]
+    for where, ident in entries:
+        if ident in seen:
+            raise ScenarioError(file, where, f"duplicate id {ident!r} (also {seen[ident]})")
+        seen[ident] = where.removesuffix(".id")
+
+
+def _read_toml(path: Path, file: str) -> dict[str, Any]:
+    try:
+        with path.open("rb") as fh:
+            return tomllib.load(fh)
+    except FileNotFoundError:
+        raise ScenarioError(file, "", "file not found") from None
+    except tomllib.TOMLDecodeError as exc:
+        raise ScenarioError(file, "", f"malformed TOML: {exc}") from exc
+    except UnicodeDecodeError as exc:
+        raise ScenarioError(file, "", f"not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
+    except OSError as exc:
+        raise ScenarioError(file, "", f"cannot read file: {exc.strerror or exc}") from exc
+
+
+def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
+    """Read, validate and build a scenario; ``overrides`` are ``section.key=value`` strings applied before checks.
+
+    Raises :class:`ScenarioError` (``FILE: FIELD: REASON``) for every problem in the file or an override.
+    """
+    path = Path(path)
+    file = str(path)
+    raw = _read_toml(path, file)
+    for text in overrides:
+        try:
+            _apply_override(raw, text)
+        except ValueError as exc:
+            raise ScenarioError(file, "--set", str(exc)) from exc
+    try:
+        spec = _ScenarioFile.model_validate(raw)
+    except ValidationError as exc:
+        raise _from_validation_error(file, exc) from exc
+    sections: dict[str, Any] = {}
+    for key, cls in (("vehicle", VehicleLimits), ("hazard", HazardConfig), ("planner", PlannerSettings)):
+        try:
+            sections[key] = TypeAdapter(cls).validate_python(getattr(spec, key))
+        except ValidationError as exc:
+            raise _from_validation_error(file, exc, (key,)) from exc
+    vehicle, hazard, planner = sections["vehicle"], sections["hazard"], sections["planner"]
+    _check_configs(file, vehicle, hazard, planner)
+    if spec.altitude.min >= spec.altitude.max:
+        raise ScenarioError(file, "altitude.min", f"{spec.altitude.min:g} m must be below altitude.max "
+                            f"({spec.altitude.max:g} m)")
+    _check_unique_ids(file, spec)
+    _check_meet_points(file, spec)
+
+    start = np.array(spec.route.start, dtype=float)
+    goal = np.array(spec.route.goal, dtype=float)
+    if np.linalg.norm(goal - start) < MIN_ROUTE_LENGTH:
+        raise ScenarioError(file, "route.goal", f"must be at least {MIN_ROUTE_LENGTH:g} m from route.start")
+    home = Home(spec.home.lat, spec.home.lon, spec.home.alt)
+    obstacles = _Obstacles()
+    for i, c in enumerate(spec.cylinders):
+        obstacles.cyl.append((c.x, c.y, c.radius, math.inf if c.top is None else c.top, c.z_ref))
+        obstacles.cyl_labels.append(f"cylinders[{i}] (x={c.x:g}, y={c.y:g}, r={c.radius:g})")
+    for i, s in enumerate(spec.spheres):
+        obstacles.sph.append((s.x, s.y, s.z, s.radius))
+        obstacles.sph_labels.append(f"spheres[{i}] (x={s.x:g}, y={s.y:g}, z={s.z:g}, r={s.radius:g})")
+    for i, h in enumerate(spec.hemispheres):
+        obstacles.sph.append((h.x, h.y, 0.0, h.radius))
+        obstacles.sph_labels.append(f"hemispheres[{i}] (x={h.x:g}, y={h.y:g}, r={h.radius:g})")
+    if spec.random_obstacles is not None:
+        _random_obstacles(spec.random_obstacles, (spec.bounds.x, spec.bounds.y), np.stack([start, goal]),
+                          obstacles, file)
+    r_det = [r.detection_range() for r in spec.radars]
+    radar_labels = [f"radars[{i}] detection range (x={r.x:g}, y={r.y:g}, z={r.z:g}, r_det={d:.0f})"
+                    for i, (r, d) in enumerate(zip(spec.radars, r_det))]
+
+    cyl = np.array(obstacles.cyl, dtype=float).reshape(-1, 5)
+    sph = np.array(obstacles.sph, dtype=float).reshape(-1, 4)
+    environment = Environment(
+        size_x=spec.bounds.x, size_y=spec.bounds.y, z_min=spec.altitude.min, z_max=spec.altitude.max,
+        cylinders=Cylinders(cyl[:, 0], cyl[:, 1], cyl[:, 2], cyl[:, 3], cyl[:, 4]),
+        spheres=Spheres(sph[:, :3], sph[:, 3]),
+        radars=Radars([(r.x, r.y, r.z) for r in spec.radars], r_det, [r.soft_weight for r in spec.radars]),
+        terrain=_build_terrain(spec.terrain, spec.bounds, home, path, file),
+        threats=Threats(tuple(t.to_threat() for t in spec.threats)),
+    )
+    for name, point in (("start", start), ("goal", goal)):
+        _check_point(file, name, point, environment, obstacles, radar_labels)
+    start.setflags(write=False)
+    goal.setflags(write=False)
+    optional = {"description": spec.description} if spec.description is not None else {}
+    scenario = Scenario(
+        name=spec.name or path.stem, source=path, home=home, environment=environment, start=start, goal=goal,
+        vehicle=vehicle, hazard=hazard, planner=planner,
+        intruders=tuple(i.to_intruder() for i in spec.intruders), **optional,
+    )
+    logger.info("loaded scenario %s from %s: %d cylinders, %d spheres, %d radars, %d threats, %d intruders",
+                scenario.name, file, len(environment.cylinders), len(environment.spheres), len(environment.radars),
+                len(environment.threats), len(scenario.intruders))
+    return scenario

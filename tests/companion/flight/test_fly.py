@@ -1,0 +1,157 @@
+"""`fuseplan fly --sim`, `demo`, `sim` and `export` end to end over real UDP sockets on 127.0.0.1."""
+
+from __future__ import annotations
+
+import json
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import pytest
+from pymavlink import mavutil, mavwp
+
+from companion.cli import main
+
+ROOT = Path(__file__).resolve().parents[3]
+STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
+FAST = ["--set", "planner.pso.n_pop=200", "--set", "planner.pso.max_iter=80"]
+
+
+def _flight(report: Path) -> dict:
+    return json.loads((report / "flight.json").read_text())
+
+
+def test_fly_sim_completes_and_writes_the_report(tmp_path) -> None:
+    report = tmp_path / "rep"
+    code = main(["fly", str(STATIC), "--sim", "--speedup", "20", "--report", str(report), "-q", *FAST])
+    assert code == 0
+    for name in ("PLAN.json", "mission.waypoints", "mission.plan", "mission.geojson", "events.jsonl",
+                 "flight.json", "track.png"):
+        assert (report / name).stat().st_size > 0, name
+    fl = _flight(report)
+    assert fl["completed"] is True
+    assert fl["upload_s"] > 0 and fl["autopilot"] == "ardupilot"
+    assert fl["min_clearance_m"] >= fl["d_coll_m"]  # the flown (truth) track kept clear
+    n_wp = len(json.loads((report / "PLAN.json").read_text())["waypoints"])
+    assert len(fl["items_reached"]) >= n_wp - 1  # every route waypoint after the start
+    events = [json.loads(line)["event"] for line in (report / "events.jsonl").read_text().splitlines()]
+    order = [events.index(e) for e in ("connected", "upload_verified", "ready", "armed", "mission_start", "finished")]
+    assert order == sorted(order)
+    loaded = mavwp.MAVWPLoader()
+    assert loaded.load(str(report / "mission.waypoints")) == fl["mission_items"]
+
+
+def test_fly_sim_with_30_percent_loss_still_completes(tmp_path) -> None:
+    report = tmp_path / "lossy"
+    code = main(["fly", str(STATIC), "--sim", "--speedup", "20", "--sim-loss", "0.3", "--report", str(report),
+                 "-q", *FAST])
+    assert code == 0
+    assert _flight(report)["completed"] is True
+
+
+def test_fly_copter_scenario_on_sim(tmp_path) -> None:
+    report = tmp_path / "copter"
+    code = main(["fly", str(ROOT / "sitl_scenarios" / "mountain_rescue.toml"), "--sim", "--speedup", "30",
+                 "--report", str(report), "-q", *FAST])
+    assert code == 0
+    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    modes = [e["mode"] for e in events if e["event"] == "mode"]
+    assert modes == ["GUIDED", "AUTO"]  # a copter will not arm in AUTO
+    assert _flight(report)["completed"] is True
+
+
+def test_fly_infeasible_plan_exits_3_without_flying(tmp_path, capsys) -> None:
+    report = tmp_path / "no"
+    code = main(["fly", str(STATIC), "--sim", "--report", str(report), "-q", "--set", "hazard.d_coll=60",
+                 "--set", "hazard.d_safe=80", "--set", "planner.pso.n_pop=30", "--set", "planner.pso.max_iter=5",
+                 "--algorithm", "spso"])
+    assert code == 3
+    assert (report / "PLAN.json").exists() and not (report / "flight.json").exists()
+
+
+def test_fly_unreachable_autopilot_exits_4(tmp_path, capsys) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:  # a port nobody answers on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    code = main(["fly", str(STATIC), "--connect", f"udpout:127.0.0.1:{port}", "--report", str(tmp_path / "r"),
+                 "-q", *FAST])
+    assert code == 4
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("fuseplan: error:")
+
+
+def test_fly_refused_item_exits_4_with_one_line_and_the_previous_mission_restored(tmp_path, capsys) -> None:
+    """`fuseplan fly --connect` to an autopilot (our simulator, in its own thread) that refuses item 4 of the
+    upload: exit 4, one line naming the item, the autopilot's answer and what the vehicle was left with."""
+    import asyncio
+    import threading
+
+    from companion.sim import SimAutopilot
+    from planner.world.scenario import load_scenario
+
+    ready, stop, port, left = threading.Event(), threading.Event(), [0], []
+
+    async def autopilot() -> None:
+        async with SimAutopilot(load_scenario(STATIC), "udpin:127.0.0.1:0", speedup=20.0) as sim:
+            sim.inject_item_refusal(4)
+            port[0] = sim.port
+            ready.set()
+            while not stop.is_set():
+                await asyncio.sleep(0.05)
+            left.append((sim.mission, sim.refusals, sim.armed))
+
+    thread = threading.Thread(target=asyncio.run, args=(autopilot(),), name="sim")
+    thread.start()
+    try:
+        assert ready.wait(10.0)
+        report = tmp_path / "r"
+        code = main(["fly", str(STATIC), "--connect", f"udpout:127.0.0.1:{port[0]}", "--report", str(report),
+                     "-q", *FAST])
+    finally:
+        stop.set()
+        thread.join(10.0)
+    mission, refusals, armed = left[0]
+    assert code == 4
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1, err
+    assert err[0].startswith("fuseplan: error: mission upload refused at item 4: MAV_MISSION_ERROR; ")
+    assert "previous verified mission (1 item) was restored" in err[0]  # the simulator had home only
+    assert [it.seq for it, _ in refusals] == [4] and len(refusals[0][1]) > 1  # items 1-3 had been written
+    assert len(mission) == 1 and not armed  # back to the empty mission it had (home only), never started
+    fl = _flight(report)
+    assert fl["completed"] is False and "refused at item 4" in fl["reason"]
+    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    assert [e["which"] for e in events if e["event"] == "mission_restored"] == ["previous"]
+
+
+def test_sim_command_serves_heartbeats(tmp_path) -> None:
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "sim", str(STATIC), "--listen",
+                             f"udpin:127.0.0.1:{port}", "--speedup", "5"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    conn = mavutil.mavlink_connection(f"udpout:127.0.0.1:{port}", source_system=1, source_component=191)
+    try:
+        deadline = time.monotonic() + 20
+        hb = None
+        while hb is None and time.monotonic() < deadline:
+            conn.mav.heartbeat_send(18, 8, 0, 0, 4)  # let the sim learn our address
+            hb = conn.recv_match(type="HEARTBEAT", blocking=True, timeout=1.0)
+        assert hb is not None and hb.type == mavutil.mavlink.MAV_TYPE_FIXED_WING
+        assert hb.autopilot == mavutil.mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+    finally:
+        conn.close()
+        proc.terminate()
+        proc.communicate(timeout=10)
+
+
+@pytest.mark.parametrize("fmt,suffix", [("waypoints", ".waypoints"), ("plan", ".plan"), ("geojson", ".geojson")])
+def test_export_command(tmp_path, fmt, suffix, capsys) -> None:
+    out = tmp_path / f"m{suffix}"
+    assert main(["export", str(STATIC), "--format", fmt, "-o", str(out), *FAST]) == 0
+    assert out.stat().st_size > 0
+    if fmt != "waypoints":
+        json.loads(out.read_text())

@@ -1,0 +1,140 @@
+"""The pure part of live replanning: clock, mission route, commit point, splice, warm starts, separations."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.mission.builder import MissionSpec, build_mission, time_to_start
+from companion.mavlink.items import compare_items
+from companion.replanning.replan import MissionRoute, VehicleClock, commit_point, replan_problem, splice, warm_starts
+from companion.replanning.separation import min_separations, separation_to_law, separation_to_track
+from planner.world.environment import Threat, Threats
+from planner.world.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[3]
+SC = load_scenario(ROOT / "sitl_scenarios" / "rescue_dynamic.toml")
+ROUTE = np.array([[200.0, 200, 50], [300, 200, 60], [300, 400, 80], [500, 400, 100], [800, 800, 150]])
+
+
+def _spec() -> MissionSpec:
+    return MissionSpec("ardupilot", SC.vehicle, SC.home)
+
+
+def _items() -> list:
+    return build_mission(ROUTE, _spec())
+
+
+def test_vehicle_clock_extrapolates_with_a_given_or_measured_rate() -> None:
+    c = VehicleClock(rate=20.0)
+    assert not c.synced and c.now(5.0) == 0.0
+    c.observe(10_000, wall=100.0)
+    assert c.now(100.5) == pytest.approx(20.0)  # 10 s + 0.5 wall s × 20
+    m = VehicleClock()
+    m.observe(0, 0.0)
+    m.observe(4_000, 2.0)  # 4 vehicle s in 2 wall s
+    assert m.rate == pytest.approx(2.0)
+    assert m.now(3.0) == pytest.approx(6.0)
+    m.observe(1_000, 3.0)  # reboot: time went backwards, measurement restarts
+    assert m.rate == 1.0
+
+
+def test_mission_route_reads_the_waypoints_back_from_items() -> None:
+    items = _items()
+    r = MissionRoute.of(items, SC.home)
+    assert np.allclose(r.points, ROUTE, atol=0.05)  # 1e-7 deg ≈ 1 cm
+    assert r.goal_seq == max(it.seq for it in items if it.command == 16)
+    route, seqs = r.remaining(np.array([250.0, 200, 55]), int(r.seqs[1]))
+    assert np.allclose(route[0], [250, 200, 55]) and seqs[0] == -1
+    assert np.allclose(route[1:], ROUTE[1:], atol=0.05) and list(seqs[1:]) == list(r.seqs[1:])
+
+
+def test_commit_point_on_the_current_leg_replaces_the_active_item() -> None:
+    r = MissionRoute.of(_items(), SC.home)
+    here = np.array([250.0, 200, 55])
+    route, seqs = r.remaining(here, int(r.seqs[1]))
+    cp = commit_point(route, seqs, int(r.seqs[1]), lead_m=30.0, speed=18.0, t_now=100.0)
+    leg = ROUTE[1] - here  # 30 m along the 3-D leg being flown
+    assert np.allclose(cp.point, here + 30.0 * leg / np.linalg.norm(leg), atol=0.05)
+    assert cp.first_new_seq == r.seqs[1]  # the active item's slot gets the commit point
+    assert cp.t == pytest.approx(100 + 30 / 18)
+    assert np.allclose(cp.old_tail[0], cp.point) and np.allclose(cp.old_tail[1:], ROUTE[1:], atol=0.05)
+
+
+def test_commit_point_beyond_the_active_waypoint_keeps_the_waypoints_before_it() -> None:
+    r = MissionRoute.of(_items(), SC.home)
+    here = np.array([250.0, 200, 55])
+    route, seqs = r.remaining(here, int(r.seqs[1]))
+    first_leg = np.linalg.norm(ROUTE[1] - here)
+    cp = commit_point(route, seqs, int(r.seqs[1]), lead_m=first_leg + 100.0, speed=18.0, t_now=0.0)
+    leg = ROUTE[2] - ROUTE[1]  # 100 m up the second leg
+    assert np.allclose(cp.point, ROUTE[1] + 100.0 * leg / np.linalg.norm(leg), atol=0.05)
+    assert cp.first_new_seq == r.seqs[2]  # waypoint seqs[1] (300, 200) is kept and flown first
+    far = commit_point(route, seqs, int(r.seqs[1]), lead_m=1e6, speed=18.0, t_now=0.0)
+    assert far.lead_m < np.sum(np.linalg.norm(np.diff(route, axis=0), axis=1))  # kept short of the goal
+
+
+def test_splice_keeps_the_prefix_and_the_end_action() -> None:
+    items = _items()
+    r = MissionRoute.of(items, SC.home)
+    first = int(r.seqs[2])
+    new_route = np.array([[300.0, 300, 70], [450, 300, 90], [600, 700, 130], [800, 800, 150]])
+    out = splice(items, first, new_route, r.goal_seq, _spec())
+    assert [it.seq for it in out] == list(range(len(out)))
+    assert all(compare_items(a, b) is None for a, b in zip(items[:first], out[:first]))
+    assert np.allclose(MissionRoute.of(out, SC.home).points[2:], new_route, atol=0.05)
+    assert out[-1].command == items[-1].command and compare_items(items[-1].with_seq(out[-1].seq), out[-1]) is None
+    with pytest.raises(ValueError):
+        splice(items, 0, new_route, r.goal_seq, _spec())
+
+
+def test_warm_starts_bend_the_old_route_both_ways_and_keep_its_ends() -> None:
+    tail = np.array([[0.0, 0, 100], [500, 0, 100], [1000, 0, 100]])
+    seeds = warm_starts(tail, (-200.0, 200.0), n_points=11)
+    assert seeds.shape == (3, 11, 3)
+    assert np.allclose(seeds[:, 0], tail[0]) and np.allclose(seeds[:, -1], tail[-1])
+    assert np.allclose(seeds[0, :, 1], 0.0)  # the old route itself
+    assert seeds[1, 5, 1] == pytest.approx(-200.0) and seeds[2, 5, 1] == pytest.approx(200.0)  # left of east is +y
+
+
+def test_replan_problem_uses_the_threat_picture_and_the_commit_time() -> None:
+    tr = Threat(id="adsb-1", kind="track", radius=40.0, p0=(500.0, 500, 120), p1=(-10.0, 0, 0), t_ref=5.0)
+    p = replan_problem(SC, np.array([300.0, 300, 80]), SC.goal, Threats(items=(tr,)), 12.5)
+    assert p.start_time == 12.5 and [t.id for t in p.env.threats.items] == ["adsb-1"]
+    assert len(p.env.cylinders) == len(SC.environment.cylinders)
+
+
+def test_time_to_start_is_the_climb_and_the_leg_to_the_start() -> None:
+    v = SC.vehicle
+    climb = v.takeoff_alt / (v.cruise_speed * np.sin(v.max_climb))
+    rest = (np.hypot(200, 200) - v.takeoff_alt / np.tan(v.max_climb)) / v.cruise_speed
+    assert time_to_start(SC) == pytest.approx(climb + rest)
+    assert 14.0 < time_to_start(SC) < 18.0  # the simulator reaches the start 15.6 s after mission start
+
+
+def test_separation_to_a_track_is_hand_computed() -> None:
+    # vehicle east along y = 0 at 10 m/s, intruder north along x = 100 at 10 m/s: at t = 10 the vehicle is at
+    # (100, 0) and the intruder at (100, -50 + 100) = (100, 50): 50 m apart, the closest they come
+    t = np.arange(0.0, 20.01, 0.1)
+    vehicle = np.stack([t, 10 * t, 0 * t, 0 * t + 100], axis=1)
+    intruder = np.stack([t, 0 * t + 100, -50 + 10 * t, 0 * t + 100], axis=1)
+    s = separation_to_track(vehicle, intruder, radius=40.0, threat_id="x")
+    # d(t)² = (10t − 100)² + (10t − 50)²: minimum at t = 7.5, d = √(25² + 25²) = 35.36
+    assert s.t == pytest.approx(7.5) and s.distance == pytest.approx(np.hypot(25, 25), abs=1e-6)
+    assert s.separation == pytest.approx(np.hypot(25, 25) - 40.0, abs=1e-6)
+    late = intruder.copy()
+    late[:, 0] += 100.0  # flies only after the vehicle's track ends: never met
+    assert separation_to_track(vehicle, late, 40.0, "x").separation == np.inf
+
+
+def test_separation_to_scripted_threats_runs_on_mission_time() -> None:
+    loiter = Threat(id="l", kind="loiter", radius=10.0, p0=(0.0, 0, 100), circle_radius=50.0, speed=5.0)
+    # vehicle clock 100 and 101 s; the mission started at 100 → law time 0 and 1
+    vehicle = np.array([[100.0, 50.0, 0, 100], [101.0, 0, 0, 0]])
+    (s,) = separation_to_law(vehicle, Threats(items=(loiter,)), clock_offset=100.0)
+    assert s.t == 100.0 and s.separation == pytest.approx(-10.0)  # on the threat's centre at law time 0
+    both = min_separations(vehicle, {"i": (np.array([[100.0, 50, 30, 100], [101, 50, 30, 100]]), 5.0)},
+                           Threats(items=(loiter,)), mission_t0=100.0)
+    assert set(both) == {"i", "l"} and both["i"].separation == pytest.approx(25.0)
