@@ -1,7 +1,8 @@
-"""One entry point: ``plan(problem, settings, rng)`` → :class:`PlanResult` with a status (STYLE: OMPL-like).
+"""One entry point: ``plan(problem, settings, rng)`` → :class:`PlanResult` with a status (after OMPL's PlannerStatus).
 
-Runs the chosen optimiser, smooths the best path (SPEC §6), checks the smoothed trajectory (SPEC §7)
-and computes the metrics. A plan whose best path still violates anything is ``infeasible``, never success.
+Runs the chosen optimiser, smooths the best path (docs/method.md §11), checks the smoothed trajectory (§12)
+and computes the metrics (§13). A plan whose best path still violates anything is ``infeasible``, never success
+(the statuses: docs/method.md §5.3).
 """
 
 from __future__ import annotations
@@ -86,7 +87,7 @@ class PlanResult:
 
 
 def problem_from_scenario(scenario: Scenario, start_time: float | None = None) -> PlanningProblem:
-    """The scenario's start→goal problem; ``start_time`` (s) makes dynamic threats count (SPEC §4)."""
+    """The scenario's start→goal problem; ``start_time`` (s) makes dynamic threats count (docs/method.md §4.6)."""
     if start_time is None and len(scenario.environment.threats):
         start_time = 0.0
     s = scenario.planner

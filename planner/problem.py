@@ -1,4 +1,4 @@
-"""The planning problem: evaluates batches of paths → cost J = Σ b_i J_i + violation penalties (SPEC §4).
+"""The planning problem: evaluates batches of paths → cost J = Σ b_i J_i + violation penalties (docs/method.md §4, §5).
 
 Paths are arrays ``(P, N, 3)`` in ENU metres that include the start (index 0) and the goal (index N−1).
 Everything broadcasts over particles, segments and obstacles at once: no Python loop over any of them.
@@ -71,7 +71,7 @@ def _per_particle(x: np.ndarray, axis: int) -> np.ndarray:
 @dataclass
 class Evaluation:
     """Cost of a batch: ``total`` (P,), unweighted ``terms`` J1…J5 (P,) each, ``penalty`` (P,) and
-    ``violations`` per category (P,) ints (SPEC §4)."""
+    ``violations`` per category (P,) ints (docs/method.md §5.2)."""
 
     total: np.ndarray
     terms: dict[str, np.ndarray]
@@ -137,7 +137,8 @@ class PlanningProblem:
             pen = pen + _per_particle(np.where(hit, self.penalty.constant + rate * depth, 0.0), axis)
 
         per_m = self.penalty.per_metre
-        # the smoothed curve the vehicle flies (SPEC §6): unit directions, turn cosines, chord deviation
+        # the smoothed curve the vehicle flies (docs/method.md §4.4, §11): unit directions, turn cosines,
+        # chord deviation
         u = seg / np.maximum(seg_len, _EPS)[..., None]
         v = np.concatenate([u[:, 1:], u[:, -1:]], axis=1)  # next direction; the last segment stays straight
         cos_turn = _dot3(u, v)
@@ -169,7 +170,7 @@ class PlanningProblem:
 
     # -- terms ------------------------------------------------------------------------------------
     def _soft_and_violation(self, clearance: np.ndarray, add, axis: int) -> np.ndarray:  # noqa: ANN001
-        """T_c(d) per particle; d < d_coll adds a violation of depth d_coll − d (SPEC §4)."""
+        """T_c(d) per particle; d < d_coll adds a violation of depth d_coll − d (docs/method.md §4.3)."""
         d_safe, d_coll = self.hazard.d_safe, self.hazard.d_coll
         gap = d_safe - clearance  # how far inside d_safe; capped where the violation takes over
         add("collision", gap - (d_safe - d_coll), self.penalty.per_metre, axis)
@@ -290,7 +291,7 @@ class PlanningProblem:
         over = np.maximum(turn - veh.max_turn, 0.0)
         j4 = (turn + dgamma + over**2).sum(axis=1)
         add("turn", over, self.penalty.per_radian)
-        # flyability of the smoothed curve (SPEC §6): curvature ≤ 1/R_min and its climb angle
+        # flyability of the smoothed curve (docs/method.md §5.2, §11.2–11.3): curvature ≤ 1/R_min and its climb angle
         kappa = peak_curvature(seg_len, cos_turn)  # zero on the straight last segment
         add("turn", kappa * veh.min_turn_radius - 1.0, self.penalty.per_radian)
         add("climb", peak_climb(u, v) - veh.max_climb, self.penalty.per_radian)

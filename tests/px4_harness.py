@@ -1,12 +1,12 @@
 """Real PX4 SITL (its built-in SIH simulator) for tests: start it in a fresh temporary directory, wait until it
 answers on the companion link, stop it leaving nothing behind.
 
-``$FUSEPLAN_PX4_DIR`` names the PX4 folder: one with ``bin/px4`` and ``start.sh`` (the team's ``../shared/px4sitl``),
-or a PX4 build folder ``build/px4_sitl_default`` (``bin/px4`` and ``etc/``, no start.sh: PX4 is then started the
-way start.sh does it). When the ``bin/px4-*`` command links of that folder are not executable (the shared
-install's links were flattened into 3-byte text files, and PX4's startup script then fails on ``px4-param``),
-a directory of real symlinks ``px4-<cmd> -> bin/px4`` is made in the instance's temporary directory and appended
-to PATH; nothing is copied. A working install or build folder is used as it is.
+``$FUSEPLAN_PX4_DIR`` names the PX4 folder: one with ``bin/px4`` and ``start.sh`` (the team's PX4 SITL install,
+which CI points it at when present), or a PX4 build folder ``build/px4_sitl_default`` (``bin/px4`` and ``etc/``, no
+start.sh: PX4 is then started the way start.sh does it). When the ``bin/px4-*`` command links of that folder are not
+executable (the shared install's links were flattened into 3-byte text files, and PX4's startup script then fails on
+``px4-param``), a directory of real symlinks ``px4-<cmd> -> bin/px4`` is made in the instance's temporary directory
+and appended to PATH; nothing is copied. A working install or build folder is used as it is.
 
 Ports: PX4 ``-i N`` binds UDP 127.0.0.1 ports 14580+N (API/offboard link, which sends to 14540+N: the companion's
 ``udpin:127.0.0.1:14540+N``), 18570+N (GCS link, sends to 14550), 14280+N, 13030+N and 19450+N, and is MAVLink

@@ -1,4 +1,4 @@
-"""Flight supervisor: readiness, verified upload, mode/arm/start, progress monitoring (SPEC §9).
+"""Flight supervisor: readiness, verified upload, mode/arm/start, progress monitoring (docs/design.md, "Companion").
 
 Top of the companion's layers (link → mission protocol → builder → supervisor). Every decision is written
 to the :class:`EventLog`; the CLI decides what the user sees.
@@ -75,7 +75,7 @@ class FlightSupervisor:
         """Wait until the autopilot has finished booting before touching its mission: its HEARTBEAT no longer
         says UNINIT/BOOT/CALIBRATING (nor, on ArduPlane, mode INITIALISING) and, from ArduPilot or PX4, a first
         SYS_STATUS has come (the profile's boot fields). An ArduPilot that is still booting refuses every upload
-        with MAV_MISSION_NO_SPACE (AUTOPILOT_FACTS: a companion usually powers up with its autopilot)."""
+        with MAV_MISSION_NO_SPACE (docs/autopilots.md §1.3: a companion usually powers up with its autopilot)."""
         t0 = time.monotonic()
         hb, status_seen, said = self.link.last_heartbeat_msg, not self.link.profile.boot_needs_status, False
         with self.link.subscribe("HEARTBEAT", "SYS_STATUS") as sub:
@@ -113,7 +113,7 @@ class FlightSupervisor:
 
     async def wait_ready(self, timeout: float) -> None:
         """Wait for a 3-D GPS fix, a healthy pre-arm check and a good EKF (each only if the autopilot
-        reports it), instead of retrying arming blindly (AUTOPILOT_FACTS: 'System not initialised')."""
+        reports it), instead of retrying arming blindly (docs/autopilots.md §6.1–6.2: 'System not initialised')."""
         state = {"gps": None, "prearm": None, "ekf": None}
 
         def ready() -> bool:

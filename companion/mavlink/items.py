@@ -1,4 +1,5 @@
-"""Mission items as plain values, and their MAVLink conversions (SPEC §9, ../shared/AUTOPILOT_FACTS.md).
+"""Mission items as plain values, and their MAVLink conversions (docs/design.md, "Companion"; how autopilots
+read them back: docs/autopilots.md §4).
 
 One :class:`MissionItem` is one MISSION_ITEM_INT: lat/lon as degrees × 1e7 integers, altitude in metres
 (relative to home for ``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``). Shared by the mission builder, the mission

@@ -1,4 +1,4 @@
-"""MAVLink link layer: one pymavlink connection driven by the asyncio loop (SPEC §9, STYLE "Async companion").
+"""MAVLink link layer: one pymavlink connection driven by the asyncio loop (docs/design.md, "Companion").
 
 :class:`Link` owns the socket (or serial port), sends our 1 Hz HEARTBEAT as an onboard controller, learns which
 system is the vehicle from its first autopilot HEARTBEAT, and hands incoming messages to subscribers. Nothing in

@@ -185,7 +185,7 @@ PX4_MODES = MappingProxyType({"AUTO": (4 << 16) | (4 << 24), "LOITER": (4 << 16)
 
 BOOTING_STATES = frozenset({mavlink.MAV_STATE_UNINIT, mavlink.MAV_STATE_BOOT, mavlink.MAV_STATE_CALIBRATING})
 ARDUPLANE_INITIALISING = 16  # ArduPlane's custom mode until its setup has finished
-PLANE_EARLY_SWITCH_M = 65.0  # ArduPlane counts a waypoint reached up to this far before it (AUTOPILOT_FACTS)
+PLANE_EARLY_SWITCH_M = 65.0  # ArduPlane counts a waypoint reached up to this far before it (docs/autopilots.md §8.4)
 ARDUPILOT_SET_MODE = ((0, 0xFFFFFFFF),)  # ArduPilot takes the custom mode in param2
 PX4_SET_MODE = ((16, 0xFF), (24, 0xFF))  # PX4 its main mode in param2 and sub mode in param3
 

@@ -1,6 +1,6 @@
 """MAVLink mission protocol client (upload, download, clear, set current) and COMMAND_LONG, over a :class:`Link`.
 
-Follows https://mavlink.io/en/services/mission.html and what real autopilots do (../shared/AUTOPILOT_FACTS.md):
+Follows https://mavlink.io/en/services/mission.html and what real autopilots do (docs/autopilots.md §3, §8.1):
 
 * Upload: MISSION_COUNT → the autopilot requests items (MISSION_REQUEST_INT, or the legacy MISSION_REQUEST
   that ArduPilot uses) → we answer every request at once with MISSION_ITEM_INT for the requested seq (repeats,

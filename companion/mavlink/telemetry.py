@@ -1,5 +1,5 @@
 """Telemetry rates: the companion asks the autopilot, on its own link, for the messages it needs at the rates it
-needs (SPEC §9).
+needs (docs/autopilots.md §9.1; docs/design.md, "Companion").
 
 An autopilot streams per link. ArduPilot's SERIAL1 — where a companion sits while a ground station holds SERIAL0 —
 sends GLOBAL_POSITION_INT, MISSION_CURRENT, SYS_STATUS… at 1 Hz by default (its SR1_* parameters; measured on

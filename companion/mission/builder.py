@@ -1,4 +1,5 @@
-"""Mission builder: planned route (ENU) → MAVLink mission and fence items (SPEC §9, AUTOPILOT_FACTS.md).
+"""Mission builder: planned route (ENU) → MAVLink mission and fence items (docs/design.md, "Companion" and
+"Autopilot profiles"; what the autopilots do with the items: docs/autopilots.md §3–5, §7.2, §11.2).
 
 Mission layout (``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``, altitude = ENU z = metres above home):
 

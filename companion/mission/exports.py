@@ -1,4 +1,4 @@
-"""Mission exports: QGC WPL 110 ``.waypoints``, QGroundControl ``.plan`` and GeoJSON (SPEC §9).
+"""Mission exports: QGC WPL 110 ``.waypoints``, QGroundControl ``.plan`` and GeoJSON (docs/design.md, "Companion").
 
 Files carry degrees and the plain frame numbers (``GLOBAL_RELATIVE_ALT`` = 3, not the ``_INT`` twin 6), as
 Mission Planner and QGroundControl write them.

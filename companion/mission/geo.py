@@ -1,4 +1,4 @@
-"""Local ENU ↔ WGS84 conversions and the integer encodings autopilots use (SPEC §1).
+"""Local ENU ↔ WGS84 conversions and the integer encodings autopilots use (docs/method.md §1.1).
 
 The local frame is ENU metres with its origin at the scenario's home; ``home.alt`` (AMSL) is used as the
 origin's ellipsoidal height, the usual local simplification (the geoid offset is constant over a mission

@@ -1,6 +1,6 @@
 """Putting a verified mission back after an upload failed part-way.
 
-ArduPilot writes uploaded items to storage as they arrive (AUTOPILOT_FACTS: uploads are not atomic), so an
+ArduPilot writes uploaded items to storage as they arrive (docs/autopilots.md §3.7: uploads are not atomic), so an
 upload refused at item k, or abandoned, leaves items 1…k−1 new and the rest old: a mission nobody verified.
 The companion then restores the mission it last verified (or, before a flight, the one it read from the vehicle
 first) and proves it by readback, so the vehicle is never left able to fly a mixed list.

@@ -1,5 +1,5 @@
-"""Live replanning, the pure part (SPEC §9): vehicle clock, the flown mission as a route, commit point,
-the replanning problem with its warm start, and the splice of a new route into the mission.
+"""Live replanning, the pure part (docs/design.md, "Live replanning"): vehicle clock, the flown mission as a
+route, commit point, the replanning problem with its warm start, and the splice of a new route into the mission.
 
 The MAVLink choreography (upload while flying, guard, hold, set-current) is in :mod:`companion.replanning.replanner`.
 Times here are *mission time*: vehicle seconds since the mission started, the clock the scenario's scripted
@@ -181,7 +181,7 @@ def warm_starts(tail: np.ndarray, offsets_m: Sequence[float], n_points: int = 10
 def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, threats: Threats,
                    start_time: float, speed: float | None = None) -> PlanningProblem:
     """The scenario's static world with the current threat picture, from ``start`` to ``goal``, flown from
-    mission time ``start_time`` (time-aware threats, SPEC §4) at ``speed`` (default: the scenario's cruise
+    mission time ``start_time`` (time-aware threats, docs/method.md §4.6) at ``speed`` (default: the scenario's cruise
     speed; the replanner passes the vehicle's measured pace)."""
     env = dataclasses.replace(scenario.environment, threats=threats)
     s = scenario.planner

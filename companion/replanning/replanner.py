@@ -1,4 +1,5 @@
-"""Live replanning around dynamic threats, the MAVLink part (SPEC §9): watch, predict, plan, swap missions.
+"""Live replanning around dynamic threats, the MAVLink part (docs/design.md, "Live replanning"): watch, predict,
+plan, swap missions.
 
 Runs beside the supervisor's monitor as its own task with its own subscription. On a predicted conflict:
 

@@ -1,4 +1,5 @@
-"""Separation actually flown: the vehicle's truth track against every threat's truth (flight.json, SPEC §9).
+"""Separation actually flown: the vehicle's truth track against every threat's truth (flight.json;
+docs/design.md, "Live replanning").
 
 Separation is distance between centres minus the threat's protected radius, the same measure the conflict
 prediction uses, so ``min_separation ≥ d_coll`` means the vehicle never entered the d_coll shell.

@@ -1,4 +1,5 @@
-"""Threat picture and 4D conflict prediction for live replanning (SPEC §2 dynamic threats, §9 replanning).
+"""Threat picture and 4D conflict prediction for live replanning (threat laws: docs/method.md §2.6; the
+replanner: docs/design.md, "Live replanning").
 
 Two parts, both free of I/O:
 

@@ -6,9 +6,10 @@ Layers: ``transport`` (sockets, loss/latency) → ``mission_server`` (mission pr
 execution) → ``flight_model`` (kinematics); ``streams`` (telemetry rates); ``intruders`` (ADS-B traffic);
 ``autopilot`` ties them together.
 
-**The real autopilot is the judge.** What the simulator imitates was measured on ArduPilot 4.7.0-dev SITL
-(../shared/sitl, plane.parm / copter.parm); ``tests/companion/sim/test_sim_conformance.py`` holds the measured numbers
-and checks the simulator against them. When the two disagree, the simulator is wrong.
+**The real autopilot is the judge.** What the simulator imitates was measured on ArduPilot 4.7.0-dev SITL (the
+team's build, in the folder FUSEPLAN_SITL_DIR names; plane.parm / copter.parm; docs/autopilots.md lists the
+builds); ``tests/companion/sim/test_sim_conformance.py`` holds the measured numbers and checks the simulator against
+them. When the two disagree, the simulator is wrong.
 
 Imitated:
 

@@ -1,4 +1,4 @@
-"""Kinematic flight model of the simulated autopilot, in local ENU metres from home (SPEC §1).
+"""Kinematic flight model of the simulated autopilot, in local ENU metres from home (docs/method.md §1.1).
 
 No aerodynamics: a point with a compass heading (0 = north, clockwise, radians), a horizontal speed and a
 vertical rate. The limits come from :class:`planner.world.config.VehicleLimits`:

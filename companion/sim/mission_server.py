@@ -3,7 +3,7 @@
 Messages come in through :meth:`MissionServer.handle` and go out through the ``send`` callback; timeouts run on
 the simulator's clock (:meth:`MissionServer.tick`), so at a speed-up they shrink in wall time as in SITL.
 
-ArduPilot behaviour reproduced (../shared/AUTOPILOT_FACTS.md, ``libraries/GCS_MAVLink/MissionItemProtocol.cpp``):
+ArduPilot behaviour reproduced (docs/autopilots.md §1.3, §3–5, ``libraries/GCS_MAVLink/MissionItemProtocol.cpp``):
 
 - Uploads are requested with the legacy MISSION_REQUEST (id 40); MISSION_ITEM_INT and MISSION_ITEM are accepted.
 - A request is repeated after 1 s without an item; after 8 s without progress the upload is abandoned with

@@ -145,7 +145,7 @@ def markdown(rows: Sequence[dict[str, Any]], settings: BenchSettings) -> str:
             f"| {r['length_m_mean']:.1f} ± {r['length_m_std']:.1f} | {r['time_s_mean']:.3f} ± {r['time_s_std']:.3f} "
             f"| {r['convergence_iteration_mean']:.1f} ± {r['convergence_iteration_std']:.1f} "
             f"| {r['delta_cost_pct']:+.1f} | {p} | {100 * r['success_rate']:.0f} % | {paper_cost} | {paper_delta} |")
-    lines += ["", "Share of the mean cost that is constraint penalty (SPEC §4): "
+    lines += ["", "Share of the mean cost that is constraint penalty (docs/method.md §5.1): "
               + ", ".join(f"{r['variant']} {100 * r['penalty_mean'] / r['cost_mean']:.0f} %" for r in rows) + ".",
               "", "## The paper's claims", "",
               f"Rule: a quantified claim is *reproduced* when our number has the paper's sign and lies within a "
@@ -154,9 +154,9 @@ def markdown(rows: Sequence[dict[str, Any]], settings: BenchSettings) -> str:
               *claims_table(verdicts(rows))]
     lines += ["", "Absolute costs are not comparable with the paper's: this scenario uses d_safe 40 m / d_coll 10 m "
               "(the paper's 300 m / 50 m leave no corridor, see the scenario file) and the cost includes the "
-              "constraint penalty of SPEC §4, so only relative differences are judged. The paper also states "
-              "\"over 99 % performance improvement\" of spherical over Cartesian coding (Fig. 28 text), which "
-              "does not match its own +83.3 %; it is not judged here.", ""]
+              "constraint penalty of docs/method.md §5.1, so only relative differences are judged. The paper "
+              "also states \"over 99 % performance improvement\" of spherical over Cartesian coding (Fig. 28 "
+              "text), which does not match its own +83.3 %; it is not judged here.", ""]
     return "\n".join(lines)
 
 

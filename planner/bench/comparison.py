@@ -224,10 +224,11 @@ def markdown(name: str, title: str, rows: Sequence[dict[str, Any]], claims: Sequ
         + settings_list(settings)
         + f" (later ones win); each variant adds its `planner.algorithm`. Run r of every algorithm uses seed "
         f"{settings.seed_base} + r (r = 0…{runs - 1}). Mean ± sample std over the runs. Smoothness: sum of the "
-        "turn angles of the waypoint path (rad, lower = smoother); R: robustness (SPEC, paper eq. 52); "
-        "violations: checker + cost violation counts per run; success: share of runs whose smoothed path passes "
-        "every check; p: Wilcoxon rank-sum test of the costs against fusion's. Times are wall clock per run and "
-        "vary between machines and worker counts; every other number is exactly reproducible from the seeds.", "",
+        "turn angles of the waypoint path (rad, lower = smoother); R: robustness (docs/method.md §13.2, paper "
+        "Eq. (52)); violations: checker + cost violation counts per run; success: share of runs whose smoothed "
+        "path passes every check; p: Wilcoxon rank-sum test of the costs against fusion's. Times are wall clock "
+        "per run and vary between machines and worker counts; every other number is exactly reproducible from the "
+        "seeds.", "",
         "| algorithm | cost | path length (m) | smoothness (rad) | time (s) | R | violations | conv. iter. "
         f"| success | p cost vs fusion | {paper_head} |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
@@ -331,10 +332,10 @@ def _report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSetting
 COMMON_NOTES = (
     "Absolute costs, lengths and times are not comparable with the paper's: the scenarios use d_safe 40 m / "
     "d_coll 10 m (the paper's 300 m / 50 m leave no corridor, see the scenario files), the cost includes the "
-    "constraint penalty of SPEC §4, and the paper averages 50 trials on obstacles re-drawn per trial while we use "
-    "the fixed Table 1 map. The paper compares four algorithms (the proposal, QPSO, PSOGSA, BPSO); SPSO alone and "
-    "the traditional PSO of Figs 9–12 are extra rows here. Fusion's convergence curve has MaxIt + T_ACO points "
-    "(PSO phase, then ACO).",
+    "constraint penalty of docs/method.md §5.1, and the paper averages 50 trials on obstacles re-drawn per "
+    "trial while we use the fixed Table 1 map. The paper compares four algorithms (the proposal, QPSO, PSOGSA, "
+    "BPSO); SPSO alone and the traditional PSO of Figs 9–12 are extra rows here. Fusion's convergence curve has "
+    "MaxIt + T_ACO points (PSO phase, then ACO).",
 )
 
 STATIC = Bench(
@@ -368,9 +369,10 @@ DYNAMIC = Bench(
                    **{k: f"{PAPER_R_BASELINES[0]}–{PAPER_R_BASELINES[1]}" for k in ("qpso", "psogsa", "bpso")}},
         notes=("§6.2 quantifies only R (fusion ≈ 0.26, baselines 0.10–0.16); length, smoothness and time are "
                "compared in words (Figs 22–24). The paper's threat speeds (40, 140 m/s, UAV 150 m/s) are replaced "
-               "by realistic ones in `rescue_dynamic.toml`. Our R (SPEC, eq. 52) is the mean over trajectory samples of "
-               "clip((clearance − d_safe)/d_safe, 0, 1)/(1 + κ²): it rewards distance from obstacles, so a long detour "
-               "far from every hazard scores high even when it is costly.", *COMMON_NOTES)),
+               "by realistic ones in `rescue_dynamic.toml`. Our R (docs/method.md §13.2, paper Eq. (52)) is the "
+               "mean over trajectory samples of clip((clearance − d_safe)/d_safe, 0, 1)/(1 + κ²): it rewards "
+               "distance from obstacles, so a long detour far from every hazard scores high even when it is "
+               "costly.", *COMMON_NOTES)),
 )
 
 BENCHES = (STATIC, DYNAMIC)

@@ -1,5 +1,6 @@
 """Ant-colony refinement on a corridor lattice around a seed route, with GKDM pheromone initialisation
-(SPEC §5, §P 4.3, 5.3, Tables 7, 8). See docs/design.md, "ACO", for the lattice and its figure.
+(docs/method.md §8; paper §4.3, §5.3, Tables 7, 8). See docs/design.md, "ACO refinement and the fusion", for
+the lattice and its figure.
 
 The lattice has one layer per waypoint of the seed route: layer 0 is the start, layer L−1 the goal, and
 layer k (1 ≤ k ≤ L−2) a cross-track × vertical grid of nodes centred on the seed's waypoint k, oriented
@@ -79,7 +80,7 @@ def build_lattice(route: np.ndarray, cfg: ACOConfig) -> CorridorLattice:
 
 
 def initial_pheromone(lattice: CorridorLattice, cfg: ACOConfig, mode: str | None = None) -> np.ndarray:
-    """τ at iteration 0, shape (L−1, M, M) (SPEC §5).
+    """τ at iteration 0, shape (L−1, M, M) (docs/method.md §8.2).
 
     gkdm:    τ0 (1 + A · max_k exp(−d_k² / 2σ²)), d_k = distance from the edge's midpoint to seed segment k;
     hard:    τ0 + boost on the seed route's own edges (centre → centre), τ0 elsewhere;
@@ -129,7 +130,7 @@ def colony_graph(lattice: CorridorLattice, problem: PlanningProblem, cfg: ACOCon
 def construct(
     lattice: CorridorLattice, graph: ColonyGraph, tau: np.ndarray, cfg: ACOConfig, rng: np.random.Generator,
 ) -> np.ndarray:
-    """Node choices (n_ants, L) of one iteration: p(i, j) ∝ τ^α η_dist^β η_smooth^γ (SPEC §5), all ants
+    """Node choices (n_ants, L) of one iteration: p(i, j) ∝ τ^α η_dist^β η_smooth^γ (docs/method.md §8.3), all ants
     stepping through the layers together; η_smooth = max(cos θ_turn, ε) against the ant's last edge."""
     n_layers, m = lattice.nodes.shape[:2]
     ants = np.arange(cfg.n_ants)
@@ -212,7 +213,8 @@ class AntColony:
                                time.perf_counter() - t0, cfg.n_ants * it + 1)  # + the seed's evaluation
 
     def _update(self, tau, choice, costs, ib, best_choice, best_cost, ref, it, rng) -> None:  # noqa: ANN001
-        """Classic (§P eq. 35) or enhanced (eq. 36) pheromone update, then clipping to [τ_min, τ_max]."""
+        """Classic (paper Eq. (35)) or enhanced (Eq. (36)) pheromone update, then clipping to [τ_min, τ_max]
+        (docs/method.md §8.4)."""
         cfg = self.cfg
         if cfg.update == "classic":
             tau *= 1.0 - cfg.rho

@@ -1,4 +1,4 @@
-"""Decision-space encodings of a path: spherical steps (SPEC §3) or Cartesian waypoints (ablation V2).
+"""Decision-space encodings of a path: spherical steps (docs/method.md §3.1) or Cartesian waypoints (ablation V2, §3.4).
 
 A particle is an array (n, 3); a swarm (P, n, 3). ``decode`` turns a swarm into full paths
 (P, n + 2, 3) with the start and goal attached, which is what :class:`PlanningProblem` scores.
@@ -84,7 +84,7 @@ def resample_paths(paths: np.ndarray, count: int) -> np.ndarray:
 
 
 def make_encoding(problem: PlanningProblem, cfg: SPSOConfig) -> Encoding:
-    """Bounds from SPEC §3: r ∈ [r_min, 2‖SG‖/n], ψ ∈ ±min(ψ_max, max climb), φ in the S→G cone."""
+    """Bounds from docs/method.md §3.2: r ∈ [r_min, 2‖SG‖/n], ψ ∈ ±min(ψ_max, max climb), φ in the S→G cone."""
     n = cfg.n_waypoints
     s, g = problem.start, problem.goal
     env = problem.env

@@ -1,5 +1,5 @@
-"""The fusion planner (SPEC §5, §P Algorithm 1): SPSO until its switch criterion fires, then GKDM-seeded
-ant-colony refinement of its best route; the better of the two is the answer, so the fusion never
+"""The fusion planner (docs/method.md §9, paper Algorithm 1): SPSO until its switch criterion fires, then
+GKDM-seeded ant-colony refinement of its best route; the better of the two is the answer, so the fusion never
 returns a higher cost than its own SPSO phase."""
 
 from __future__ import annotations

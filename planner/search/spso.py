@@ -1,4 +1,4 @@
-"""Spherical-vector PSO (SPEC §3, paper Tables 2, 3, 5) with the Table 3 ablation switches.
+"""Spherical-vector PSO (docs/method.md §6, paper Tables 2, 3, 5) with the Table 3 ablation switches.
 
 :func:`pso_step` is the pure update (injectable r1, r2) so a test can check one step by hand.
 :class:`SphericalPSO` runs it through the shared swarm loop (:func:`planner.search.swarm.run_swarm`), which
@@ -28,7 +28,7 @@ def pso_velocity(
     x: np.ndarray, v: np.ndarray, pbest: np.ndarray, gbest: np.ndarray, w: float | np.ndarray, c1: float,
     c2: float, vmax: float | np.ndarray, r1: np.ndarray, r2: np.ndarray,
 ) -> np.ndarray:
-    """v ← w v + c1 r1 (pbest − x) + c2 r2 (gbest − x), clipped to ±vmax (SPEC §3); shapes broadcast."""
+    """v ← w v + c1 r1 (pbest − x) + c2 r2 (gbest − x), clipped to ±vmax (docs/method.md §6.1); shapes broadcast."""
     return np.clip(w * v + c1 * r1 * (pbest - x) + c2 * r2 * (gbest - x), -vmax, vmax)
 
 
@@ -37,7 +37,7 @@ def pso_step(
     c1: float, c2: float, lo: np.ndarray, hi: np.ndarray, vmax: np.ndarray, reflection: bool,
     r1: np.ndarray, r2: np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """One velocity/position update per dimension (SPEC §3).
+    """One velocity/position update per dimension (docs/method.md §6.1).
 
     v ← w v + c1 r1 (pbest − x) + c2 r2 (gbest − x), clipped to ±vmax; x ← x + v. A coordinate that
     leaves [lo, hi] is put on the bound; with ``reflection`` its velocity is negated, else kept (V4).

@@ -1,4 +1,4 @@
-"""Stop / switch criteria for swarm optimisers (SPEC §3, §P Algorithm 1), as small composable objects."""
+"""Stop / switch criteria for swarm optimisers (docs/method.md §7, paper Algorithm 1), as small composable objects."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Constraint check and metrics on the smoothed, sampled trajectory (SPEC §7).
+"""Constraint check and metrics on the smoothed, sampled trajectory (docs/method.md §12, §13).
 
 This is the independent verdict on a plan: it samples the Bézier curve the vehicle will fly, point by
 point, instead of the closed forms the cost uses, and counts violations per category.
@@ -126,7 +126,7 @@ def _runs(mask: np.ndarray) -> int:
     return int(len(_run_starts(mask)))
 
 
-# --- metrics (SPEC §7) ------------------------------------------------------------------------------
+# --- metrics (docs/method.md §13) ---------------------------------------------------------------------
 def smoothness(waypoints: np.ndarray) -> float:
     """Σ of 3-D turning angles at interior waypoints, radians."""
     d = np.diff(np.asarray(waypoints, dtype=float), axis=0)
@@ -135,7 +135,8 @@ def smoothness(waypoints: np.ndarray) -> float:
 
 
 def robustness(clearance: np.ndarray, curvature_: np.ndarray, d_safe: float) -> float:
-    """R = mean over samples of clip((D_obs − D_safe)/D_safe, 0, 1) · 1/(1 + κ²) (§P 4.5, eq. 52)."""
+    """R = mean over samples of clip((D_obs − D_safe)/D_safe, 0, 1) · 1/(1 + κ²) (paper §4.5, Eq. (52);
+    docs/method.md §13.2)."""
     safety = np.clip((clearance - d_safe) / d_safe, 0.0, 1.0)
     return float(np.mean(safety / (1.0 + curvature_**2)))
 

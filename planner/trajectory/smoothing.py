@@ -1,4 +1,4 @@
-"""Cubic Bézier smoothing of waypoint paths and its derivatives (SPEC §6, §P Properties 1–4).
+"""Cubic Bézier smoothing of waypoint paths and its derivatives (docs/method.md §11, paper Properties 1–4).
 
 Segment k from P_k to P_{k+1} (length r_k, unit direction d̂_k) gets the control points
 Q0 = P_k, Q1 = P_k + (r_k/3) d̂_k, Q2 = P_{k+1} − (r_k/3) d̂_{k+1}, Q3 = P_{k+1}; the last segment uses its

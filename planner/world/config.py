@@ -1,7 +1,7 @@
 """Planner parameters as frozen dataclasses: the one place each default lives.
 
 Scenario files are validated into these types (see ``planner.world.scenario``); the core then trusts them.
-Angles are degrees here (file units) and exposed in radians through properties (SPEC §1).
+Angles are degrees here (file units) and exposed in radians through properties (docs/method.md §1.1).
 """
 
 from __future__ import annotations
@@ -15,13 +15,13 @@ from pydantic import ConfigDict
 
 STRICT = ConfigDict(extra="forbid", allow_inf_nan=False)
 G0 = 9.80665  # standard gravity, m/s²
-TERMS = ("J1", "J2", "J3", "J4", "J5")  # length, hazard, altitude, smoothness, destination (SPEC §4)
+TERMS = ("J1", "J2", "J3", "J4", "J5")  # length, hazard, altitude, smoothness, destination (docs/method.md §4.1)
 CATEGORIES = ("collision", "altitude", "bounds", "turn", "climb")  # constraint violations, cost and check alike
 
 
 @dataclass(frozen=True)
 class VehicleLimits:
-    """Vehicle flight envelope and mission conventions (SPEC §8 vehicle block)."""
+    """Vehicle flight envelope and mission conventions (docs/method.md §14.1)."""
 
     __pydantic_config__ = STRICT
 
@@ -48,13 +48,13 @@ class VehicleLimits:
 
     @property
     def min_turn_radius(self) -> float:
-        """R_min = v² / (g tan φ_bank,max) (SPEC §6)."""
+        """R_min = v² / (g tan φ_bank,max) (docs/method.md §11.2)."""
         return self.cruise_speed**2 / (G0 * math.tan(self.max_bank))
 
 
 @dataclass(frozen=True)
 class HazardConfig:
-    """Clearance thresholds of the hazard cost T_c (SPEC §4), metres from an obstacle's surface."""
+    """Clearance thresholds of the hazard cost T_c (docs/method.md §4.3), metres from an obstacle's surface."""
 
     __pydantic_config__ = STRICT
 
@@ -64,7 +64,7 @@ class HazardConfig:
 
 @dataclass(frozen=True)
 class CostWeights:
-    """b1…b5 of J = Σ b_i J_i (SPEC §4)."""
+    """b1…b5 of J = Σ b_i J_i (docs/method.md §4.1)."""
 
     __pydantic_config__ = STRICT
 
@@ -81,7 +81,7 @@ class CostWeights:
 
 @dataclass(frozen=True)
 class PenaltyConfig:
-    """Violation penalty: ``constant + rate · depth`` per violation (SPEC §4: never inf)."""
+    """Violation penalty: ``constant + rate · depth`` per violation (docs/method.md §5.1: never inf)."""
 
     __pydantic_config__ = STRICT
 
@@ -92,7 +92,8 @@ class PenaltyConfig:
 
 @dataclass(frozen=True)
 class SPSOConfig:
-    """Spherical PSO parameters (SPEC §3, paper Tables 2, 5, 6) and its ablation switches (Table 3)."""
+    """Spherical PSO parameters (docs/method.md §3.2, §6, §7; paper Tables 2, 5, 6) and its ablation switches
+    (paper Table 3, docs/method.md §6.3)."""
 
     __pydantic_config__ = STRICT
 
@@ -108,7 +109,7 @@ class SPSOConfig:
     velocity_limit: float = 0.5  # α: |v_d| ≤ α (max_d − min_d)
     psi_max_deg: float = 45.0  # elevation bound before the vehicle's climb limit is applied
     cone_half_deg: float = 45.0  # directional-guidance half-angle around the S→G bearing
-    flyability_bound: bool = False  # raise r_min to 2 R_min sin(α_max) (SPEC §6, Property 4)
+    flyability_bound: bool = False  # raise r_min to 2 R_min sin(α_max) (docs/method.md §3.2, paper Property 4)
     encoding: Literal["spherical", "cartesian"] = "spherical"
     direction: Literal["cone", "full"] = "cone"
     reflection: bool = True
@@ -128,7 +129,7 @@ class SPSOConfig:
 
 @dataclass(frozen=True)
 class ACOConfig:
-    """Ant-colony refinement on a corridor lattice around the PSO route (SPEC §5, paper Tables 7, 8)."""
+    """Ant-colony refinement on a corridor lattice around the PSO route (docs/method.md §8, paper Tables 7, 8)."""
 
     __pydantic_config__ = STRICT
 

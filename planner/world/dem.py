@@ -1,4 +1,5 @@
-"""Terrain sources (SPEC §2): seeded synthetic hills, ESRI ASCII grids and SRTM ``.hgt`` tiles → :class:`Terrain`.
+"""Terrain sources (docs/method.md §2.5): seeded synthetic hills, ESRI ASCII grids and SRTM ``.hgt`` tiles →
+:class:`Terrain`.
 
 Every reader returns heights in metres above home on a regular ENU grid; every failure is a ``ValueError`` with a
 message fit for the user (``planner.world.scenario`` adds the file and field).

@@ -1,4 +1,4 @@
-"""The planning environment as arrays: bounds, altitude band, obstacles, terrain, dynamic threats (SPEC §2).
+"""The planning environment as arrays: bounds, altitude band, obstacles, terrain, dynamic threats (docs/method.md §2).
 
 Every obstacle family is stored column-wise so the cost can broadcast over all obstacles at once.
 """
@@ -66,7 +66,8 @@ def radar_detection_range(
     pt_w: float, gain: float, wavelength_m: float, rcs_m2: float, ts_k: float, bn_hz: float,
     loss: float, snr_threshold: float,
 ) -> float:
-    """Range where SNR(R) = P_t G² λ² σ / ((4π)³ k T_s B_n L R⁴) equals the threshold (SPEC §2, §P eq. 1)."""
+    """Range where SNR(R) = P_t G² λ² σ / ((4π)³ k T_s B_n L R⁴) equals the threshold (docs/method.md §2.4,
+    paper Eq. (1))."""
     num = pt_w * gain**2 * wavelength_m**2 * rcs_m2
     den = (4 * math.pi) ** 3 * BOLTZMANN * ts_k * bn_hz * loss * snr_threshold
     return (num / den) ** 0.25
@@ -76,8 +77,8 @@ def radar_detection_range(
 class Radars:
     """Radar sites: inside ``r_det`` a hard violation; outside a soft cost ``soft_weight · (r_det / R)⁴``.
 
-    The soft term is §P eq. 2's α / R⁴ with α = soft_weight · r_det⁴, so it equals ``soft_weight`` at
-    the detection range and is unit-free.
+    The soft term is paper Eq. (2)'s α / R⁴ with α = soft_weight · r_det⁴, so it equals ``soft_weight`` at
+    the detection range and is unit-free (docs/method.md §4.5).
     """
 
     center: np.ndarray  # (k, 3)
@@ -103,7 +104,7 @@ THREAT_KINDS = {"loiter": LOITER, "patrol": PATROL, "track": TRACK}
 
 @dataclass(frozen=True)
 class Threat:
-    """One dynamic threat: a sphere of ``radius`` moving on a known law (SPEC §2).
+    """One dynamic threat: a sphere of ``radius`` moving on a known law (docs/method.md §2.6).
 
     loiter: ``p0`` = circle centre, ``circle_radius``, ``speed`` (m/s), ``phase`` (rad at t=0),
             ``direction`` +1 counter-clockwise / −1 clockwise.
@@ -209,7 +210,7 @@ class Threats:
 
 @dataclass(frozen=True, eq=False)
 class Environment:
-    """Everything static or scripted that a route must respect; ENU metres, origin at home (SPEC §1–2)."""
+    """Everything static or scripted that a route must respect; ENU metres, origin at home (docs/method.md §1.1, §2)."""
 
     size_x: float  # bounds: x ∈ [0, size_x]
     size_y: float  # y ∈ [0, size_y]

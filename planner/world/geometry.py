@@ -1,4 +1,5 @@
-"""Exact, vectorised distances between path segments and obstacles, and the spherical encoding (SPEC §2–4).
+"""Exact, vectorised distances between path segments and obstacles, and the spherical encoding
+(docs/method.md §2.2–2.3, §3.1, §4.3).
 
 All functions broadcast: segment endpoints ``a``, ``b`` shaped ``(..., D)`` and obstacle parameters
 shaped ``(K,)`` (or ``(K, D)``) give results shaped ``(..., K)`` when the caller inserts the axes.
@@ -120,7 +121,7 @@ def segment_cylinder_clearance(
 def spherical_to_cartesian(
     start: np.ndarray, r: np.ndarray, psi: np.ndarray, phi: np.ndarray
 ) -> np.ndarray:
-    """Decode (r, ψ elevation, φ azimuth) steps into waypoints P_1…P_n (SPEC §3).
+    """Decode (r, ψ elevation, φ azimuth) steps into waypoints P_1…P_n (docs/method.md §3.1).
 
     start (3,); r, psi, phi (..., n) → points (..., n, 3) with P_k = P_{k−1} + r_k (cosψ cosφ, cosψ sinφ, sinψ).
     """

@@ -1,4 +1,5 @@
-"""Scenario files (``sitl_scenarios/*.toml``) → validated, frozen :class:`Scenario` objects (SPEC §1, §8)."""
+"""Scenario files (``sitl_scenarios/*.toml``) → validated, frozen :class:`Scenario` objects (format:
+docs/scenario_format.md; frames and units: docs/method.md §1.1; the reference scenarios: §14)."""
 
 from __future__ import annotations
 

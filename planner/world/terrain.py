@@ -1,4 +1,4 @@
-"""Terrain as a regular DEM grid with vectorised bilinear lookup (SPEC §2)."""
+"""Terrain as a regular DEM grid with vectorised bilinear lookup (docs/method.md §2.5)."""
 
 from __future__ import annotations
 

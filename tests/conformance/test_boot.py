@@ -1,4 +1,4 @@
-"""Boot: what a companion that powers up with its autopilot sees (AUTOPILOT_FACTS "Boot").
+"""Boot: what a companion that powers up with its autopilot sees (docs/autopilots.md §1.3 "Boot").
 
 Each test starts its own autopilot and connects at once. On SITL the companion is SERIAL0's first client, and
 SITL's clock starts only then, so the first HEARTBEAT it reads is one of the boot's; the boot itself lasts about

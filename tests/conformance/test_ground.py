@@ -267,7 +267,7 @@ def _ack_results(seen: list) -> list[int]:
 
 
 async def test_a_mission_upload_abandoned_part_way_leaves_old_and_new_items_mixed(vehicle, measure) -> None:
-    """AUTOPILOT_FACTS "Uploads are not atomic": MISSION_COUNT truncates the stored mission to the new count at
+    """docs/autopilots.md §3.7 "Uploads are not atomic": MISSION_COUNT truncates the stored mission to the new count at
     once and each item is written into place as it arrives, so an upload abandoned after k items leaves
     new items 1..k-1, then the old mission's items up to the new count (companion.sim.mission_server)."""
     old = numbered([home_item(), takeoff(40.0)] + [waypoint(100.0 * i, 0.0, 40.0) for i in range(1, 6)])  # 7

@@ -1,5 +1,5 @@
-"""Tests for planner.problem.PlanningProblem.evaluate: the cost terms J1…J5 of SPEC §4, the violation
-categories and penalties, the time-aware dynamic threats and batch consistency."""
+"""Tests for planner.problem.PlanningProblem.evaluate: the cost terms J1…J5 of docs/method.md §4, the violation
+categories and penalties (§5), the time-aware dynamic threats (§4.6) and batch consistency."""
 
 from __future__ import annotations
 
@@ -145,7 +145,7 @@ OBSTACLE_AT_CLEARANCE = {
 @pytest.mark.parametrize("kind", sorted(OBSTACLE_AT_CLEARANCE))
 @pytest.mark.parametrize("d", [20.0, 40.0, 99.0])
 def test_j2_soft_hazard_hand_computed(kind, d):
-    """T_c(d) = (d_safe − d)² / d_safe for d_coll ≤ d < d_safe (SPEC §4)."""
+    """T_c(d) = (d_safe − d)² / d_safe for d_coll ≤ d < d_safe (docs/method.md §4.3)."""
     env = env_with(**OBSTACLE_AT_CLEARANCE[kind](d))
     ev = evaluate_one(env, line_x(1000.0 - 100.0 - d, MID))
     assert ev.terms["J2"][0] == pytest.approx((HAZ.d_safe - d) ** 2 / HAZ.d_safe, rel=1e-7, abs=1e-9)

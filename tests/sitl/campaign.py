@@ -1,7 +1,10 @@
 """Repeated flights of the dynamic scenarios on real ArduPlane SITL, with and without replanning: the numbers
 behind docs/results/sitl_replan.md (the test suite flies each case once).
 
-    FUSEPLAN_SITL_DIR=../shared/sitl python tests/sitl/campaign.py [--flights 10] [--speedup 10] [--out FILE]
+    FUSEPLAN_SITL_DIR=/path/to/sitl python tests/sitl/campaign.py [--flights 10] [--speedup 10] [--out FILE]
+
+FUSEPLAN_SITL_DIR names the ArduPilot SITL folder (CI points it at the team's SITL build when that is present;
+docs/autopilots.md, "How the tests reach a real autopilot").
 
 Each flight: a fresh SITL, a ground station holding SERIAL0, ``fuseplan fly SCENARIO --connect SERIAL1 --arm
 --traffic SERIAL2`` (the scripted intruders reported by an ADS-B receiver, component 156), separation measured

@@ -1,8 +1,9 @@
-"""Standard global-best PSO on Cartesian waypoints: the plain-PSO baseline of the fusion comparison.
+"""Standard global-best PSO on Cartesian waypoints: the plain-PSO baseline of the fusion comparison
+(docs/method.md §10.2).
 
-It is :class:`planner.search.spso.SphericalPSO` with the SPEC §3 switches set to the textbook algorithm, so this
-module only fixes those switches: ``encoding = "cartesian"`` (n independent (x, y, z) waypoints in the
-region box and altitude band, initialised around the straight S→G line), ``reflection = off`` (a
+It is :class:`planner.search.spso.SphericalPSO` with the ablation switches of docs/method.md §6.3 set to the
+textbook algorithm, so this module only fixes those switches: ``encoding = "cartesian"`` (n independent (x, y, z)
+waypoints in the region box and altitude band, initialised around the straight S→G line), ``reflection = off`` (a
 coordinate leaving its bounds is clamped and keeps its velocity) and the damped inertia w0·w_damp^t
 (``inertia = "damped"``, ``damping = on``; the adaptive eq. 9 inertia is SPSO's own and is not used).
 w0, w_damp, c1, c2, velocity_limit and the budget (n_pop, max_iter, n_waypoints, stagnation_iters)

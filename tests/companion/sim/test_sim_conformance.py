@@ -1,7 +1,8 @@
 """The simulated autopilot against what real ArduPilot does: every expected value here was measured on ArduPilot
-4.7.0-dev SITL (/work/shared/sitl, plane.parm / copter.parm, start.sh at -35.363261,149.165230,584 heading 0,
-speed-up 10, a pymavlink client on SERIAL0), as the comments say. The real autopilot is the judge: when SITL and
-these tests disagree, the simulator (and then this file, with the new measurement) changes, never SITL.
+4.7.0-dev SITL (the team's build, in the folder FUSEPLAN_SITL_DIR names; plane.parm / copter.parm, start.sh at
+-35.363261,149.165230,584 heading 0, speed-up 10, a pymavlink client on SERIAL0), as the comments say. The real
+autopilot is the judge: when SITL and these tests disagree, the simulator (and then this file, with the new
+measurement) changes, never SITL.
 
 Real UDP sockets on 127.0.0.1 through the test client of test_sim.py.
 """

@@ -1,5 +1,5 @@
 """ACO refinement and the fusion: GKDM / hard / uniform initialisation, ant construction, deposits,
-and the fusion's guarantee never to be worse than its own SPSO phase (SPEC §5)."""
+and the fusion's guarantee never to be worse than its own SPSO phase (docs/method.md §9)."""
 
 from __future__ import annotations
 

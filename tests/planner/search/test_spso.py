@@ -1,4 +1,4 @@
-"""SPSO: one update step by hand (SPEC §3), ablation switches, determinism, and a real run."""
+"""SPSO: one update step by hand (docs/method.md §6.1), ablation switches (§6.3), determinism, and a real run."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """Tests for planner.trajectory.checks: the independent constraint check on the smoothed, sampled trajectory and the
-metrics of SPEC §7."""
+metrics (docs/method.md §12, §13)."""
 
 from __future__ import annotations
 

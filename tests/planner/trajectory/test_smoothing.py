@@ -1,5 +1,5 @@
-"""Tests for planner.trajectory.smoothing: the cubic Bézier smoothing of SPEC §6 (paper Properties 1–4) and the
-closed forms the cost relies on (peak curvature, extrapolated direction)."""
+"""Tests for planner.trajectory.smoothing: the cubic Bézier smoothing of docs/method.md §11 (paper Properties 1–4)
+and the closed forms the cost relies on (peak curvature, extrapolated direction)."""
 
 from __future__ import annotations
 
