@@ -17,6 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from planner import cli as planner_cli
+from planner import console
 from planner.cli import EXIT_BAD_INPUT, EXIT_INFEASIBLE, EXIT_OK, check_writable, write_text
 from planner.errors import FuseplanError
 from planner.world.config import ALGORITHM_NAMES
@@ -103,7 +104,7 @@ def cmd_bench_replan(args: argparse.Namespace) -> int:
         run_latency_bench(plans, runs, args.speedup, args.output, progress=say)
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
-    print((args.output / "replan.md").read_text())
+    console.show_markdown((args.output / "replan.md").read_text())
     return EXIT_OK
 
 
@@ -256,6 +257,12 @@ _ECHOED = ("reached", "statustext", "mode", "armed", "upload_verified", "mission
            "mission_restore_failed", "link_lost", "link_restored", "resync", "resync_mismatch", "booting", "booted")
 
 
+_STYLES = {"conflict": "bold red", "conflict_predicted": "red", "replan_planned": "yellow", "replanned": "green",
+           "failed": "bold red", "upload_failed": "red", "replan_upload_failed": "red", "link_lost": "red",
+           "arm_refused": "red", "timeout": "red", "finished": "bold green", "hold": "yellow", "resume": "green",
+           "link_restored": "green", "mission_start": "cyan", "upload_verified": "cyan"}  # on a terminal only
+
+
 def _echo_event(rec: dict) -> None:
     """Progress lines for the events a person watching the flight cares about; replans spelled out."""
     e = rec["event"]
@@ -274,7 +281,7 @@ def _echo_event(rec: dict) -> None:
         text = f"{e} " + " ".join(f"{k}={v}" for k, v in detail.items())
     else:
         return
-    print(f"  [{rec['t']:6.1f} s] {text}".rstrip(), flush=True)
+    console.say(f"  [{rec['t']:6.1f} s] {text}".rstrip(), _STYLES.get(e))
 
 
 def cmd_sim(args: argparse.Namespace) -> int:

@@ -15,6 +15,7 @@ from pathlib import Path
 
 import numpy as np
 
+from planner import console
 from planner.errors import FuseplanError
 from planner.world.config import ALGORITHM_NAMES, ACOConfig
 
@@ -61,17 +62,6 @@ def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.Argument
     return {"plan": pl, "compare": cp, "bench": bn}
 
 
-def progress_line(quiet: bool):  # noqa: ANN202
-    """A progress line for long searches on an interactive stderr (every 10 % of the iteration budget)."""
-    if quiet or not sys.stderr.isatty():
-        return None
-
-    def show(it: int, total: int, cost: float) -> None:
-        if it == total or it % max(total // 10, 1) == 0:
-            print(f"\r  iteration {it:4d}/{total}  best cost {cost:12.1f}", end="", file=sys.stderr, flush=True)
-    return show
-
-
 def cmd_plan(args: argparse.Namespace) -> int:
     from planner.plan import plan, plan_to_json, problem_from_scenario
     from planner.world.scenario import load_scenario
@@ -93,10 +83,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"planning {scenario.name} with {settings.algorithm}, seed {settings.seed}, "
               f"{settings.pso.n_pop} particles × {settings.pso.max_iter} iterations", file=sys.stderr)
-    show = progress_line(args.quiet)
-    result = plan(problem, settings, np.random.default_rng(settings.seed), seed=settings.seed, progress=show)
-    if show is not None:
-        print(file=sys.stderr)
+    with console.iteration_progress(args.quiet) as show:
+        result = plan(problem, settings, np.random.default_rng(settings.seed), seed=settings.seed, progress=show)
     doc = plan_to_json(result, scenario)
     m = doc["metrics"]
     direct = problem.direct_distance
@@ -157,9 +145,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         print(f"comparing {', '.join(algorithms)} on {args.scenario.name}: {args.runs} runs each, "
               f"seeds {args.seed}..{args.seed + args.runs - 1}, {workers} workers", file=sys.stderr)
     specs = compare.specs_for(str(args.scenario), args.overrides, algorithms, args.runs, args.seed)
-    records = compare.run_all(specs, workers, show_progress=not args.quiet)
+    with console.run_progress("runs", args.quiet) as progress:
+        records = compare.run_all(specs, workers, progress)
     rows = compare.summarise(records, algorithms)
-    print(compare.format_table(rows))
+    console.show_markdown(compare.format_table(rows))
     try:
         files = compare.write_outputs(args.output, "compare", records, rows)
     except OSError as e:
@@ -173,7 +162,7 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
     import time
 
     from planner.bench import BENCHES
-    from planner.bench.runner import BenchSettings, progress_bar, run_bench
+    from planner.bench.runner import BenchSettings, run_bench
     from planner.bench.compare import default_workers
     from planner.world.scenario import load_scenario
 
@@ -197,7 +186,8 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
               f"{args.seed_base}..{args.seed_base + runs - 1}, {workers} workers", file=sys.stderr)
     t0 = time.perf_counter()
     try:
-        outcome = run_bench(settings, args.output, workers, None if args.quiet else progress_bar)
+        with console.run_progress("runs", args.quiet) as progress:
+            outcome = run_bench(settings, args.output, workers, progress)
     except KeyboardInterrupt:
         print(f"fuseplan: interrupted; finished runs are in {args.output / (bench.name + '.jsonl')}; "
               "run the same command again to resume", file=sys.stderr)
@@ -208,7 +198,7 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
         files = bench.report(args.output, outcome.records, settings)
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
-    print((args.output / f"{bench.name}.md").read_text())
+    console.show_markdown((args.output / f"{bench.name}.md").read_text())
     print("wrote " + ", ".join(str(f) for f in files))
     return EXIT_OK
 

@@ -6,8 +6,7 @@ from __future__ import annotations
 
 import csv
 import os
-import sys
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor, as_completed
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,8 +40,10 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     return {"algorithm": spec.algorithm, **{k: rec[k] for k in keys}}
 
 
-def run_all(specs: Sequence[RunSpec], workers: int, show_progress: bool = True) -> list[dict[str, Any]]:
-    """Run every spec; records come back in spec order whatever the pool did."""
+def run_all(specs: Sequence[RunSpec], workers: int,
+            progress: Callable[[int, int], None] | None = None) -> list[dict[str, Any]]:
+    """Run every spec, calling ``progress(done, total)`` as runs finish; records come back in spec order whatever
+    the pool did."""
     out: dict[int, dict[str, Any]] = {}
     done = 0
     with ProcessPoolExecutor(max_workers=workers) as pool:
@@ -58,21 +59,9 @@ def run_all(specs: Sequence[RunSpec], workers: int, show_progress: bool = True) 
                 raise FuseplanError(f"{spec.algorithm} run {spec.run} (seed {spec.seed}) failed: "
                                     f"{type(e).__name__}: {e}") from e
             done += 1
-            if show_progress:
-                _bar(done, len(specs))
-    if show_progress and sys.stderr.isatty():
-        print(file=sys.stderr)
+            if progress is not None:
+                progress(done, len(specs))
     return [out[i] for i in range(len(specs))]
-
-
-def _bar(done: int, total: int, width: int = 30) -> None:
-    """A redrawn bar on a terminal; on a pipe or log, one line per tenth of the work."""
-    filled = int(width * done / total)
-    line = f"  [{'#' * filled}{'.' * (width - filled)}] {done}/{total} runs"
-    if sys.stderr.isatty():
-        print("\r" + line, end="", file=sys.stderr, flush=True)
-    elif done == total or done * 10 // total != (done - 1) * 10 // total:
-        print(line, file=sys.stderr, flush=True)
 
 
 def summarise(records: Sequence[dict[str, Any]], algorithms: Sequence[str]) -> list[dict[str, Any]]:

@@ -21,7 +21,6 @@ from typing import Any
 
 import numpy as np
 
-from planner.bench.compare import _bar
 from planner.errors import FuseplanError
 
 log = logging.getLogger(__name__)
@@ -183,10 +182,6 @@ def _run_pool(todo: Sequence[RunSpec], jsonl: Path, workers: int, new: dict[tupl
                         progress(len(new), len(todo))
         finally:
             pool.shutdown(wait=False, cancel_futures=True)
-
-
-def progress_bar(done: int, total: int) -> None:
-    _bar(done, total)
 
 
 def summarise(records: Sequence[dict[str, Any]], variants: Sequence[Variant], columns: Sequence[str],

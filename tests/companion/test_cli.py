@@ -221,3 +221,54 @@ def test_compare_output_checked_before_running(rescue_static, capsys, tmp_path) 
     blocker.write_text("x")
     assert main(["compare", str(rescue_static), "-q", "-o", str(blocker)]) == 2
     assert "cannot create the output directory" in capsys.readouterr().err
+
+
+def _run_on_a_terminal(*args: str, cwd: Path) -> tuple[int, str]:
+    """Run ``fuseplan`` with stdout and stderr on a pseudo-terminal, as a person at a shell would: exit code and
+    all it drew."""
+    import os
+    import pty
+
+    exe = shutil.which("fuseplan")
+    cmd = [exe] if exe else [sys.executable, "-m", "companion.cli"]
+    master, slave = pty.openpty()
+    env = {**os.environ, "TERM": "xterm-256color", "COLUMNS": "120"}
+    proc = subprocess.Popen([*cmd, *args], cwd=cwd, stdin=slave, stdout=slave, stderr=slave, env=env)
+    os.close(slave)
+    chunks = []
+    while True:
+        try:
+            data = os.read(master, 65536)
+        except OSError:  # EIO: the child closed the terminal
+            break
+        if not data:
+            break
+        chunks.append(data)
+    os.close(master)
+    return proc.wait(timeout=300), b"".join(chunks).decode(errors="replace")
+
+
+SMALL = ["--set", "planner.pso.n_pop=30", "--set", "planner.pso.max_iter=8", "--set", "planner.aco.max_iter=4"]
+
+
+def test_compare_on_a_terminal_draws_a_bar_and_a_table_and_on_a_pipe_stays_plain(tmp_path, rescue_static) -> None:
+    args = ["compare", str(rescue_static), "--runs", "2", "--algorithms", "spso,qpso", "--workers", "1", *SMALL]
+    code, drawn = _run_on_a_terminal(*args, "-o", str(tmp_path / "tty"), cwd=tmp_path)
+    assert code == 0, drawn
+    assert "\x1b[" in drawn  # styled
+    assert "4/4" in drawn  # the progress bar's count at the end
+    assert "|---|" not in drawn and "───" in drawn and "spso" in drawn and "qpso" in drawn  # a drawn table
+    piped = _run(*args, "-o", str(tmp_path / "pipe"), cwd=tmp_path)
+    assert piped.returncode == 0, piped.stderr
+    assert "\x1b[" not in piped.stdout + piped.stderr
+    assert piped.stdout.startswith("| algorithm |") and "|---|" in piped.stdout
+    assert "  runs: 4/4" in piped.stderr  # a log gets one line per tenth, not a redrawn bar
+    quiet = _run(*args, "-q", "-o", str(tmp_path / "quiet"), cwd=tmp_path)
+    assert quiet.returncode == 0 and quiet.stderr == ""
+
+
+def test_plan_on_a_terminal_shows_the_search_progress(tmp_path, rescue_static) -> None:
+    code, drawn = _run_on_a_terminal("plan", str(rescue_static), "--algorithm", "spso", *SMALL, cwd=tmp_path)
+    assert code in (0, 3), drawn  # a budget this small may end infeasible; the bar is what is tested
+    assert "iteration" in drawn and "best cost" in drawn and "8/8" in drawn
+    assert "rescue_static: spso seed" in drawn
