@@ -174,11 +174,11 @@ EXIT_LINK, EXIT_ABORTED = 4, 5
 def cmd_fly(args: argparse.Namespace) -> int:
     import asyncio
 
-    from companion.mavlink.errors import CompanionError
-    from companion.mission.events import EventLog
     from companion.flight.fly import FlyOptions, fly
-    from companion.replanning.replan import ReplanConfig
+    from companion.mavlink.errors import CompanionError
     from companion.mavlink.signing import SigningKey
+    from companion.mission.events import EventLog
+    from companion.replanning.replan import ReplanConfig
 
     if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.sim_loss < 1:
         raise FuseplanError("--speedup must be a finite number > 0 and --sim-loss in [0, 1)")

@@ -162,8 +162,8 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
     import time
 
     from planner.bench import BENCHES
-    from planner.bench.runner import BenchSettings, run_bench
     from planner.bench.compare import default_workers
+    from planner.bench.runner import BenchSettings, run_bench
     from planner.world.scenario import load_scenario
 
     bench = BENCHES.get(args.name)

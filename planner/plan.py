@@ -15,7 +15,10 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from planner.problem import Evaluation, PlanningProblem
 from planner.search.alloc import tune_allocator
+from planner.search.spso import SphericalPSO
+from planner.search.swarm import OptimiserResult
 from planner.trajectory.checks import (
     CheckResult,
     Trajectory,
@@ -26,11 +29,7 @@ from planner.trajectory.checks import (
     smoothness,
 )
 from planner.world.config import PlannerSettings
-from planner.problem import Evaluation, PlanningProblem
 from planner.world.scenario import Scenario
-from planner.search.spso import SphericalPSO
-from planner.search.swarm import OptimiserResult
-
 
 MERGE_TOLERANCE_M = 1.0
 
@@ -106,9 +105,9 @@ def make_optimiser(settings: PlannerSettings) -> Optimiser:
     from planner.search.aco import ColdColony
     from planner.search.baselines.bpso import BPSO
     from planner.search.baselines.cartesian_pso import CartesianPSO
-    from planner.search.fusion import Fusion
     from planner.search.baselines.psogsa import PSOGSA
     from planner.search.baselines.qpso import QPSO
+    from planner.search.fusion import Fusion
 
     name = settings.algorithm
     factories: dict[str, Callable[[], Optimiser]] = {

@@ -10,15 +10,6 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.world.config import CATEGORIES, TERMS, CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
-from planner.world.environment import Environment
-from planner.world.geometry import (
-    horizontal_turn,
-    segment_cylinder_clearance,
-    segment_point_distance,
-    segment_point_distance_2d,
-    segment_sphere_clearance,
-)
 from planner.trajectory.smoothing import (
     bezier_point,
     climb_angle,
@@ -27,6 +18,15 @@ from planner.trajectory.smoothing import (
     deviation_bound,
     peak_climb,
     peak_curvature,
+)
+from planner.world.config import CATEGORIES, TERMS, CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
+from planner.world.environment import Environment
+from planner.world.geometry import (
+    horizontal_turn,
+    segment_cylinder_clearance,
+    segment_point_distance,
+    segment_point_distance_2d,
+    segment_sphere_clearance,
 )
 
 _EPS = 1e-9

@@ -32,8 +32,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO
 
-from pymavlink.dialects.v20 import common as mavlink
 from processes import bindable, claim_instance, log_tail, processes_in, socket_inodes, terminate
+from pymavlink.dialects.v20 import common as mavlink
 from sitl_harness import HomeLike
 
 ENV = "FUSEPLAN_PX4_DIR"

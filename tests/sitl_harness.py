@@ -17,8 +17,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import IO, Protocol
 
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from processes import bindable, claim_instance, log_tail, processes_in, socket_inodes, terminate
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 ENV = "FUSEPLAN_SITL_DIR"
 SKIP_REASON = (

@@ -13,20 +13,20 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from companion.flight.report import plot_track, write_json
+from companion.flight.supervisor import FlightOutcome, FlightSupervisor
+from companion.mavlink.link import Link
+from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
+from companion.mavlink.protocol import MissionClient
+from companion.mavlink.signing import SigningKey
+from companion.mavlink.telemetry import TelemetryRates
 from companion.mission.builder import build_fence, mission_from_plan_json, spec_from_plan_json
 from companion.mission.events import EventLog
 from companion.mission.exports import write_geojson, write_qgc_plan, write_waypoints, zones_of
 from companion.mission.geo import geodetic_to_enu, lonlatalt
-from companion.mavlink.link import Link
-from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
-from companion.mavlink.protocol import MissionClient
 from companion.replanning.replan import ReplanConfig
 from companion.replanning.replanner import LiveReplanner
-from companion.flight.report import plot_track, write_json
 from companion.replanning.separation import min_separations
-from companion.mavlink.signing import SigningKey
-from companion.flight.supervisor import FlightOutcome, FlightSupervisor
-from companion.mavlink.telemetry import TelemetryRates
 from planner.trajectory.checks import obstacle_clearance
 from planner.world.scenario import Scenario
 

@@ -16,14 +16,14 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.mission.builder import mission_from_plan_json, spec_from_plan_json
-from companion.mission.events import EventLog
+from companion.flight.supervisor import FlightSupervisor
 from companion.mavlink.link import Link
 from companion.mavlink.protocol import MissionClient
+from companion.mission.builder import mission_from_plan_json, spec_from_plan_json
+from companion.mission.events import EventLog
 from companion.replanning.replan import ReplanConfig
 from companion.replanning.replanner import LiveReplanner
 from companion.sim import SimAutopilot
-from companion.flight.supervisor import FlightSupervisor
 from planner.bench.runner import write_csv
 from planner.world.scenario import Scenario
 

@@ -8,8 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.world.environment import Environment
 from planner.plan import json_safe
+from planner.world.environment import Environment
 
 
 def write_json(path: Path, doc: dict[str, Any]) -> None:

@@ -15,15 +15,21 @@ from dataclasses import dataclass, field, replace
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.mavlink.errors import (CommandError, CompanionError, MissionTimeout, MissionUploadError, MissionVerifyError,
-                              UploadAborted)
-from companion.mission.events import EventLog
+from companion.mavlink.errors import (
+    CommandError,
+    CompanionError,
+    MissionTimeout,
+    MissionUploadError,
+    MissionVerifyError,
+    UploadAborted,
+)
 from companion.mavlink.items import FENCE, MISSION, MissionItem
 from companion.mavlink.link import Link, Subscription
 from companion.mavlink.profiles import ARM, MODE, PILOT_ARM, START, profile_for
 from companion.mavlink.protocol import MissionClient
-from companion.replanning.replanner import LiveReplanner
+from companion.mission.events import EventLog
 from companion.mission.restore import restore_mission
+from companion.replanning.replanner import LiveReplanner
 
 log = logging.getLogger(__name__)
 PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK

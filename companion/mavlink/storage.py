@@ -24,7 +24,6 @@ from pymavlink.dialects.v20 import common as mavlink
 from companion.mavlink.items import FENCE, RALLY, MissionItem, compare_items, normalise_frame
 from companion.mavlink.profiles import Firmware  # which of these rules an autopilot follows: its profile's ``storage``
 
-
 # ArduPilot commands kept without a position: read back in frame GLOBAL with x = y = z = 0
 _NO_POSITION = frozenset({mavlink.MAV_CMD_DO_CHANGE_SPEED, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH})
 _BYTE_MAX = 255  # ArduPlane packs NAV_WAYPOINT's acceptance and pass-by radii in one byte each

@@ -24,7 +24,6 @@ from typing import Any, Literal
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.mission.geo import Circle, as_circles, enu_to_geodetic, geodetic_to_enu, to_int_e7
 from companion.mavlink.items import (
     FENCE,
     FRAME_GLOBAL,
@@ -36,11 +35,12 @@ from companion.mavlink.items import (
     normalise_frame,
 )
 from companion.mavlink.profiles import MissionLayout, mission_layout
+from companion.mission.geo import Circle, as_circles, enu_to_geodetic, geodetic_to_enu, to_int_e7
+from planner.trajectory.smoothing import sample_trajectory
 from planner.world.config import VehicleLimits
 from planner.world.environment import Cylinders
 from planner.world.home import Home
 from planner.world.scenario import Scenario
-from planner.trajectory.smoothing import sample_trajectory
 
 logger = logging.getLogger(__name__)
 

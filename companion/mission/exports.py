@@ -15,6 +15,7 @@ from typing import Any, Literal
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from companion.mavlink.items import FRAME_GLOBAL, MissionItem, normalise_frame
 from companion.mission.builder import (
     Autopilot,
     MissionSpec,
@@ -23,7 +24,6 @@ from companion.mission.builder import (
     spec_from_plan_json,
 )
 from companion.mission.geo import Circle, as_circles, circle_ring, enu_to_geodetic, lonlatalt, to_int_e7
-from companion.mavlink.items import FRAME_GLOBAL, MissionItem, normalise_frame
 from planner.world.environment import Cylinders
 from planner.world.home import Home
 from planner.world.scenario import Scenario

@@ -11,9 +11,9 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 from companion.mavlink.errors import CompanionError, MissionVerifyError
-from companion.mission.events import EventLog
 from companion.mavlink.items import MISSION, MissionItem
 from companion.mavlink.protocol import MissionClient
+from companion.mission.events import EventLog
 
 RESTORE_ATTEMPTS = 3  # whole verified uploads tried to put the previous mission back
 

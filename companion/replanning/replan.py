@@ -14,13 +14,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from companion.mavlink.items import FRAME_REL_ALT, MissionItem, normalise_frame
 from companion.mission.builder import CMD_WAYPOINT, MissionSpec, waypoint_items
 from companion.mission.geo import geodetic_to_enu
-from companion.mavlink.items import FRAME_REL_ALT, MissionItem, normalise_frame
 from companion.replanning.threats import route_distances, route_points
+from planner.problem import PlanningProblem
 from planner.world.config import PlannerSettings
 from planner.world.environment import Threats
-from planner.problem import PlanningProblem
 from planner.world.home import Home
 from planner.world.scenario import Scenario
 

@@ -24,22 +24,22 @@ import logging
 import math
 import multiprocessing
 import time
+from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.mission.builder import MissionSpec
 from companion.mavlink.errors import CommandError, CompanionError, MissionUploadError, VehicleHolding
-from companion.mission.events import EventLog
-from companion.mission.geo import geodetic_to_enu
 from companion.mavlink.items import MissionItem
 from companion.mavlink.link import MAV_COMP_ID_ADSB, Link, Message, Subscription
 from companion.mavlink.protocol import MissionClient
+from companion.mission.builder import MissionSpec
+from companion.mission.events import EventLog
+from companion.mission.geo import geodetic_to_enu
 from companion.mission.restore import restore_mission
 from companion.replanning.replan import (
     CommitPoint,
@@ -53,9 +53,8 @@ from companion.replanning.replan import (
     warm_starts,
 )
 from companion.replanning.threats import Conflict, TrackPicture, predict_conflicts, route_separations
-
-from planner.world.environment import Threats
 from planner.plan import PlanStatus, plan
+from planner.world.environment import Threats
 from planner.world.scenario import Scenario
 
 log = logging.getLogger(__name__)

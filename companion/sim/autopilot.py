@@ -26,6 +26,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.mavlink.items import FENCE, FRAME_GLOBAL, MISSION, RALLY, MissionItem
 from companion.mavlink.signing import SigningKey
+from companion.mavlink.storage import Firmware
 from companion.sim import streams
 from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, wrap_pi
 from companion.sim.intruders import IntruderTrack, adsb_report
@@ -33,7 +34,6 @@ from companion.sim.mission_server import MAX_ITEMS, MissionServer, is_nav
 from companion.sim.navigator import Land, Loiter, Navigator, NavTask, ReturnHome, Takeoff, rtl_altitude
 from companion.sim.streams import StreamTable
 from companion.sim.transport import SimTransport
-from companion.mavlink.storage import Firmware
 from planner.world.config import G0
 from planner.world.scenario import Scenario
 

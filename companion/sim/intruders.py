@@ -16,7 +16,6 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.mission.geo import enu_to_geodetic

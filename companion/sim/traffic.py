@@ -22,12 +22,12 @@ from collections.abc import Sequence
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.mission.geo import geodetic_to_enu
 from companion.mavlink.link import MAV_COMP_ID_ADSB, Link, Message
 from companion.mavlink.modes import mode_number
+from companion.mavlink.telemetry import Rate, TelemetryRates
+from companion.mission.geo import geodetic_to_enu
 from companion.replanning.separation import Separation, min_separations
 from companion.sim.intruders import IntruderTrack, adsb_report
-from companion.mavlink.telemetry import Rate, TelemetryRates
 from planner.world.scenario import Scenario
 
 log = logging.getLogger(__name__)

@@ -14,8 +14,8 @@ from typing import Any
 
 import numpy as np
 
-from planner.world.config import ALGORITHM_NAMES
 from planner.errors import FuseplanError
+from planner.world.config import ALGORITHM_NAMES
 
 COLUMNS = ("cost", "length_m", "smoothness", "time_s", "robustness", "violations")
 

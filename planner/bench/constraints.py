@@ -18,8 +18,16 @@ from typing import Any
 import numpy as np
 
 from planner.bench.comparison import ALGORITHMS, BUDGET, CATEGORIES, LABELS, RUN_COLUMNS, _plt, run_rows
-from planner.bench.runner import (SCENARIO_DIR, Bench, BenchSettings, Variant, claims_table, command_line,
-                                  settings_list, write_csv)
+from planner.bench.runner import (
+    SCENARIO_DIR,
+    Bench,
+    BenchSettings,
+    Variant,
+    claims_table,
+    command_line,
+    settings_list,
+    write_csv,
+)
 
 SCENARIOS = {"static": SCENARIO_DIR / "rescue_static.toml", "dynamic": SCENARIO_DIR / "rescue_dynamic.toml"}
 VARIANTS = tuple(Variant(f"{s}-{a}", f"{s} {LABELS[a]}", (f'planner.algorithm="{a}"',), path)

@@ -11,8 +11,8 @@ from __future__ import annotations
 import csv
 import hashlib
 import json
-import math
 import logging
+import math
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field

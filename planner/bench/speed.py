@@ -16,8 +16,16 @@ from typing import Any
 
 import numpy as np
 
-from planner.bench.runner import (SCENARIO_DIR, Bench, BenchSettings, Variant, command_line, settings_list,
-                                  summarise, write_csv)
+from planner.bench.runner import (
+    SCENARIO_DIR,
+    Bench,
+    BenchSettings,
+    Variant,
+    command_line,
+    settings_list,
+    summarise,
+    write_csv,
+)
 
 BASE = {"n_pop": 250, "max_iter": 100, "n_waypoints": 16, "obstacles": 100}
 LEVELS = {"n_pop": (100, 250, 500, 1000), "max_iter": (50, 100, 200), "n_waypoints": (4, 8, 16),

@@ -18,11 +18,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.world.config import ACOConfig
-from planner.world.geometry import segment_point_distance
 from planner.problem import PlanningProblem
 from planner.search.swarm import OptimiserResult, take
 from planner.search.termination import AnyOf, MaxIterations, Progress, Stagnation, WallClock
+from planner.world.config import ACOConfig
+from planner.world.geometry import segment_point_distance
 
 log = logging.getLogger(__name__)
 BLOCKED_FACTOR = 1e-3  # heuristic multiplier of an edge that passes inside d_coll of a static obstacle

@@ -11,9 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.problem import PlanningProblem
 from planner.world.config import SPSOConfig
 from planner.world.geometry import cartesian_to_spherical, spherical_to_cartesian
-from planner.problem import PlanningProblem
 
 
 @dataclass(frozen=True, eq=False)

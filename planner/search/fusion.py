@@ -10,11 +10,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.search.aco import AntColony
-from planner.world.config import PlannerSettings
 from planner.problem import PlanningProblem
+from planner.search.aco import AntColony
 from planner.search.spso import SphericalPSO
 from planner.search.swarm import OptimiserResult
+from planner.world.config import PlannerSettings
 
 
 @dataclass

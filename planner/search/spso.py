@@ -11,9 +11,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from planner.world.config import SPSOConfig
-from planner.search.encoding import Encoding, make_encoding
 from planner.problem import PlanningProblem
+from planner.search.encoding import Encoding, make_encoding
 from planner.search.swarm import (  # noqa: F401  (re-exported: the result types used to live here)
     OptimiserResult,
     SwarmState,
@@ -22,6 +21,7 @@ from planner.search.swarm import (  # noqa: F401  (re-exported: the result types
     initial_swarm,
     run_swarm,
 )
+from planner.world.config import SPSOConfig
 
 
 def pso_velocity(

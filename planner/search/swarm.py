@@ -19,9 +19,9 @@ from typing import Protocol
 
 import numpy as np
 
-from planner.world.config import SPSOConfig
 from planner.problem import Evaluation, PlanningProblem
 from planner.search.termination import AnyOf, Diversity, MaxIterations, Progress, Stagnation, WallClock
+from planner.world.config import SPSOConfig
 
 log = logging.getLogger(__name__)
 

@@ -10,10 +10,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planner.trajectory.smoothing import climb_angle, sample_trajectory
 from planner.world.config import CATEGORIES, HazardConfig, VehicleLimits
 from planner.world.environment import Environment
 from planner.world.geometry import cylinder_signed_distance, horizontal_turn
-from planner.trajectory.smoothing import climb_angle, sample_trajectory
 
 _TOL_M = 1e-6  # metres of slack for samples exactly on a limit (start on the band floor, say)
 _TOL_REL = 1e-6

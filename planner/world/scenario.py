@@ -19,11 +19,11 @@ import numpy as np
 from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, model_validator
 from typing_extensions import TypedDict
 
+from planner.errors import ScenarioError
 from planner.world import dem
 from planner.world.config import HazardConfig, PlannerSettings, VehicleLimits
-from planner.world.home import Home
 from planner.world.environment import Cylinders, Environment, Radars, Spheres, Threat, Threats, radar_detection_range
-from planner.errors import ScenarioError
+from planner.world.home import Home
 from planner.world.terrain import Terrain
 
 

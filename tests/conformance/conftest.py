@@ -45,18 +45,19 @@ from typing import Any
 import pymap3d
 import pytest
 import pytest_asyncio
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from leaks import Snapshot, fail_on_leaks
+from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from sitl_harness import SitlInstance, unavailable
 
-from companion.mission.events import EventLog
+from companion.flight.supervisor import FlightSupervisor
 from companion.mavlink.items import FRAME_REL_ALT_INT, MISSION, MissionItem
 from companion.mavlink.link import Link, Message, Subscription
 from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
 from companion.mavlink.protocol import MissionClient
-from companion.sim import SimAutopilot
 from companion.mavlink.storage import Firmware, stored
-from companion.flight.supervisor import FlightSupervisor
+from companion.mission.events import EventLog
+from companion.sim import SimAutopilot
+
 try:
     from companion.mavlink.telemetry import request_rates
 except ImportError:  # companion.mavlink.telemetry not there yet: ask ArduPilot for every stream group ourselves

@@ -10,11 +10,11 @@ from __future__ import annotations
 import time
 
 import pytest
+from conformance.conftest import booting, collect, home_item, item, numbered, takeoff, texts, waypoint
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.mavlink.errors import CommandError, MissionUploadError
 from companion.mavlink.items import FENCE, compare_items
-from conformance.conftest import booting, collect, home_item, item, numbered, takeoff, texts, waypoint
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 

@@ -19,14 +19,23 @@ from dataclasses import dataclass, field
 
 import pytest
 import pytest_asyncio
+from conformance.conftest import (
+    Vehicle,
+    home_item,
+    horizontal_m,
+    loiter_unlim,
+    numbered,
+    ready,
+    takeoff,
+    texts,
+    waypoint,
+)
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.mavlink.errors import CompanionError
-from companion.mission.events import EventLog
 from companion.mavlink.items import MissionItem
 from companion.mavlink.link import Message
-from conformance.conftest import (Vehicle, home_item, horizontal_m, loiter_unlim, numbered, ready, takeoff,
-                                  texts, waypoint)
+from companion.mission.events import EventLog
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 

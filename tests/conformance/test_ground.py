@@ -8,12 +8,11 @@ import asyncio
 from dataclasses import dataclass
 
 import pytest
+from conformance.conftest import HOME, NAN, collect, home_item, item, next_matching, numbered, takeoff, texts, waypoint
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.mavlink.errors import CommandError
 from companion.mavlink.items import FENCE, MISSION, RALLY, MissionItem, compare_items
-from conformance.conftest import (HOME, NAN, collect, home_item, item, next_matching, numbered,
-                                  takeoff, texts, waypoint)
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 

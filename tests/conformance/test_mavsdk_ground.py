@@ -11,14 +11,26 @@ from collections.abc import AsyncIterator, Callable
 
 import pytest
 import pytest_asyncio
+from conformance.conftest import (
+    HOME,
+    Vehicle,
+    _sitl_factory,
+    collect,
+    connect,
+    home_item,
+    next_matching,
+    numbered,
+    ready,
+    takeoff,
+    texts,
+    waypoint,
+)
+from conformance.test_ground import _difference, _fence, _rally
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.mavlink.errors import CommandError
 from companion.mavlink.items import FENCE, RALLY
 from companion.mavlink.mavsdk_backend import MavsdkLink
-from conformance.conftest import (HOME, Vehicle, _sitl_factory, collect, connect, home_item, next_matching, numbered,
-                                  ready, takeoff, texts, waypoint)
-from conformance.test_ground import _difference, _fence, _rally
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 

@@ -8,9 +8,9 @@ import math
 import numpy as np
 import pytest
 
+from planner.problem import CATEGORIES, TERMS, PlanningProblem
 from planner.world.config import CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
 from planner.world.environment import Cylinders, Environment, Radars, Spheres, Threat, Threats
-from planner.problem import CATEGORIES, TERMS, PlanningProblem
 from planner.world.terrain import Terrain
 
 VEH = VehicleLimits()  # 18 m/s, 45° bank → R_min ≈ 33 m; climb 15°, turn 60°

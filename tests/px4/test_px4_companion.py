@@ -17,17 +17,17 @@ import pytest
 import pytest_asyncio
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.mission.builder import MissionSpec, build_mission
+from companion.flight.supervisor import FlightSupervisor
 from companion.mavlink.errors import CompanionError
-from companion.mission.events import EventLog
-from companion.mission.geo import enu_to_geodetic, to_int_e7
 from companion.mavlink.items import FENCE, FRAME_REL_ALT_INT, MissionItem, compare_items
 from companion.mavlink.link import Link
 from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
 from companion.mavlink.protocol import MissionClient
 from companion.mavlink.storage import Firmware, stored
-from companion.flight.supervisor import FlightSupervisor
 from companion.mavlink.telemetry import request_rates
+from companion.mission.builder import MissionSpec, build_mission
+from companion.mission.events import EventLog
+from companion.mission.geo import enu_to_geodetic, to_int_e7
 from planner.world.scenario import load_scenario
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")

@@ -11,8 +11,6 @@ from contextlib import closing
 from pathlib import Path
 
 import pytest
-from pymavlink import mavutil
-from pymavlink.dialects.v20 import common as mavlink
 from processes import bindable
 from px4_harness import (
     ENV,
@@ -24,6 +22,8 @@ from px4_harness import (
     start_px4,
     unavailable,
 )
+from pymavlink import mavutil
+from pymavlink.dialects.v20 import common as mavlink
 
 from planner.world.home import Home
 from planner.world.scenario import load_scenario

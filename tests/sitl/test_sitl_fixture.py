@@ -8,9 +8,9 @@ from contextlib import closing
 from pathlib import Path
 
 import pytest
+from processes import bindable
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from processes import bindable
 from sitl_harness import ENV, SKIP_REASON, _claim_instance, defaults_file, ports, start_sitl, unavailable
 
 from planner.world.home import Home

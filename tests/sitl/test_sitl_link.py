@@ -21,14 +21,14 @@ from leaks import Snapshot, fail_on_leaks_sync
 from pymavlink import mavutil
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.mission.builder import mission_from_plan_json
-from companion.mission.events import EventLog
-from companion.sim.faultproxy import TcpOutageProxy
 from companion.flight.fly import FlyOptions, fly
+from companion.flight.supervisor import FlightSupervisor
 from companion.mavlink.link import Link
 from companion.mavlink.protocol import MissionClient
 from companion.mavlink.signing import SigningKey, enable_signing, setup_signing, signing_timestamp
-from companion.flight.supervisor import FlightSupervisor
+from companion.mission.builder import mission_from_plan_json
+from companion.mission.events import EventLog
+from companion.sim.faultproxy import TcpOutageProxy
 from planner.world.scenario import Scenario, load_scenario
 
 STATIC = Path(__file__).resolve().parents[2] / "sitl_scenarios" / "rescue_static.toml"

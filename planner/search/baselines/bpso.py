@@ -30,10 +30,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.world.config import BPSOConfig, SPSOConfig
 from planner.problem import PlanningProblem
 from planner.search.spso import pso_velocity
 from planner.search.swarm import OptimiserResult, SwarmState, initial_swarm, run_swarm
+from planner.world.config import BPSOConfig, SPSOConfig
 
 
 def gray_to_index(bits: np.ndarray) -> np.ndarray:

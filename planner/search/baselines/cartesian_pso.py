@@ -17,10 +17,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from planner.world.config import SPSOConfig
 from planner.problem import PlanningProblem
 from planner.search.spso import SphericalPSO
 from planner.search.swarm import OptimiserResult
+from planner.world.config import SPSOConfig
 
 
 class CartesianPSO:

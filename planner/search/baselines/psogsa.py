@@ -29,10 +29,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from planner.world.config import PSOGSAConfig, SPSOConfig
-from planner.search.encoding import make_encoding
 from planner.problem import PlanningProblem
+from planner.search.encoding import make_encoding
 from planner.search.swarm import OptimiserResult, SwarmState, damped_inertia, initial_swarm, run_swarm
+from planner.world.config import PSOGSAConfig, SPSOConfig
 
 _EPS = 1e-9  # m, keeps a_i finite when two particles coincide (then x_j − x_i = 0 as well)
 

@@ -19,10 +19,10 @@ from collections.abc import Callable
 
 import numpy as np
 
-from planner.world.config import QPSOConfig, SPSOConfig
-from planner.search.encoding import make_encoding
 from planner.problem import PlanningProblem
+from planner.search.encoding import make_encoding
 from planner.search.swarm import OptimiserResult, SwarmState, initial_swarm, run_swarm
+from planner.world.config import QPSOConfig, SPSOConfig
 
 
 def qpso_beta(cfg: QPSOConfig, it: int, max_iter: int) -> float:

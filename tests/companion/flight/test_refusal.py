@@ -15,17 +15,17 @@ from dataclasses import replace
 from pathlib import Path
 
 import pytest
+from readback import same_item, same_mission
 
-from companion.mission.builder import mission_from_plan_json
+from companion.flight.supervisor import FlightSupervisor
 from companion.mavlink.errors import UploadAborted
-from companion.mission.events import EventLog
 from companion.mavlink.link import Link
 from companion.mavlink.protocol import MissionClient
+from companion.mission.builder import mission_from_plan_json
+from companion.mission.events import EventLog
 from companion.mission.restore import restore_mission
 from companion.sim import SimAutopilot
-from companion.flight.supervisor import FlightSupervisor
 from planner.world.scenario import load_scenario
-from readback import same_item, same_mission
 
 ROOT = Path(__file__).resolve().parents[3]
 STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"

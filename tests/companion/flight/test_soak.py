@@ -14,12 +14,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.mission.builder import mission_from_plan_json
-from companion.mission.events import EventLog
+from companion.flight.supervisor import FlightSupervisor
 from companion.mavlink.link import Link
 from companion.mavlink.protocol import MissionClient
+from companion.mission.builder import mission_from_plan_json
+from companion.mission.events import EventLog
 from companion.sim import SimAutopilot
-from companion.flight.supervisor import FlightSupervisor
 from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -12,10 +12,10 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.mission.builder import MissionSpec, build_mission
 from companion.mavlink.errors import CompanionError
 from companion.mavlink.link import Link
 from companion.mavlink.protocol import MissionClient
+from companion.mission.builder import MissionSpec, build_mission
 from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[3]

@@ -14,9 +14,9 @@ import pytest
 from mavsdk.plugins.mission_raw import MissionRawError, MissionRawResult
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.cli import main
 from companion.mavlink.errors import LinkError, MissionTimeout, MissionUploadError
 from companion.mavlink.mavsdk_backend import MESSAGES, from_message, mavsdk_url, to_message, upload_error
-from companion.cli import main
 
 ROOT = Path(__file__).resolve().parents[3]
 

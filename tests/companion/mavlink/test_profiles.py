@@ -9,10 +9,22 @@ from pathlib import Path
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.mission.builder import MissionSpec
 from companion.mavlink.link import Link
-from companion.mavlink.profiles import (ARDUCOPTER, ARDUPILOT_VTOL, ARDUPLANE, GENERIC, GENERIC_FIXED_WING, LAYOUTS,
-                                PROFILES, PX4_FIXED_WING, PX4_MULTICOPTER, Firmware, mission_layout, profile_for)
+from companion.mavlink.profiles import (
+    ARDUCOPTER,
+    ARDUPILOT_VTOL,
+    ARDUPLANE,
+    GENERIC,
+    GENERIC_FIXED_WING,
+    LAYOUTS,
+    PROFILES,
+    PX4_FIXED_WING,
+    PX4_MULTICOPTER,
+    Firmware,
+    mission_layout,
+    profile_for,
+)
+from companion.mission.builder import MissionSpec
 from planner.world.config import VehicleLimits
 from planner.world.home import Home
 from planner.world.scenario import load_scenario

@@ -8,15 +8,16 @@
 from __future__ import annotations
 
 import asyncio
-import time
 import math
 import socket
+import time
 from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from readback import same_item
 
 from companion.mavlink.errors import CommandError, MissionTimeout, MissionUploadError
 from companion.mavlink.items import (
@@ -31,7 +32,6 @@ from companion.mavlink.items import (
 )
 from companion.mavlink.link import Link
 from companion.mavlink.protocol import FINAL_ACK_MISSES, MissionClient
-from readback import same_item
 
 pytestmark = pytest.mark.asyncio
 
@@ -386,9 +386,9 @@ async def test_mavsdk_verified_uploads_through_a_lossy_link():
     its own timeouts, answers no item after a transfer ended and drops a download whose requests it misses; the
     client's answers to those are pinned by the two scripted tests above). This seed takes 7–17 s here; others
     took up to 45 s, so one is run."""
+    from companion.flight.supervisor import FlightSupervisor
     from companion.mission.events import EventLog
     from companion.sim.faultproxy import FaultProxy, Faults
-    from companion.flight.supervisor import FlightSupervisor
 
     faults = Faults(drop=0.3, duplicate=0.1, reorder=0.1)
     async with MavsdkAutopilot() as ap:

@@ -8,11 +8,11 @@ from pathlib import Path
 
 import pytest
 
-from companion.mission.builder import MissionSpec, build_mission
 from companion.mavlink.errors import CompanionError
 from companion.mavlink.link import HeartbeatTimeout, Link
 from companion.mavlink.protocol import MissionClient
 from companion.mavlink.signing import SigningKey, signing_timestamp
+from companion.mission.builder import MissionSpec, build_mission
 from companion.sim import SimAutopilot
 from planner.errors import FuseplanError
 from planner.world.scenario import load_scenario

@@ -14,8 +14,7 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.mavlink.errors import LinkError
 from companion.mavlink.link import Link
 from companion.mavlink.profiles import PX4_UNUSED_STREAMS
-from companion.mavlink.telemetry import (OFF, RATES, Rate, TelemetryRates, message_id, request_rates,
-                                 stream_requests)
+from companion.mavlink.telemetry import OFF, RATES, Rate, TelemetryRates, message_id, request_rates, stream_requests
 
 pytestmark = pytest.mark.asyncio
 

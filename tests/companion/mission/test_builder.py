@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pymavlink.dialects.v20 import common as mavlink
 
+from companion.mavlink.items import FENCE, MissionItem
 from companion.mission.builder import (
     MissionSpec,
     build_fence,
@@ -19,11 +20,10 @@ from companion.mission.builder import (
     mission_waypoint_index,
 )
 from companion.mission.geo import circle_ring, circles_from_cylinders, enu_to_geodetic, geodetic_to_enu, to_int_e7
-from companion.mavlink.items import FENCE, MissionItem
+from planner.trajectory.smoothing import sample_trajectory
 from planner.world.config import VehicleLimits
 from planner.world.environment import Cylinders
 from planner.world.home import Home
-from planner.trajectory.smoothing import sample_trajectory
 
 HOME = Home(-35.363261, 149.165230, 584.0)  # ArduPilot SITL CMAC
 WPS = np.array([[200.0, 200.0, 50.0], [400.0, 300.0, 60.0], [600.0, 700.0, 80.0], [800.0, 800.0, 50.0]])

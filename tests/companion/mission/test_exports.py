@@ -13,6 +13,7 @@ import pytest
 from pymavlink import mavwp
 from pymavlink.dialects.v20 import common as mavlink
 
+from companion.mavlink.items import normalise_frame
 from companion.mission.builder import MissionSpec, build_mission, is_home_item
 from companion.mission.exports import (
     export_from_plan_json,
@@ -22,12 +23,11 @@ from companion.mission.exports import (
     zones_of,
 )
 from companion.mission.geo import circles_from_cylinders, lonlatalt
-from companion.mavlink.items import normalise_frame
+from planner.trajectory.smoothing import sample_trajectory
 from planner.world.config import VehicleLimits
 from planner.world.environment import Cylinders
 from planner.world.home import Home
 from planner.world.scenario import load_scenario
-from planner.trajectory.smoothing import sample_trajectory
 
 HOME = Home(-35.363261, 149.165230, 584.0)
 WPS = np.array([[200.0, 200.0, 50.0], [400.0, 300.0, 60.0], [600.0, 700.0, 80.0], [800.0, 800.0, 50.0]])

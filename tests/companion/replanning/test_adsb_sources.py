@@ -15,11 +15,11 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.mavlink.link import MAV_COMP_ID_ADSB, Link
+from companion.mavlink.protocol import MissionClient
 from companion.mission.builder import mission_from_plan_json, spec_from_plan_json
 from companion.mission.events import EventLog
 from companion.mission.geo import enu_to_geodetic
-from companion.mavlink.link import MAV_COMP_ID_ADSB, Link
-from companion.mavlink.protocol import MissionClient
 from companion.replanning.replanner import LiveReplanner, watch
 from companion.replanning.threats import TrackPicture
 from planner.world.home import Home

@@ -7,8 +7,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from companion.mission.builder import MissionSpec, build_mission, time_to_start
 from companion.mavlink.items import compare_items
+from companion.mission.builder import MissionSpec, build_mission, time_to_start
 from companion.replanning.replan import MissionRoute, VehicleClock, commit_point, replan_problem, splice, warm_starts
 from companion.replanning.separation import min_separations, separation_to_law, separation_to_track
 from planner.world.environment import Threat, Threats

@@ -15,16 +15,16 @@ from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import common as mavlink
+from readback import same_item, same_mission
 
-from companion.mission.builder import mission_from_plan_json
+from companion.cli import main
 from companion.flight.fly import truth_separations
 from companion.flight.latency_bench import fly_on_sim
+from companion.mission.builder import mission_from_plan_json
 from companion.replanning.replan import ReplanConfig
 from companion.replanning.replanner import LiveReplanner
 from companion.sim import SimAutopilot
-from companion.cli import main
 from planner.world.scenario import load_scenario
-from readback import same_item, same_mission
 
 ROOT = Path(__file__).resolve().parents[3]
 DYNAMIC = ROOT / "sitl_scenarios" / "rescue_dynamic.toml"

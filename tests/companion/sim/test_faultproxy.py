@@ -9,13 +9,13 @@ from pathlib import Path
 
 import pytest
 
-from companion.mission.builder import build_mission, MissionSpec
-from companion.sim.faultproxy import FaultProxy, Faults, TcpOutageProxy
-from companion.mission.events import EventLog
+from companion.flight.supervisor import FlightSupervisor
 from companion.mavlink.link import Link
 from companion.mavlink.protocol import MissionClient
+from companion.mission.builder import MissionSpec, build_mission
+from companion.mission.events import EventLog
 from companion.sim import SimAutopilot
-from companion.flight.supervisor import FlightSupervisor
+from companion.sim.faultproxy import FaultProxy, Faults, TcpOutageProxy
 from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[3]

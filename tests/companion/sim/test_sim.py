@@ -12,10 +12,10 @@ import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.mavlink.items import FRAME_REL_ALT_INT, MissionItem, compare_items
+from companion.mavlink.storage import Firmware, stored
 from companion.sim import COPTER_MODES, PLANE_MODES, SimAutopilot, serve
 from companion.sim.autopilot import PREARM_TEXT
 from companion.sim.transport import new_mavlink
-from companion.mavlink.storage import Firmware, stored
 from planner.world.scenario import Scenario, load_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[3] / "sitl_scenarios"

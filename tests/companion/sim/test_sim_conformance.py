@@ -17,15 +17,14 @@ from collections.abc import Callable
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from test_sim import PLANE_MODES, Client, booted, dynamic, item, route, static  # noqa: F401  (the pytest fixtures of test_sim.py)
 
-from companion.mission.builder import mission_from_plan_json
 from companion.mavlink.items import FENCE, RALLY, MissionItem, compare_items
+from companion.mavlink.storage import Firmware, stored
+from companion.mission.builder import mission_from_plan_json
 from companion.sim import SimAutopilot
 from companion.sim.autopilot import BOOT_S, FIRST_HEARTBEAT_FRACTION, PREARM_TEXT
-from companion.mavlink.storage import Firmware, stored
 from planner.world.scenario import Scenario
-from test_sim import PLANE_MODES, Client, booted, item, route
-from test_sim import dynamic, static  # noqa: F401  (the pytest fixtures of test_sim.py)
 
 ACCEPTED = mavlink.MAV_RESULT_ACCEPTED
 DENIED = mavlink.MAV_RESULT_DENIED

@@ -100,10 +100,9 @@ def test_gkdm_arms_and_target(tmp_path) -> None:
 
 
 def test_cold_colony_algorithm() -> None:
+    from planner.bench.runner import SCENARIO_DIR
     from planner.plan import plan, problem_from_scenario
     from planner.world.scenario import load_scenario
-
-    from planner.bench.runner import SCENARIO_DIR
 
     sc = load_scenario(SCENARIO_DIR / "rescue_static.toml",
                        ['planner.algorithm="aco"', "planner.aco.max_iter=3", "planner.aco.n_ants=5"])

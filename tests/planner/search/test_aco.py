@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.search.aco import AntColony, build_lattice, construct, colony_graph, deposit, initial_pheromone
-from planner.world.config import ACOConfig
-from planner.search.fusion import Fusion
 from planner.plan import PlanStatus, plan, problem_from_scenario
+from planner.search.aco import AntColony, build_lattice, colony_graph, construct, deposit, initial_pheromone
+from planner.search.fusion import Fusion
+from planner.world.config import ACOConfig
 from planner.world.scenario import load_scenario
 
 SCENARIOS = Path(__file__).resolve().parents[3] / "sitl_scenarios"

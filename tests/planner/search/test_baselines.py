@@ -10,14 +10,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner.plan import problem_from_scenario
 from planner.search.baselines.bpso import BPSO, bpso_step, gray_to_index, index_to_gray, make_lattice
 from planner.search.baselines.cartesian_pso import CartesianPSO
-from planner.world.config import BPSOConfig, PSOGSAConfig, QPSOConfig
-from planner.plan import problem_from_scenario
 from planner.search.baselines.psogsa import PSOGSA, gravity, gsa_acceleration, masses
 from planner.search.baselines.qpso import QPSO, qpso_beta, qpso_step
-from planner.world.scenario import load_scenario
 from planner.search.spso import SphericalPSO
+from planner.world.config import BPSOConfig, PSOGSAConfig, QPSOConfig
+from planner.world.scenario import load_scenario
 
 OPTIMISERS = {"pso": CartesianPSO, "qpso": QPSO, "psogsa": PSOGSA, "bpso": BPSO}
 

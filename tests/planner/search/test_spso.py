@@ -7,11 +7,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from planner.world.config import SPSOConfig
-from planner.search.encoding import make_encoding
 from planner.plan import PlanStatus, plan, problem_from_scenario
-from planner.world.scenario import load_scenario
+from planner.search.encoding import make_encoding
 from planner.search.spso import SphericalPSO, diversity, inertia, pso_step
+from planner.world.config import SPSOConfig
+from planner.world.scenario import load_scenario
 
 
 def test_one_step_by_hand_with_reflection() -> None:

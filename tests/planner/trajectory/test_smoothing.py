@@ -329,8 +329,8 @@ def test_peak_climb_is_the_climb_flown_on_the_curve(r1, r2, g1, g2, head, turn):
 @example(r=100.0, theta_deg=90.0, elev=0.0, azim=0.0, spin=0.0)
 @example(r=100.0, theta_deg=170.0, elev=0.0, azim=0.0, spin=0.0)
 def test_deviation_bound_covers_distance_from_chord(r, theta_deg, elev, azim, spin):
-    from planner.world.geometry import segment_point_distance
     from planner.trajectory.smoothing import deviation_bound
+    from planner.world.geometry import segment_point_distance
 
     u = direction(elev, azim)
     v = turned(u, math.radians(theta_deg), spin)

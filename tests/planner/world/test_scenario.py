@@ -13,10 +13,10 @@ from typing import Any
 import numpy as np
 import pytest
 
+from planner.errors import ScenarioError
 from planner.world.config import HazardConfig, PlannerSettings, VehicleLimits
 from planner.world.dem import synthetic_hills
 from planner.world.environment import BOLTZMANN, radar_detection_range
-from planner.errors import ScenarioError
 from planner.world.scenario import Scenario, load_scenario
 
 REPO = Path(__file__).resolve().parents[3]
