@@ -311,7 +311,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     """fly sitl_scenarios/rescue_dynamic.toml --sim --speedup 20 --report fuseplan-demo/"""
     here = SCENARIOS / "rescue_dynamic.toml"
     print("fuseplan demo: planning the dynamic rescue scenario and flying it on the built-in simulated autopilot "
-          "(20x); an intruder reported over ADS-B will cross the route and the companion replans around it")
+          "(20x); an intruder reported over ADS-B will cross the route, and the companion holds and replans around "
+          "it, or waits until it has passed when no clear route comes in time")
     ns = argparse.Namespace(scenario=here, connect=None, sim=True, speedup=20.0, sim_loss=0.0, arm=False,
                             no_fence=False, densify=False, report=Path("fuseplan-demo"), scenario_file=None,
                             overrides=[], seed=None, algorithm=None, quiet=False, no_replan=False,

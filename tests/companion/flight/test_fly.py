@@ -155,3 +155,17 @@ def test_export_command(tmp_path, fmt, suffix, capsys) -> None:
     assert out.stat().st_size > 0
     if fmt != "waypoints":
         json.loads(out.read_text())
+
+
+def test_the_readme_demo_completes_clear_of_the_intruder_it_predicted(tmp_path, monkeypatch, capsys) -> None:
+    """`fuseplan demo` (the README's first command): exit 0, the ADS-B intruder's crossing predicted, the flight
+    completed with every threat (truth) outside d_coll, whether the companion replanned or waited it out."""
+    monkeypatch.chdir(tmp_path)
+    assert main(["demo"]) == 0
+    out = capsys.readouterr().out
+    assert "CONFLICT with adsb-c0ffee" in out
+    flight = json.loads((tmp_path / "fuseplan-demo" / "flight.json").read_text())
+    assert flight["completed"] and flight["replanning"] and flight["replan_attempts"] >= 1
+    assert set(flight["min_separation_m"]) >= {"intruder-1", "loiter-1", "patrol-1"}
+    assert min(flight["min_separation_m"].values()) > flight["d_coll_m"]
+    assert all((tmp_path / "fuseplan-demo" / name).exists() for name in ("PLAN.json", "events.jsonl"))
