@@ -701,8 +701,12 @@ class LiveReplanner:
         self.events.log("hold", mode=self.hold_mode, reason=reason)
 
     async def resume(self) -> None:
-        """Back to AUTO at the current item, unless someone else has changed the mode meanwhile."""
-        if self.custom_mode is not None and self.custom_mode != self._number(self.hold_mode):
+        """Back to AUTO at the current item, unless someone else has changed the mode meanwhile. AUTO is not
+        someone else's: an autopilot may acknowledge the hold before its HEARTBEAT shows it (PX4 does: a stale
+        AUTO arrived between the hold and the resume and left the vehicle holding for good), and a pilot who put
+        it back in AUTO wants the mission flown; AUTO is sent either way."""
+        if self.custom_mode is not None and self.custom_mode not in (self._number(self.hold_mode),
+                                                                     self._number("AUTO")):
             self.events.log("not_resuming", reason="the mode was changed by someone else",
                             mode=self._name(self.custom_mode))
             self.holding = None

@@ -285,6 +285,13 @@ class SimAutopilot:
         if not self._set_mode(self._modes[name]):
             raise ValueError(f"mode {name!r} refused")
 
+    def inject_stale_heartbeat(self, mode: str) -> None:
+        """Fault injection: one HEARTBEAT that still reports ``mode`` (e.g. "AUTO" right after a mode change), as
+        an autopilot sends when it acknowledges DO_SET_MODE before its HEARTBEAT shows the new mode (PX4)."""
+        msg = self._heartbeat()
+        msg.custom_mode = self._modes[mode]
+        self._send(msg)
+
     def inject_upload_stall(self, upload: int, first_lost: int) -> None:
         """Fault injection: the ``upload``-th mission upload from now (1 = the next) loses every item from
         ``first_lost`` on (negative: counted back from its item count), so it stalls part-way and is abandoned

@@ -389,3 +389,31 @@ def test_replan_latency_bench_writes_its_report(dynamic_plan: Path, tmp_path: Pa
         assert run.status in ("exact", "approximate")
         assert 0 < run.plan_s <= run.latency_s and run.sep_after_m >= 10.0
         assert "| rescue_dynamic | 10× | 1 | 1 |" in md
+
+
+def test_a_stale_auto_heartbeat_between_hold_and_resume_does_not_leave_the_vehicle_holding(static_plan_doc) -> None:
+    """PX4 acknowledges DO_SET_MODE before its HEARTBEAT shows the new mode: a HEARTBEAT still saying AUTO can
+    arrive between the replanner's hold and its resume (seen in CI on PX4 SITL: the companion took it for someone
+    else's mode change, did not resume, and the vehicle held until the flight timed out). Here the simulator
+    sends such a HEARTBEAT right after the hold; the resume must still put the vehicle back in AUTO."""
+    doc = static_plan_doc()
+    sc = load_scenario(ROOT / "sitl_scenarios" / "rescue_static.toml")
+    seen: dict[str, object] = {}
+
+    async def hold_then_resume(sim: SimAutopilot, rp: LiveReplanner) -> None:
+        while sim.mode != "AUTO" or sim.mission_time is None or sim.mission_time < 5.0:
+            await asyncio.sleep(0.01)
+        await rp.hold("test: a hold the vehicle reports late")
+        seen["held"] = sim.mode
+        auto = rp.link.profile.mode_number("AUTO")
+        sim.inject_stale_heartbeat("AUTO")
+        while rp.custom_mode != auto:  # the stale HEARTBEAT has reached the companion
+            await asyncio.sleep(0.001)
+        await rp.resume()
+
+    out, records, _verified, _flown, sim = asyncio.run(
+        _harness(sc, doc, 20.0, ReplanConfig(), during=hold_then_resume, flight_timeout=60.0))
+    names = [r["event"] for r in records]
+    assert seen["held"] == "LOITER" and "hold" in names  # the hold really happened on the vehicle
+    assert "resume" in names and "not_resuming" not in names, names
+    assert out is not None and out.completed, out and out.reason
