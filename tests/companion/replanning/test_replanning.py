@@ -93,9 +93,11 @@ def test_rescue_dynamic_without_replanning_loses_separation(dynamic_plan: Path, 
 
 @pytest.mark.parametrize("replan", [True, False], ids=["replan", "no-replan"])
 def test_two_intruders_in_a_static_field(crossing_plan: Path, tmp_path: Path, replan: bool) -> None:
-    # 10×: the first intruder crosses 11 s after the route start, so this flight is the most sensitive to a
-    # loaded machine stretching wall-clock steps into simulated seconds
-    code, fl, _ = _fly(crossing_plan, tmp_path / "rep", *([] if replan else ["--no-replan"]), speedup=10.0)
+    # replanning at 5×: the first intruder crosses 11 s after the route start, so this flight is the most sensitive to a
+    # loaded machine stretching wall-clock steps into simulated seconds (at 10× the flown track came 8.1 m and
+    # 9.7 m from a cylinder, d_coll 10 m, in 2 of 5 fresh CI runs on 2 December; 12-36 m in every run by hand)
+    code, fl, _ = _fly(crossing_plan, tmp_path / "rep", *([] if replan else ["--no-replan"]),
+                       speedup=5.0 if replan else 10.0)
     assert code == 0 and fl["completed"] is True
     seps = [fl["min_separation_m"][t] for t in sorted(_intruder_ids(CROSSING))]
     assert len(seps) == 2 and None not in seps  # both flew (None: never in the air)
