@@ -13,9 +13,8 @@ import numpy as np
 from planner.trajectory.smoothing import (
     bezier_point,
     climb_angle,
-    corner_cut_bound,
     cubic_range,
-    deviation_bound,
+    flown_deviation,
     peak_climb,
     peak_curvature,
 )
@@ -142,11 +141,7 @@ class PlanningProblem:
         u = seg / np.maximum(seg_len, _EPS)[..., None]
         v = np.concatenate([u[:, 1:], u[:, -1:]], axis=1)  # next direction; the last segment stays straight
         cos_turn = _dot3(u, v)
-        # (P, S) metres the flown path may stray from each chord: the Bézier the plan describes, or the corner
-        # an autopilot cuts when it takes a waypoint at its acceptance radius (docs/design.md)
-        cut = corner_cut_bound(self.vehicle.acceptance_radius, cos_turn)  # at the end of each segment
-        cut_start = np.concatenate([np.zeros((len(cut), 1)), cut[:, :-1]], axis=1)
-        dev = np.maximum(deviation_bound(seg_len, cos_turn), np.maximum(cut, cut_start))
+        dev = flown_deviation(seg_len, cos_turn, self.vehicle.acceptance_radius)  # (P, S) m off each chord
         q2 = b - (seg_len / 3.0)[..., None] * v  # Q1 = a + seg/3 lies on the chord
         z_lo, z_hi = _height_range(a[..., 2], a[..., 2] + seg[..., 2] / 3.0, q2[..., 2], b[..., 2], self.env)
 

@@ -16,10 +16,10 @@ import numpy as np
 
 from planner.problem import PlanningProblem
 from planner.trajectory.checks import check_trajectory, obstacle_clearance, smooth
-from planner.trajectory.smoothing import corner_cut_bound, deviation_bound
+from planner.trajectory.smoothing import flown_deviation, segment_samples
 from planner.world.config import HazardConfig, PlannerSettings, VehicleLimits
 from planner.world.environment import Cylinders, Environment, Spheres
-from planner.world.geometry import horizontal_turn
+from planner.world.geometry import cylinder_signed_distance, horizontal_turn
 
 FAMILIES = ("gates", "dense")
 BAND = (50.0, 300.0)  # altitude band above terrain, m
@@ -77,22 +77,14 @@ def corridor(route: np.ndarray, hazard: HazardConfig = HAZARD, vehicle: VehicleL
     seg_len = np.linalg.norm(seg, axis=1)
     u = seg / seg_len[:, None]
     cos_turn = np.sum(u * np.concatenate([u[1:], u[-1:]]), axis=1)
-    cut = corner_cut_bound(vehicle.acceptance_radius, cos_turn)
-    dev = np.maximum(deviation_bound(seg_len, cos_turn), np.maximum(cut, np.concatenate([[0.0], cut[:-1]])))
-    counts = np.maximum(np.ceil(seg_len / CHORD_STEP_M).astype(int), 1)
-    idx = np.repeat(np.arange(len(seg)), counts)
-    t = (np.arange(idx.size) - np.repeat(np.cumsum(counts) - counts, counts)) / counts[idx]
+    dev = flown_deviation(seg_len, cos_turn, vehicle.acceptance_radius)
+    idx, t = segment_samples(np.maximum(np.ceil(seg_len / CHORD_STEP_M).astype(int), 1))
     chord = route[idx] + t[:, None] * seg[idx]
     tracking = 0.5 * vehicle.acceptance_radius
     points = np.concatenate([traj.points, chord, route[-1:]])
     need = np.concatenate([np.full(len(traj.points), hazard.d_coll + tracking + buffer),
                            hazard.d_coll + buffer + dev[idx], [hazard.d_coll + tracking + buffer]])
     return points, need
-
-
-def cylinder_clearance(points: np.ndarray, x: np.ndarray, y: np.ndarray, r: np.ndarray) -> np.ndarray:
-    """Distance (K, M) from points (M, 3) to the surfaces of K unlimited vertical cylinders (§2)."""
-    return np.hypot(points[None, :, 0] - x[:, None], points[None, :, 1] - y[:, None]) - r[:, None]
 
 
 def sphere_clearance(points: np.ndarray, centre: np.ndarray, r: np.ndarray) -> np.ndarray:
@@ -147,10 +139,10 @@ def _gates(seed: int, rng: np.random.Generator, n_walls: int | None = None, spac
             continue
         cyl = np.round(np.concatenate([_wall(x, c, gap, radius, size_y) for x, c in zip(walls_x, centres)]), 2)
         r = np.full(len(cyl), radius)
-        points, need = corridor(route, hazard)
-        if (cylinder_clearance(points, cyl[:, 0], cyl[:, 1], r) < need).any():
-            continue
         env_full = Environment(size_x, size_y, *BAND, cylinders=_cylinders(cyl, r))
+        points, need = corridor(route, hazard)
+        if (obstacle_clearance(points, None, env_full) < need).any():
+            continue
         if any(route_violations(route, env_full, hazard).values()):
             continue
         blocked = _straight_blocked(route, env_full, hazard)
@@ -204,8 +196,10 @@ def _dense(seed: int, rng: np.random.Generator, count: int = 150, size: float = 
         r = rng.uniform(*radius, batch)
         z = np.where(kind == 1, rng.uniform(*sphere_z, batch), 0.0)
         cand = np.round(np.column_stack([x, y, z, r]), 2)
-        clear = np.where((kind == 0)[:, None], cylinder_clearance(points, cand[:, 0], cand[:, 1], cand[:, 3]),
-                         sphere_clearance(points, cand[:, :3], cand[:, 3]))
+        col = (slice(None), None)
+        cyl_clear = cylinder_signed_distance(points[None], cand[col + (0,)], cand[col + (1,)], cand[col + (3,)],
+                                             np.inf)
+        clear = np.where((kind == 0)[:, None], cyl_clear, sphere_clearance(points, cand[:, :3], cand[:, 3]))
         ok = np.flatnonzero((clear >= need).all(axis=1))[: count - len(rows)]
         kinds.extend(kind[ok].tolist())
         rows.extend(cand[ok].tolist())

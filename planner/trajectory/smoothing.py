@@ -69,9 +69,7 @@ def sample_trajectory(waypoints: np.ndarray, spacing: float) -> dict[str, np.nda
     # |B'(t)| ≤ 3 · longest control leg, so this many steps keeps samples ≤ spacing apart on the curve
     legs = np.linalg.norm(np.diff(ctrl, axis=1), axis=-1).max(axis=1)
     counts = np.maximum(np.ceil(3.0 * legs / spacing).astype(int), 1)
-    seg = np.repeat(np.arange(len(ctrl)), counts)
-    first = np.repeat(np.cumsum(counts) - counts, counts)
-    t = (np.arange(seg.size) - first) / counts[seg]
+    seg, t = segment_samples(counts)
     seg = np.append(seg, len(ctrl) - 1)
     t = np.append(t, 1.0)
     q = ctrl[seg]  # (M, 4, 3)
@@ -154,6 +152,22 @@ def corner_cut_bound(acceptance_radius: float, cos_turn: np.ndarray) -> np.ndarr
     whose midpoint is (A/2) sin θ from the nearer leg for a turn θ (A/2 past 90°). Shapes broadcast → m."""
     c = np.clip(cos_turn, -1.0, 1.0)
     return 0.5 * acceptance_radius * np.where(c >= 0.0, np.sqrt(1.0 - c * c), 1.0)
+
+
+def flown_deviation(seg_len: np.ndarray, cos_turn: np.ndarray, acceptance_radius: float) -> np.ndarray:
+    """(..., S) metres the flown path may stray from each chord: the Bézier the plan describes, or the corner an
+    autopilot cuts when it takes a waypoint at its acceptance radius, at either end of the segment (docs/method.md
+    §4.4). ``cos_turn[..., k]`` is the turn at the end of segment k; the last axis runs along the route."""
+    cut = corner_cut_bound(acceptance_radius, cos_turn)  # at the end of each segment
+    cut_start = np.concatenate([np.zeros_like(cut[..., :1]), cut[..., :-1]], axis=-1)
+    return np.maximum(deviation_bound(seg_len, cos_turn), np.maximum(cut, cut_start))
+
+
+def segment_samples(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Split segments into ``counts[k]`` equal steps each: (segment index, parameter t in [0, 1)) per sample."""
+    seg = np.repeat(np.arange(len(counts)), counts)
+    first = np.repeat(np.cumsum(counts) - counts, counts)
+    return seg, (np.arange(seg.size) - first) / counts[seg]
 
 
 def cubic_range(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, q3: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
