@@ -86,7 +86,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             fence = build_fence(scenario.environment.cylinders, scenario.home, max_route_alt=top) \
                 if opts.fence and len(scenario.environment.cylinders) else []
             _write_mission_files(opts.report, plan_doc, scenario, items, spec, fence)
-            client = MissionClient(link) if opts.backend == "pymavlink" else MavsdkMissionClient(link)
+            client = (MavsdkMissionClient if isinstance(link, MavsdkLink) else MissionClient)(link)  # the link's own
             sup = FlightSupervisor(link, client, events, arm=opts.arm or opts.sim)
             length = float(plan_doc["metrics"]["length_m"])
             timeout = 120.0 + 4.0 * length / scenario.vehicle.cruise_speed / max(opts.speedup, 1e-3)
