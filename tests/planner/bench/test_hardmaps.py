@@ -1,6 +1,8 @@
 """Hard maps with a known answer (planner.bench.hardmaps, issue 15): every generated file loads, its planted route
 passes the planner's own checker (docs/method.md §12) on the generated scenario, the same seed gives the same map,
-and the maps are not trivial (the straight start→goal line is blocked)."""
+and the maps are not trivial (the straight start→goal line is blocked). Family by family, the obstacles force the
+intended detour: the maze is perfect, the ridge is crossed only through its saddle and low, the canyon is the only
+way from start to goal."""
 
 from __future__ import annotations
 
@@ -9,22 +11,57 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from scipy import ndimage
+from scipy.spatial import cKDTree
 
-from planner.bench.hardmaps import FAMILIES, HardMap, generate
+from planner.bench.hardmaps import (
+    FAMILIES,
+    HardMap,
+    free_section,
+    generate,
+    radar_clearance,
+    route_violations,
+    write_scenarios,
+)
 from planner.plan import problem_from_scenario
-from planner.trajectory.checks import check_trajectory, smooth
+from planner.trajectory.checks import check_trajectory, obstacle_clearance, smooth
 from planner.world.config import CATEGORIES
-from planner.world.geometry import segment_point_distance_2d
+from planner.world.environment import Environment
+from planner.world.geometry import horizontal_turn, segment_point_distance_2d
 from planner.world.scenario import Scenario, load_scenario
 
 SEEDS = range(5)
 CASES = [(family, seed) for family in FAMILIES for seed in SEEDS]
+GRID_M = 10.0  # plan-view grid of the reachability tests
 
 
 def _load(m: HardMap, tmp_path: Path) -> Scenario:
     path = tmp_path / f"{m.family}_{m.seed}.toml"
     path.write_text(m.toml)
     return load_scenario(path)
+
+
+def _reachable(sc: Scenario) -> tuple[np.ndarray, np.ndarray]:
+    """Plan-view grid (nx, ny, 2), a point every GRID_M m, and the mask (nx, ny) of the points reachable from the
+    start without coming within d_coll of an obstacle, for maps of unlimited cylinders of one radius (height does
+    not matter; the nearest centre is the nearest surface). Point [i, j] is the centre of the square
+    [i, i + 1) × [j, j + 1) · GRID_M."""
+    env = sc.environment
+    cyl = env.cylinders
+    assert not len(env.spheres) and not len(env.radars) and np.isinf(cyl.top).all()
+    assert np.ptp(cyl.radius) == 0.0
+    x = np.arange(0.5 * GRID_M, env.size_x, GRID_M)
+    y = np.arange(0.5 * GRID_M, env.size_y, GRID_M)
+    grid = np.stack(np.meshgrid(x, y, indexing="ij"), axis=-1)
+    dist, _ = cKDTree(np.column_stack([cyl.x, cyl.y])).query(grid.reshape(-1, 2))
+    labels, _ = ndimage.label((dist - cyl.radius[0] >= sc.hazard.d_coll).reshape(grid.shape[:2]))
+    i, j = _cell_of(sc.start)
+    assert labels[i, j] > 0
+    return grid, labels == labels[i, j]
+
+
+def _cell_of(p: np.ndarray) -> tuple[int, int]:
+    return int(p[0] // GRID_M), int(p[1] // GRID_M)
 
 
 @pytest.mark.parametrize(("family", "seed"), CASES)
@@ -37,18 +74,46 @@ def test_the_planted_route_is_flyable_on_the_generated_map(family: str, seed: in
     traj = smooth(m.planted, sc.planner.sample_spacing, sc.vehicle.cruise_speed)
     check = check_trajectory(traj, m.planted, sc.environment, sc.hazard, sc.vehicle)
     assert check.counts == {c: 0 for c in CATEGORIES}
-    assert check.min_clearance >= sc.hazard.d_coll
+    assert check.min_clearance >= 0.0  # radars count from their detection range
+    assert obstacle_clearance(traj.points, None, sc.environment, include_radars=False).min() >= sc.hazard.d_coll
     # the planner's cost agrees: the planted route is feasible for the optimiser too
     ev = problem_from_scenario(sc).evaluate(m.planted[None])
     assert int(ev.n_violations[0]) == 0
+    assert not any(route_violations(m.planted, sc.environment, sc.hazard, sc.vehicle).values())
+
+
+@pytest.mark.parametrize(("family", "seed"), CASES)
+def test_the_straight_line_is_blocked(family: str, seed: int, tmp_path: Path) -> None:
+    m = generate(family, seed)
+    sc = _load(m, tmp_path)
+    t = np.linspace(0.0, 1.0, 2001)[:, None]
+    line = sc.start + t * (sc.goal - sc.start)
+    env = sc.environment
+    hit = (obstacle_clearance(line, None, env, include_radars=False) < sc.hazard.d_coll) | (
+        radar_clearance(line, env.radars) < 0.0)
+    assert hit.any()
+    assert m.straight_blocked
 
 
 @pytest.mark.parametrize("family", FAMILIES)
-def test_same_seed_same_map(family: str) -> None:
+def test_same_seed_same_map_and_different_seeds_different_maps(family: str) -> None:
     a, b = generate(family, 3), generate(family, 3)
     assert a.toml == b.toml
     np.testing.assert_array_equal(a.planted, b.planted)
-    assert generate(family, 4).toml != a.toml
+    maps = [generate(family, seed) for seed in SEEDS]
+    assert len({m.toml for m in maps}) == len(maps)
+    assert len({m.planted.tobytes() for m in maps}) == len(maps)
+
+
+def test_write_scenarios_writes_the_generated_text(tmp_path: Path) -> None:
+    paths = write_scenarios(tmp_path / "maps", families=("maze", "ridge"), seeds=range(2))
+    assert [p.name for p in paths] == ["hardmap_maze_0.toml", "hardmap_maze_1.toml", "hardmap_ridge_0.toml",
+                                       "hardmap_ridge_1.toml"]
+    for p in paths:
+        family, seed = p.stem.split("_")[1:]
+        assert p.read_text() == generate(family, int(seed)).toml
+        assert load_scenario(p).name == p.stem
+    assert [p.name for p in write_scenarios(tmp_path)] == [f"hardmap_{f}_0.toml" for f in FAMILIES]
 
 
 @pytest.mark.parametrize("seed", SEEDS)
@@ -78,15 +143,95 @@ def test_gates_block_the_straight_line_with_walls_that_each_leave_one_gap(seed: 
 
 
 @pytest.mark.parametrize("seed", SEEDS)
-def test_dense_field_has_the_intended_obstacles(seed: int) -> None:
+def test_dense_field_is_mostly_unlimited_cylinders_around_a_winding_route(seed: int) -> None:
     m = generate("dense", seed)
     doc = tomllib.loads(m.toml)
     counts = {k: len(doc.get(k, [])) for k in ("cylinders", "spheres", "hemispheres")}
-    assert sum(counts.values()) == m.n_obstacles == 150
-    assert all(v > 20 for v in counts.values())  # all three kinds, about a third each
-    assert m.straight_blocked  # recorded by the generator; true for these seeds
+    assert sum(counts.values()) == m.n_obstacles == 250
+    assert counts["cylinders"] > 0.7 * m.n_obstacles and counts["spheres"] > 10 and counts["hemispheres"] > 10
+    assert all("top" not in c for c in doc["cylinders"])
+    assert min(h["radius"] for h in doc["hemispheres"]) >= 80.0  # domes reach the route's heights
+    # the planted route weaves: 16 legs, turning 200°+ in all, 15 %+ longer than the straight line
+    legs = np.diff(m.planted, axis=0)
+    assert len(legs) == 16 and np.degrees(horizontal_turn(legs)).sum() > 200.0
+    assert np.linalg.norm(legs, axis=1).sum() > 1.15 * np.linalg.norm(m.planted[-1] - m.planted[0])
+    assert m.straight_blocked
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_maze_is_perfect_and_its_solution_is_the_only_way(seed: int, tmp_path: Path) -> None:
+    m = generate("maze", seed)
+    sc = _load(m, tmp_path)
+    doc = tomllib.loads(m.toml)
+    assert not doc.get("spheres") and not doc.get("hemispheres") and not doc.get("radars")
+    assert all("top" not in c for c in doc["cylinders"])
+    cell, n = 350.0, 7  # the defaults
+    assert sc.environment.size_x == sc.environment.size_y == n * cell
+    # a side between two cells is open where its midpoint is free: n² − 1 open sides joining all cells = a tree
+    k = np.arange(n * (n - 1))
+    mid = np.concatenate([np.column_stack([k // n + 1, k % n + 0.5]), np.column_stack([k % n + 0.5, k // n + 1])])
+    mid = np.column_stack([mid * cell, np.full(len(mid), 100.0)])
+    is_open = obstacle_clearance(mid, None, sc.environment) >= sc.hazard.d_coll
+    assert is_open.sum() == n * n - 1
+    _, reach = _reachable(sc)
+    centres = (np.stack(np.meshgrid(np.arange(n), np.arange(n)), axis=-1).reshape(-1, 2) + 0.5) * cell
+    assert all(reach[_cell_of(c)] for c in centres)  # connected: every cell reachable from the start, the goal too
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_ridge_is_crossed_only_through_the_saddle_and_low(seed: int, tmp_path: Path) -> None:
+    m = generate("ridge", seed)
+    sc = _load(m, tmp_path)
+    doc = tomllib.loads(m.toml)
+    assert not doc.get("cylinders") and len(doc["radars"]) == 2
+    hemi = np.array([[h["x"], h["y"], h["radius"]] for h in doc["hemispheres"]])
+    xr = hemi[0, 0]
+    assert (hemi[:, 0] == xr).all()
+    y_saddle = hemi[np.argmin(hemi[:, 2]), 1]
+    assert (hemi[:, 2] > sc.environment.z_max).sum() == len(hemi) - 1  # every peak stands above the band
+    way = free_section(sc.environment, xr, sc.hazard)
+    assert len(way) > 0
+    assert np.abs(way[:, 0] - y_saddle).max() < 100.0  # only through the saddle…
+    assert way[:, 1].max() < 250.0 < sc.environment.z_max  # …and low, under the radar cover
+    # the planted route crosses the ridge inside that window, outside the radar ranges with a margin
+    cross = m.planted[np.argmin(np.abs(m.planted[:, 0] - xr) + (m.planted[:, 0] < xr) * 1e9)]
+    assert abs(cross[1] - y_saddle) < 1.0 and way[:, 1].min() < cross[2] < way[:, 1].max()
+    traj = smooth(m.planted, sc.planner.sample_spacing, sc.vehicle.cruise_speed)
+    assert radar_clearance(traj.points, sc.environment.radars).min() >= 20.0
+    # the straight line crosses the ridge far from the saddle, through a peak
+    y_line = sc.start[1] + (sc.goal[1] - sc.start[1]) * (xr - sc.start[0]) / (sc.goal[0] - sc.start[0])
+    assert abs(y_line - y_saddle) >= 400.0
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_canyon_is_narrow_and_the_only_way(seed: int, tmp_path: Path) -> None:
+    m = generate("canyon", seed)
+    sc = _load(m, tmp_path)
+    doc = tomllib.loads(m.toml)
+    assert not doc.get("spheres") and not doc.get("hemispheres") and not doc.get("radars")
+    assert all("top" not in c for c in doc["cylinders"])
+    traj = smooth(m.planted, sc.planner.sample_spacing, sc.vehicle.cruise_speed)
+    clear = obstacle_clearance(traj.points, None, sc.environment)
+    assert 55.0 <= clear.min() and np.median(clear) <= 85.0  # 120-160 m between the walls, the route in the middle
+    grid, reach = _reachable(sc)
+    assert reach[_cell_of(sc.goal)]
+    pts = grid[reach]
+    assert pts[:, 0].min() < GRID_M and pts[:, 0].max() > sc.environment.size_x - GRID_M  # edge to edge
+    # between start and goal everything reachable lies in the channel: within 80 m (half the widest canyon) of the
+    # centre line, which the planted route follows (the channel goes on to the edges beyond start and goal)
+    pts = pts[(pts[:, 0] > sc.start[0] + 100.0) & (pts[:, 0] < sc.goal[0] - 100.0)]
+    near = np.full(len(pts), np.inf)
+    for p, q in zip(m.planted[:-1], m.planted[1:]):
+        near = np.minimum(near, segment_point_distance_2d(p[0], p[1], q[0], q[1], pts[:, 0], pts[:, 1]))
+    assert near.max() <= 80.0 + GRID_M
 
 
 def test_unknown_family_is_refused() -> None:
     with pytest.raises(ValueError, match="unknown family"):
         generate("mazes", 0)
+
+
+def test_free_section_of_an_empty_map_is_the_whole_band() -> None:
+    env = Environment(100.0, 200.0, 50.0, 300.0)
+    way = free_section(env, 50.0, step=10.0)
+    assert len(way) == 21 * 26 and way[:, 1].min() == 50.0 and way[:, 1].max() == 300.0
