@@ -102,10 +102,17 @@ def cmd_plan(args: argparse.Namespace) -> int:
     print(f"  time      {m['plan_time_s']:.2f} s, {m['iterations']} iterations "
           f"({result.optimiser.stop_reason}), converged at iteration {m['convergence_iteration']}")
     if "phases" in doc:
-        ph = doc["phases"]
-        print(f"  phases    SPSO {ph['pso']['best_cost']:.1f} ({ph['pso']['iterations']} it, "
-              f"{ph['pso']['time_s']:.2f} s, {ph['pso']['stop_reason']}) -> ACO {ph['aco']['best_cost']:.1f} "
-              f"({ph['aco']['iterations']} it, {ph['aco']['time_s']:.2f} s); winner {ph['winner']}")
+        ph = dict(doc["phases"])
+        winner = ph.pop("winner")
+        road = ph.pop("roadmap", None)
+        if road is not None:
+            no_route = road["stop_reason"].startswith("no route")
+            print(f"  roadmap   {'infeasible: ' if no_route and not result.feasible else ''}{road['stop_reason']} "
+                  f"({road['time_s']:.2f} s{', then the paper fusion' if no_route else ''})")
+        names = {"pso": "SPSO", "colony": "roadmap colony", "pso2": "SPSO (colony's corridor)", "aco": "ACO"}
+        print("  phases    " + " -> ".join(
+            f"{names.get(k, k)} " + ("n/a" if v["best_cost"] is None else f"{v['best_cost']:.1f}")
+            + f" ({v['iterations']} it, {v['time_s']:.2f} s)" for k, v in ph.items()) + f"; winner {winner}")
     if args.output:
         write_text(args.output, json.dumps(doc, indent=1, allow_nan=False) + "\n")
         print(f"  wrote {args.output}")
@@ -164,7 +171,6 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
     from planner.bench import BENCHES
     from planner.bench.compare import default_workers
     from planner.bench.runner import BenchSettings, run_bench
-    from planner.world.scenario import load_scenario
 
     bench = BENCHES.get(args.name)
     if bench is None:
@@ -175,7 +181,7 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
         raise FuseplanError("--runs and --workers must be >= 1 and --seed-base >= 0")
     settings = BenchSettings(bench, runs, args.seed_base, tuple(args.overrides))
     for v in bench.variants:  # bad input fails here, once, not in every worker
-        load_scenario(settings.scenario_for(v), settings.overrides_for(v))
+        settings.check(v)
     try:
         args.output.mkdir(parents=True, exist_ok=True)
     except OSError as e:

@@ -112,7 +112,8 @@ def make_optimiser(settings: PlannerSettings) -> Optimiser:
     name = settings.algorithm
     factories: dict[str, Callable[[], Optimiser]] = {
         "fusion": lambda: Fusion(settings),
-        "spso": lambda: SphericalPSO(settings.pso),
+        # with the roadmap on, spso is the guided swarm with the roadmap's seeds (docs/method.md §15.3 steps 1–2)
+        "spso": lambda: Fusion(settings, swarm_only=True) if settings.roadmap.enabled else SphericalPSO(settings.pso),
         "pso": lambda: CartesianPSO(settings.pso),
         "qpso": lambda: QPSO(settings.pso, settings.qpso),
         "psogsa": lambda: PSOGSA(settings.pso, settings.psogsa),

@@ -109,3 +109,28 @@ def plot_plan(
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
+
+
+def plot_pipeline(path: str | Path, env: Environment, roadmap_edges: np.ndarray, guides: list[np.ndarray],
+                  ants: list[np.ndarray], trajectory: np.ndarray, planted: np.ndarray | None, title: str) -> None:
+    """Top-down PNG of the roadmap pipeline (docs/method.md §15): roadmap edges (M, 2, 2), the diverse guide
+    routes, the colony's last ants, the flown (smoothed) route and, on a generated map, the planted route."""
+    from matplotlib.collections import LineCollection
+
+    fig, ax = plt.subplots(figsize=(9, 8))
+    draw_plan_view(ax, env)
+    ax.add_collection(LineCollection(roadmap_edges, colors="0.6", linewidths=0.3, alpha=0.35, label="roadmap"))
+    for k, a in enumerate(ants):
+        ax.plot(a[:, 0], a[:, 1], color="tab:olive", lw=0.7, alpha=0.5, label="colony's ants" if k == 0 else None)
+    for k, g in enumerate(guides):
+        ax.plot(g[:, 0], g[:, 1], "--", color="tab:green", lw=1.4, label="guides (diverse seeds)" if k == 0 else None)
+    if planted is not None:
+        ax.plot(planted[:, 0], planted[:, 1], ":", color="k", lw=1.2, label="planted route")
+    ax.plot(trajectory[:, 0], trajectory[:, 1], color="tab:blue", lw=2.2, label="final route (smoothed)")
+    ax.plot(*trajectory[0, :2], "go", ms=8)
+    ax.plot(*trajectory[-1, :2], "r*", ms=12)
+    ax.set_title(title)
+    ax.legend(loc="upper left", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -12,7 +12,7 @@ import importlib
 from planner.bench.runner import Bench
 
 # each module exports BENCHES, a tuple of Bench
-_MODULES = ("ablation", "comparison", "constraints", "gkdm", "large_scale", "speed")
+_MODULES = ("ablation", "comparison", "constraints", "gkdm", "large_scale", "speed", "robustness")
 
 
 def _load() -> dict[str, Bench]:

@@ -21,6 +21,8 @@ from typing import Any
 import numpy as np
 
 from planner.bench.runner import (
+    PAPER_MODE,
+    ROADMAP_MODE,
     SCENARIO_DIR,
     Bench,
     BenchSettings,
@@ -32,9 +34,9 @@ from planner.bench.runner import (
     write_csv,
 )
 
-ALGORITHMS = ("fusion", "spso", "qpso", "psogsa", "bpso", "pso")
+ALGORITHMS = ("fusion", "spso", "qpso", "psogsa", "bpso", "pso", "roadmap")
 LABELS = {"fusion": "fusion (SPSO+GKDM+ACO)", "spso": "SPSO", "qpso": "QPSO", "psogsa": "PSOGSA",
-          "bpso": "BPSO", "pso": "PSO (traditional)"}
+          "bpso": "BPSO", "pso": "PSO (traditional)", "roadmap": "fusion, roadmap pipeline (fuseplan's default)"}
 PAPER_FOUR = ("fusion", "qpso", "psogsa", "bpso")  # the four algorithms of Figures 13–26
 CATEGORIES = ("collision", "altitude", "turn", "climb", "bounds")
 COLUMNS = ("cost", "length_m", "smoothness", "time_s", "robustness", "violations", "convergence_iteration",
@@ -43,8 +45,10 @@ RUN_COLUMNS = ("variant", "label", "run", "seed", "status", "feasible", "cost", 
                "smoothness", "time_s", "robustness", "convergence_iteration", "iterations", "evaluations",
                "violations", *(f"violations_{c}" for c in CATEGORIES))
 # Table 6: nPop 500, MaxIt 200 for every compared algorithm; stagnation stop off.
-BUDGET = ("planner.pso.n_pop=500", "planner.pso.max_iter=200", "planner.pso.stagnation_iters=200")
-VARIANTS = tuple(Variant(a, LABELS[a], (f'planner.algorithm="{a}"',)) for a in ALGORITHMS)
+BUDGET = (PAPER_MODE, "planner.pso.n_pop=500", "planner.pso.max_iter=200",
+          "planner.pso.stagnation_iters=200")
+VARIANTS = tuple(Variant(a, LABELS[a], (f'planner.algorithm="{a}"',) if a != "roadmap"
+                         else ('planner.algorithm="fusion"', ROADMAP_MODE)) for a in ALGORITHMS)
 RADAR_AXES = ("1/cost", "1/length", "1/smoothness", "1/time", "R", "success")
 
 ALPHA = 0.05  # significance level of the Wilcoxon rank-sum test

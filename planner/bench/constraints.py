@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from planner.bench.comparison import ALGORITHMS, BUDGET, CATEGORIES, LABELS, RUN_COLUMNS, _plt, run_rows
+from planner.bench.comparison import VARIANTS as COMPARED
 from planner.bench.runner import (
     SCENARIO_DIR,
     Bench,
@@ -30,8 +31,8 @@ from planner.bench.runner import (
 )
 
 SCENARIOS = {"static": SCENARIO_DIR / "rescue_static.toml", "dynamic": SCENARIO_DIR / "rescue_dynamic.toml"}
-VARIANTS = tuple(Variant(f"{s}-{a}", f"{s} {LABELS[a]}", (f'planner.algorithm="{a}"',), path)
-                 for s, path in SCENARIOS.items() for a in ALGORITHMS)
+VARIANTS = tuple(Variant(f"{s}-{v.key}", f"{s} {v.label}", v.overrides, path)
+                 for s, path in SCENARIOS.items() for v in COMPARED)
 PROPOSED = ("fusion", "spso")
 
 

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from planner.bench.runner import (
+    PAPER_MODE,
     SCENARIO_DIR,
     Bench,
     BenchSettings,
@@ -79,7 +80,7 @@ BENCH = Bench(
     description="GKDM ablation, paper Tables 7/8, Fig. 29: fusion with gkdm vs hard vs uniform pheromone "
                 "initialisation, and ACO from scratch",
     scenario=SCENARIO_DIR / "rescue_static.toml",
-    base_overrides=('planner.algorithm="fusion"', "planner.pso.n_pop=100", "planner.pso.max_iter=50",
+    base_overrides=(PAPER_MODE, 'planner.algorithm="fusion"', "planner.pso.n_pop=100", "planner.pso.max_iter=50",
                     "planner.pso.stagnation_iters=100000"),
     variants=VARIANTS,
     default_runs=10,

@@ -18,6 +18,7 @@ from typing import Any
 import numpy as np
 
 from planner.bench.runner import (
+    PAPER_MODE,
     SCENARIO_DIR,
     Bench,
     BenchSettings,
@@ -73,7 +74,8 @@ BENCH = Bench(
     description="large obstacle field (3000 × 3000 m, 100 obstacles), paper §6.3 / Table 9 / Fig. 32: "
                 "SPSO vs Cartesian PSO",
     scenario=SCENARIO_DIR / "large_obstacle_field.toml",
-    base_overrides=("planner.pso.n_pop=500", "planner.pso.max_iter=200", "planner.pso.stagnation_iters=100000"),
+    base_overrides=(PAPER_MODE, "planner.pso.n_pop=500", "planner.pso.max_iter=200",
+                    "planner.pso.stagnation_iters=100000"),
     variants=VARIANTS,
     default_runs=10,
     report=_report,

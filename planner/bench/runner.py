@@ -26,6 +26,8 @@ from planner.errors import FuseplanError
 log = logging.getLogger(__name__)
 
 SCENARIO_DIR = Path(__file__).resolve().parent.parent.parent / "sitl_scenarios"
+PAPER_MODE = "planner.roadmap.enabled=false"  # the paper's planners as published (the paper benches' first override)
+ROADMAP_MODE = "planner.roadmap.enabled=true"  # fuseplan's roadmap pipeline (docs/method.md §15)
 
 
 @dataclass(frozen=True)
@@ -34,6 +36,9 @@ class Variant:
     label: str  # what it is, e.g. "w/o spherical"
     overrides: tuple[str, ...] = ()  # scenario ``--set`` strings that make this variant
     scenario: Path | None = None  # this variant's scenario file, when it is not the bench's
+    family: str | None = None  # a generated hard-map family instead: run r flies map seed seed_base + r
+    budget_s: float | None = None  # wall-clock budget of each plan (None: the iteration budget alone)
+    peer: str | None = None  # an OMPL peer planner instead of ours (planner.bench.peers), for budget_s
 
 
 @dataclass(frozen=True)
@@ -61,6 +66,13 @@ class BenchSettings:
     def scenario_for(self, variant: Variant) -> Path:
         return variant.scenario if variant.scenario is not None else self.bench.scenario
 
+    def check(self, variant: Variant) -> None:
+        """Load what the variant's runs load (its first generated map), so bad input fails once, up front."""
+        from planner.world.scenario import load_scenario
+
+        path = generated_map(variant.family, self.seed_base) if variant.family else self.scenario_for(variant)
+        load_scenario(path, self.overrides_for(variant))
+
 
 @dataclass(frozen=True)
 class RunSpec:
@@ -69,11 +81,18 @@ class RunSpec:
     variant: str
     run: int
     seed: int
+    family: str | None = None
+    budget_s: float | None = None
+    peer: str | None = None
 
     @property
     def fingerprint(self) -> str:
-        """What decides the result (scenario file name, overrides, seed): a resumed record must match it."""
-        text = json.dumps([Path(self.scenario).name, list(self.overrides), self.seed])
+        """What decides the result (scenario file name, overrides, seed; map family, budget, peer): a resumed
+        record must match it."""
+        parts: list[Any] = [Path(self.scenario).name, list(self.overrides), self.seed]
+        if self.family or self.budget_s is not None or self.peer:
+            parts += [self.family, self.budget_s, self.peer]
+        text = json.dumps(parts)
         return hashlib.sha256(text.encode()).hexdigest()[:16]
 
 
@@ -87,8 +106,36 @@ class BenchOutcome:
 
 def specs_for(settings: BenchSettings) -> list[RunSpec]:
     b = settings.bench
-    return [RunSpec(str(settings.scenario_for(v)), settings.overrides_for(v), v.key, r, settings.seed_base + r)
+    return [RunSpec(str(settings.scenario_for(v)), settings.overrides_for(v), v.key, r, settings.seed_base + r,
+                    v.family, v.budget_s, v.peer)
             for v in b.variants for r in range(settings.runs)]
+
+
+_MAP_DIR: list[Path] = []  # this process's folder of generated maps
+
+
+def generated_map(family: str, seed: int) -> Path:
+    """The scenario file of hard map ``family``/``seed`` (planner.bench.hardmaps), written once per process."""
+    import tempfile
+
+    from planner.bench import hardmaps
+
+    if not _MAP_DIR:
+        _MAP_DIR.append(Path(tempfile.mkdtemp(prefix="fuseplan-maps-")))
+    path = _MAP_DIR[0] / f"hardmap_{family}_{seed}.toml"
+    if not path.exists():
+        path.write_text(hardmaps.generate(family, seed).toml)
+    return path
+
+
+def _planted_length(spec: RunSpec) -> dict[str, Any]:
+    """The planted route's length of a generated map's run, for the records."""
+    if not spec.family:
+        return {}
+    from planner.bench import hardmaps
+
+    route = hardmaps.generate(spec.family, spec.seed).planted
+    return {"family": spec.family, "planted_length_m": float(np.linalg.norm(np.diff(route, axis=0), axis=1).sum())}
 
 
 def run_one(spec: RunSpec) -> dict[str, Any]:
@@ -96,10 +143,20 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     from planner.plan import json_safe, plan, problem_from_scenario
     from planner.world.scenario import load_scenario
 
-    sc = load_scenario(spec.scenario, spec.overrides)
-    res = plan(problem_from_scenario(sc), sc.planner, np.random.default_rng(spec.seed), seed=spec.seed)
+    path = generated_map(spec.family, spec.seed) if spec.family else spec.scenario
+    sc = load_scenario(path, spec.overrides)
+    problem = problem_from_scenario(sc)
+    if spec.peer:
+        return json_safe(_run_peer(spec, problem))
+    build_s = None
+    if sc.planner.roadmap.enabled and sc.planner.algorithm == "fusion":  # built once per map, before the clock
+        from planner.search import roadmap
+
+        build_s = roadmap.routes(problem, sc.planner.roadmap)[0].build_s  # builds (and caches) what plan uses
+    res = plan(problem, sc.planner, np.random.default_rng(spec.seed), seed=spec.seed, budget_s=spec.budget_s)
     m = res.metrics(sc.hazard.d_safe)
     return json_safe({
+        **_planted_length(spec), "roadmap_build_s": build_s,
         "variant": spec.variant, "run": spec.run, "seed": spec.seed, "fingerprint": spec.fingerprint,
         "status": res.status.value, "feasible": res.feasible, "cost": res.cost,
         "penalty": float(res.evaluation.penalty[0]), "length_m": m["length_m"], "smoothness": m["smoothness"],
@@ -113,6 +170,17 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
                           "evaluations": ph.evaluations}
                    for name, ph in (getattr(res.optimiser, "phases", None) or {}).items()},
     })
+
+
+def _run_peer(spec: RunSpec, problem: Any) -> dict[str, Any]:
+    """One OMPL peer run (planner.bench.peers): found, flyable by our checker, length, time."""
+    from planner.bench import peers
+
+    r = peers.solve(problem, spec.peer or "", spec.budget_s or 1.0, spec.seed)
+    return {**_planted_length(spec), "variant": spec.variant, "run": spec.run, "seed": spec.seed,
+            "fingerprint": spec.fingerprint, "status": r.status, "found": r.found, "feasible": r.flyable,
+            "length_m": r.length_m if r.found else None, "time_s": r.time_s,
+            "violations": sum(r.violations.values()) if r.violations else None}
 
 
 def load_records(path: Path) -> dict[tuple[str, int], dict[str, Any]]:

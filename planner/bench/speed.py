@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from planner.bench.runner import (
+    PAPER_MODE,
     SCENARIO_DIR,
     Bench,
     BenchSettings,
@@ -107,7 +108,7 @@ BENCH = Bench(
     name="speed",
     description="SPSO planning time vs nPop, MaxIt, n waypoints and obstacle count (large obstacle field)",
     scenario=SCENARIO_DIR / "large_obstacle_field.toml",
-    base_overrides=('planner.algorithm="spso"', "planner.pso.stagnation_iters=100000",
+    base_overrides=(PAPER_MODE, 'planner.algorithm="spso"', "planner.pso.stagnation_iters=100000",
                     *(f"{SET[k]}={v}" for k, v in BASE.items())),
     variants=VARIANTS,
     default_runs=3,

@@ -7,7 +7,7 @@ A particle is an array (n, 3); a swarm (P, n, 3). ``decode`` turns a swarm into 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -81,6 +81,50 @@ def resample_paths(paths: np.ndarray, count: int) -> np.ndarray:
         for d in range(3):
             out[p, :, d] = np.interp(target[p], s[p], paths[p, :, d])
     return out
+
+
+def resample_keeping_vertices(route: np.ndarray, count: int) -> np.ndarray:
+    """Route (M, 3) → (count, 3) with every vertex kept (count ≥ M) and the extra points spread over the legs
+    in proportion to their length (largest remainder), each leg split evenly: the corners of a guide survive,
+    which even arc-length resampling would cut."""
+    route = np.asarray(route, dtype=float)
+    legs = len(route) - 1
+    if count < len(route):
+        raise ValueError(f"cannot keep {len(route)} vertices in {count} points")
+    length = np.linalg.norm(np.diff(route, axis=0), axis=1)
+    share = (count - 1 - legs) * length / max(length.sum(), 1e-12)
+    parts = 1 + np.floor(share).astype(int)
+    rest = count - 1 - parts.sum()
+    parts[np.argsort(-(share - np.floor(share)), kind="stable")[:rest]] += 1
+    pts = [route[:1]]
+    for a, b, k in zip(route[:-1], route[1:], parts):  # one guide's legs, once per plan: not a hot path
+        pts.append(a + (np.arange(1, k + 1) / k)[:, None] * (b - a))
+    return np.concatenate(pts)
+
+
+def guided_encoding(problem: PlanningProblem, cfg: SPSOConfig, guide: np.ndarray, n: int | None = None,
+                    ) -> tuple[Encoding, np.ndarray]:
+    """The spherical encoding around a guide route (docs/method.md §15.2) and the guide as n + 2 points.
+
+    Step k's azimuth cone is centred on the bearing of the guide's own step k instead of the fixed start→goal
+    bearing, and r ≤ max(2 L_guide / n, 1.5 × the guide's longest step): with the straight line as guide this
+    is :func:`make_encoding` exactly, and the guide is always a particle inside the bounds. ``n`` defaults to
+    the configured waypoints, more if the guide has more vertices."""
+    guide = np.asarray(guide, dtype=float)
+    n = max(cfg.n_waypoints if n is None else n, len(guide) - 2)
+    pts = resample_keeping_vertices(guide, n + 2)
+    steps = np.diff(pts[:-1], axis=0)  # the n encoded steps (the last leg to the goal is implied)
+    length = float(np.linalg.norm(np.diff(pts, axis=0), axis=1).sum())
+    base = make_encoding(problem, replace(cfg, n_waypoints=n))
+    r_max = max(2.0 * length / n, 1.5 * float(np.linalg.norm(steps, axis=1).max()))
+    lo, hi = base.lo.copy(), base.hi.copy()
+    lo[:, 0] = np.minimum(lo[:, 0], r_max)
+    hi[:, 0] = r_max
+    if cfg.direction == "cone":
+        bearing = np.arctan2(steps[:, 1], steps[:, 0])
+        half = math.radians(cfg.cone_half_deg)
+        lo[:, 2], hi[:, 2] = bearing - half, bearing + half
+    return Encoding("spherical", base.start, base.goal, lo, hi), pts
 
 
 def make_encoding(problem: PlanningProblem, cfg: SPSOConfig) -> Encoding:

@@ -4,17 +4,21 @@ returns a higher cost than its own SPSO phase."""
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
 from planner.problem import PlanningProblem
+from planner.search import roadmap
 from planner.search.aco import AntColony
+from planner.search.encoding import Encoding, guided_encoding, resample_keeping_vertices, resample_paths
+from planner.search.roadmap_colony import RoadmapColony
 from planner.search.spso import SphericalPSO
 from planner.search.swarm import OptimiserResult
-from planner.world.config import PlannerSettings
+from planner.world.config import ACOConfig, PlannerSettings
 
 
 @dataclass
@@ -33,41 +37,174 @@ class FusionResult(OptimiserResult):
 
     phases: dict[str, PhaseRecord] = field(default_factory=dict)
     winner: str = "pso"
+    trace: dict[str, list[np.ndarray]] = field(default_factory=dict)  # roadmap guides, ant paths (figures)
 
 
 MIN_ACO_BUDGET_S = 0.005  # below this a colony cannot even build its lattice
+LATTICE_PAIR_S = 3e-8  # measured cost of one edge–obstacle distance while a lattice colony builds its graph
+MIN_COLONY_BUDGET_S = 0.05  # below this the roadmap colony is skipped (a walk of 30 ants takes milliseconds)
 
 
 class Fusion:
-    def __init__(self, settings: PlannerSettings) -> None:
+    """The fusion planner; ``swarm_only``: with the roadmap, stop after the guided swarm (the ``spso`` algorithm
+    with the roadmap's seeds, docs/method.md §15.3 steps 1–2)."""
+
+    def __init__(self, settings: PlannerSettings, swarm_only: bool = False) -> None:
         self.settings = settings
+        self.swarm_only = swarm_only
 
     def run(
         self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = None,
         budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
     ) -> FusionResult:
-        """Phase I SPSO (its stop criteria are the switch), phase II ACO on what budget is left."""
+        """Phase I SPSO (its stop criteria are the switch), phase II ACO on what budget is left; with the
+        roadmap enabled, the roadmap pipeline (:meth:`_run_roadmap`)."""
         t0 = time.perf_counter()
         s = self.settings
+        if s.roadmap.enabled:
+            return self._run_roadmap(problem, rng, initial_paths, budget_s, progress, t0)
         pso_budget = None if budget_s is None else budget_s * (1.0 - s.aco.budget_share)
         pso = SphericalPSO(s.pso).run(problem, rng, initial_paths=initial_paths, budget_s=pso_budget,
                                       progress=progress)
         left = None if budget_s is None else budget_s - (time.perf_counter() - t0)
         if left is not None and left < MIN_ACO_BUDGET_S:  # no time for a colony: SPSO's answer stands
-            return self._finish(pso, None, t0)
+            return self._finish([("pso", pso)], t0)
         aco = AntColony(s.aco).run(problem, rng, pso.path, pso.cost, budget_s=left, progress=progress)
-        return self._finish(pso, aco, t0)
+        return self._finish([("pso", pso), ("aco", aco)], t0)
+
+    def _run_roadmap(
+        self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None,
+        budget_s: float | None, progress: Callable[[int, int, float], None] | None, t0: float,
+    ) -> FusionResult:
+        """docs/method.md §15: roadmap guides → SPSO in the guide's encoding, seeded with every guide → GKDM from
+        the swarm's elites onto the roadmap → ants walk the roadmap → if they found a better corridor, SPSO
+        around it → the corridor-lattice colony refines the winner. Without a roadmap route: the paper's
+        fusion, and the record says at which resolution none was found."""
+        s = self.settings
+        rm, q, weights, routes, cfg = roadmap.routes(problem, s.roadmap)
+        trace: dict[str, list[np.ndarray]] = {"guides": list(routes)}
+        extra = {"roadmap": PhaseRecord(math.nan, len(routes), time.perf_counter() - t0, 0,
+                                        f"{len(routes)} routes at {rm.spacing:.0f} m resolution" if routes
+                                        else f"no route at {rm.spacing:.0f} m resolution")}
+
+        def left() -> float | None:
+            return None if budget_s is None else budget_s - (time.perf_counter() - t0)
+
+        if not routes:  # the paper's planner from the cone (SPSO alone for the spso algorithm)
+            budget = left()
+            budget = None if budget is None else max(budget, 0.0)
+            if self.swarm_only:
+                pso = SphericalPSO(s.pso).run(problem, rng, initial_paths=initial_paths, budget_s=budget,
+                                              progress=progress)
+                return self._finish([("pso", pso)], t0, extra)
+            paper = Fusion(replace(s, roadmap=replace(s.roadmap, enabled=False))).run(
+                problem, rng, initial_paths, budget, progress)
+            paper.phases = {**extra, **paper.phases}
+            paper.time_s = time.perf_counter() - t0
+            return paper
+        enc, seeds = self._guided(problem, routes[0], routes[1:], initial_paths)
+        budget = left()
+        share = 1.0 - s.aco.budget_share
+        guided = replace(s.pso, stagnation_tol=cfg.stagnation_tol)
+        pso = SphericalPSO(guided).run(problem, rng, initial_paths=seeds, encoding=enc, progress=progress,
+                                      budget_s=None if budget is None else max(budget, 0.0) * share)
+        done: list[tuple[str, OptimiserResult]] = [("pso", pso)]
+        if self.swarm_only:
+            result = self._finish(done, t0, extra, lattice=False)
+            result.trace = trace
+            return result
+        budget = left()
+        if budget is None or budget > MIN_COLONY_BUDGET_S:
+            colony = RoadmapColony(s.aco, enc.n + 2, cfg.colony_iter).run(
+                q, weights, problem, self._elites(pso, enc, rm.spacing), rng,
+                None if budget is None else 0.5 * budget)
+            trace["ants"] = colony.ant_paths
+            if colony.route is not None:
+                done.append(("colony", OptimiserResult(
+                    colony.route, colony.cost, colony.evaluation, colony.history, colony.iterations,
+                    f"{100 * colony.arrived:.0f}% of ants arrived", colony.time_s, colony.evaluations)))
+                relax = rm.need - problem.hazard.d_coll
+                guide = roadmap.round_corners(roadmap.shortcut(colony.path, problem, cfg, relax, 0.5 * rm.spacing),
+                                              problem, cfg, relax)
+                # the ants found a cheaper route (on a hard map: a way SPSO could not make flyable): the swarm
+                # makes it flyable around the ants' corridor
+                if colony.cost < pso.cost:
+                    enc2, seeds2 = self._guided(problem, guide, [colony.route, pso.path], None)
+                    budget = left()
+                    pso2 = SphericalPSO(replace(guided, max_iter=max(1, s.pso.max_iter // 2))).run(
+                        problem, rng, initial_paths=seeds2, encoding=enc2, progress=progress,
+                        budget_s=None if budget is None else max(budget, 0.0) * share)
+                    done.append(("pso2", pso2))
+        best = min(done, key=lambda d: d[1].cost)[1]
+        budget = left()
+        if budget is None or budget >= max(MIN_ACO_BUDGET_S, 2.0 * _lattice_setup_s(problem, s.aco, len(best.path))):
+            done.append(("aco", AntColony(s.aco).run(problem, rng, best.path, best.cost, budget_s=budget,
+                                                     progress=progress)))
+        result = self._finish(done, t0, extra)
+        result.trace = trace
+        return result
+
+    def _guided(self, problem: PlanningProblem, guide: np.ndarray, others: list[np.ndarray],
+                initial_paths: np.ndarray | None) -> tuple[Encoding, np.ndarray]:
+        """The encoding around ``guide`` (docs/method.md §15.2) and the seeds: the guide, then ``others`` and the
+        caller's ``initial_paths``, each fitted to the encoding's waypoint count."""
+        cfg = self.settings.roadmap
+        if len(guide) - 2 > cfg.max_guide_points:
+            guide = resample_paths(guide[None], cfg.max_guide_points + 2)[0]
+        enc, guide_pts = guided_encoding(problem, self.settings.pso, guide)
+        seeds = [guide_pts] + [_fit(r, enc.n + 2) for r in others]
+        if initial_paths is not None:
+            seeds += [_fit(p, enc.n + 2) for p in np.asarray(initial_paths, dtype=float)]
+        return enc, np.stack(seeds)
 
     @staticmethod
-    def _finish(pso: OptimiserResult, aco: OptimiserResult | None, t0: float) -> FusionResult:
-        """Better of the two phases; ``aco`` None when the budget left no time for it."""
-        done = [("pso", pso)] + ([("aco", aco)] if aco is not None else [])
-        phases = {name: PhaseRecord(r.cost, r.iterations, r.time_s, r.evaluations, r.stop_reason) for name, r in done}
-        phases.setdefault("aco", PhaseRecord(pso.cost, 0, 0.0, 0, "skipped: no time left"))
-        winner = aco if aco is not None and aco.cost < pso.cost else pso
-        history = pso.history + [min(pso.cost, h) for h in (aco.history if aco is not None else [])]
+    def _elites(pso: OptimiserResult, enc: Encoding, spacing: float, count: int = 5) -> list[np.ndarray]:
+        """Up to ``count`` of the swarm's personal bests as paths, best first, each more than one roadmap
+        spacing (mean distance) from those before it."""
+        st = pso.state
+        if st is None:
+            return [pso.path]
+        order = np.argsort(st.pbest_f, kind="stable")
+        paths = enc.decode(st.pbest_x[order[: 20 * count]])
+        elites = [pso.path]
+        for p in paths:  # at most 20 × count candidates
+            if len(elites) >= count:
+                break
+            if all(roadmap.mean_distance(p, e) > spacing for e in elites):
+                elites.append(p)
+        return elites
+
+    @staticmethod
+    def _finish(done: list[tuple[str, OptimiserResult]], t0: float,
+                extra: dict[str, PhaseRecord] | None = None, lattice: bool = True) -> FusionResult:
+        """The best of the phases ``done`` (in the order they ran; SPSO first) and their records; ``extra``:
+        records of the phases that are not swarms (the roadmap, its colony)."""
+        pso = done[0][1]
+        phases = dict(extra or {})
+        phases.update({name: PhaseRecord(r.cost, r.iterations, r.time_s, r.evaluations, r.stop_reason)
+                       for name, r in done})
+        if lattice:
+            phases.setdefault("aco", PhaseRecord(pso.cost, 0, 0.0, 0, "skipped: no time left"))
+        win_name, winner = min(done, key=lambda d: d[1].cost)  # first of equals: SPSO's on a tie
+        history = list(pso.history)
+        for _, r in done[1:]:  # each later phase's best after each of its iterations (a swarm's initial best left out)
+            history += [min(history[-1], h) for h in r.history[len(r.history) - r.iterations:]]
         stop = "timeout" if any(r.stop_reason == "timeout" for _, r in done) else pso.stop_reason
         return FusionResult(winner.path, winner.cost, winner.evaluation, history,
                             sum(r.iterations for _, r in done), stop, time.perf_counter() - t0,
-                            sum(r.evaluations for _, r in done), pso.state, phases,
-                            "aco" if winner is aco else "pso")
+                            sum(r.evaluations for _, r in done), pso.state, phases, win_name)
+
+def _fit(route: np.ndarray, count: int) -> np.ndarray:
+    """A seed route as ``count`` points: vertices kept when they fit, else evenly along its length."""
+    if len(route) <= count:
+        return resample_keeping_vertices(route, count)
+    return resample_paths(route[None], count)[0]
+
+
+def _lattice_setup_s(problem: PlanningProblem, cfg: ACOConfig, n_points: int) -> float:
+    """Estimated seconds a corridor-lattice colony spends checking its edges against the obstacles before its
+    first ant moves (the check is not interruptible, so a budgeted plan skips a colony it cannot afford)."""
+    m = (2 * cfg.cross_half + 1) * (2 * cfg.vert_half + 1)
+    env = problem.env
+    k = len(env.cylinders) + len(env.spheres) + len(env.radars)
+    return (n_points - 1) * m * m * k * LATTICE_PAIR_S

@@ -53,6 +53,7 @@ class SwarmState:
     v: np.ndarray | None = None  # (P, …) velocities, for the optimisers that have them
     w: float = math.nan  # inertia of the last step (mean over particles if per particle)
     stagnant: int = 0  # iterations since gbest last improved
+    tol: float = 0.0  # relative improvement below which an iteration counts as stagnant
 
     @classmethod
     def start(cls, x: np.ndarray, ev: Evaluation) -> SwarmState:
@@ -70,10 +71,12 @@ class SwarmState:
         self.pbest_f[better] = self.f[better]
         ib = int(np.argmin(self.f))
         if self.f[ib] < self.gbest_f:
+            # once feasible, an improvement by less than ``tol`` of the cost still counts as stagnation
+            small = self.gbest_f - self.f[ib] < self.tol * abs(self.gbest_f) and ev.penalty[ib] == 0.0
             self.gbest_f = float(self.f[ib])
             self.gbest_x = x[ib].copy()
             self.gbest_eval = take(ev, ib)
-            self.stagnant = 0
+            self.stagnant = self.stagnant + 1 if small else 0
         else:
             self.stagnant += 1
 
@@ -129,6 +132,7 @@ def run_swarm(
                   Diversity(budget.diversity_min)])  # its clock starts now: the budget counts init too
     st = SwarmState.start(x0, problem.evaluate(space.decode(x0)))
     st.v = v0
+    st.tol = budget.stagnation_tol
     history = [st.gbest_f]
     if budget_s is not None:
         stop.criteria.append(WallClock(budget_s))

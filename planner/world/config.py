@@ -116,6 +116,7 @@ class SPSOConfig:
     damping: bool = True
     inertia: Literal["damped", "adaptive"] = "damped"
     stagnation_iters: int = 60  # stop after this many iterations without gbest improvement
+    stagnation_tol: float = 0.0  # ... improvement by less than this share of the cost (0: any improvement counts)
     diversity_min: float = 0.0  # stop when normalised swarm diversity σ² falls below this (0 = off)
     cartesian_spread: float = 0.25  # V2 init: perturbation around S→G as a fraction of ‖SG‖
 
@@ -159,6 +160,26 @@ class ACOConfig:
     cross_half: int = 5  # nodes each side of the route across (11 across: ±1, 3, 7, 15, 31 m)
     vert_half: int = 2  # nodes above and below (5 levels: ±1, 3 m)
     stagnation_iters: int = 50  # stop after this many iterations without improvement (50: run T_ACO)
+
+
+@dataclass(frozen=True)
+class RoadmapConfig:
+    """The roadmap pipeline of the fusion (docs/method.md §15): a lattice roadmap of the static world gives
+    diverse guide routes, the swarm searches around them in the guide-relative encoding, and the colony walks
+    the roadmap. ``enabled = false`` is the paper's fusion as published (docs/method.md §9)."""
+
+    __pydantic_config__ = STRICT
+
+    enabled: bool = True
+    spacing: float = 0.0  # horizontal lattice spacing, m (0: sqrt(area / 1600), at least 10 m)
+    max_levels: int = 8  # altitude levels across the band, fewer when the vehicle climbs steeply enough
+    margin: float = 10.0  # clearance beyond d_coll and the tracking margin (A/2) on nodes and edges, m
+    n_routes: int = 3  # diverse guide routes (different corridors) seeded into the swarm
+    reuse_penalty: float = 3.0  # edge weight factor near a route already found, when looking for the next
+    climb_share: float = 0.7  # roadmap edges climb at most this share of the vehicle's max climb angle
+    max_guide_points: int = 40  # interior waypoints the guide may need (the swarm grows to fit it)
+    colony_iter: int = 15  # iterations of the colony on the roadmap (n_ants and the update rule: [planner.aco])
+    stagnation_tol: float = 1e-3  # the guided swarm, once feasible, counts a smaller relative gain as stagnation
 
 
 @dataclass(frozen=True)
@@ -212,6 +233,7 @@ class PlannerSettings:
     sample_spacing: float = 5.0  # m between checked samples of the smoothed trajectory
     pso: SPSOConfig = field(default_factory=SPSOConfig)  # also the shared budget of the PSO baselines
     aco: ACOConfig = field(default_factory=ACOConfig)
+    roadmap: RoadmapConfig = field(default_factory=RoadmapConfig)
     qpso: QPSOConfig = field(default_factory=QPSOConfig)
     psogsa: PSOGSAConfig = field(default_factory=PSOGSAConfig)
     bpso: BPSOConfig = field(default_factory=BPSOConfig)

@@ -505,6 +505,21 @@ def _check_configs(file: str, vehicle: VehicleLimits, hazard: HazardConfig, plan
         ("planner.bpso.bits_alt", bpso.bits_alt, 1 <= bpso.bits_alt <= 10, "must be in [1, 10]"),
         ("planner.bpso.corridor_frac", bpso.corridor_frac, 0 < bpso.corridor_frac <= 2, "must be in (0, 2]"),
         ("planner.bpso.v_max", bpso.v_max, bpso.v_max > 0, "must be > 0"),
+        ("planner.pso.stagnation_tol", pso.stagnation_tol, 0 <= pso.stagnation_tol < 1, "must be in [0, 1)"),
+    ]
+    rm = planner.roadmap
+    checks += [
+        ("planner.roadmap.spacing", rm.spacing, rm.spacing == 0 or rm.spacing >= 1, "must be 0 (auto) or >= 1 m"),
+        ("planner.roadmap.max_levels", rm.max_levels, 1 <= rm.max_levels <= 50, "must be in [1, 50]"),
+        ("planner.roadmap.margin", rm.margin, rm.margin >= 0, "must be >= 0 m"),
+        ("planner.roadmap.n_routes", rm.n_routes, 1 <= rm.n_routes <= 20, "must be in [1, 20]"),
+        ("planner.roadmap.reuse_penalty", rm.reuse_penalty, rm.reuse_penalty >= 1, "must be >= 1"),
+        ("planner.roadmap.climb_share", rm.climb_share, 0 < rm.climb_share <= 1, "must be in (0, 1]"),
+        ("planner.roadmap.max_guide_points", rm.max_guide_points, 1 <= rm.max_guide_points <= 200,
+         "must be in [1, 200]"),
+        ("planner.roadmap.colony_iter", rm.colony_iter, 1 <= rm.colony_iter <= MAX_ITERATIONS,
+         f"must be in [1, {MAX_ITERATIONS}]"),
+        ("planner.roadmap.stagnation_tol", rm.stagnation_tol, 0 <= rm.stagnation_tol < 1, "must be in [0, 1)"),
     ]
     for group, obj in (("planner.weights", planner.weights), ("planner.penalty", planner.penalty),
                        ("planner.pso", {"c1": pso.c1, "c2": pso.c2, "w0": pso.w0, "w_damp": pso.w_damp}),

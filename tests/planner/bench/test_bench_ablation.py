@@ -13,7 +13,7 @@ import pytest
 from companion.cli import main
 
 TINY = ["--runs", "2", "--set", "planner.pso.n_pop=20", "--set", "planner.pso.max_iter=5", "-q"]
-VARIANTS = ["V1", "V2", "V3", "V4", "V5"]
+VARIANTS = ["V1", "V2", "V3", "V4", "V5", "V1R"]
 TIME_COLUMNS = ("time_s", "time_s_mean", "time_s_std")  # wall clock: the only numbers allowed to differ
 
 
@@ -86,20 +86,20 @@ def test_resume_runs_only_what_is_missing(bench_dir, tmp_path, capsys) -> None:
     assert _bench(tmp_path, "--workers", "2") == 0
     jsonl = tmp_path / "ablation.jsonl"
     lines = jsonl.read_text().splitlines()
-    assert len(lines) == 10
+    assert len(lines) == 2 * len(VARIANTS)
     dropped = json.loads(lines[3])
     jsonl.write_text("\n".join(lines[:3] + lines[4:]) + "\n" + lines[3][:17])  # and a line cut mid-write
     capsys.readouterr()
     assert _bench(tmp_path, "--workers", "2") == 0
-    assert "1 runs computed, 9 reused" in capsys.readouterr().out
+    assert f"1 runs computed, {2 * len(VARIANTS) - 1} reused" in capsys.readouterr().out
     recs = [json.loads(x) for x in jsonl.read_text().splitlines() if x.startswith("{") and x.endswith("}")]
-    assert sorted((r["variant"], r["run"]) for r in recs) == [(v, r) for v in VARIANTS for r in range(2)]
+    assert sorted((r["variant"], r["run"]) for r in recs) == sorted((v, r) for v in VARIANTS for r in range(2))
     redone = next(r for r in recs if (r["variant"], r["run"]) == (dropped["variant"], dropped["run"]))
     assert redone["cost"] == dropped["cost"] and redone["history"] == dropped["history"]
     for name in ("ablation.csv", "ablation_runs.csv"):
         assert _without_times(_rows(tmp_path / name)) == _without_times(_rows(bench_dir / name)), name
     assert _bench(tmp_path, "--workers", "2") == 0  # nothing left to do
-    assert "0 runs computed, 10 reused" in capsys.readouterr().out
+    assert f"0 runs computed, {2 * len(VARIANTS)} reused" in capsys.readouterr().out
 
 
 def test_resume_refuses_records_made_with_other_settings(bench_dir, tmp_path, capsys) -> None:

@@ -14,7 +14,7 @@ from companion.cli import main
 TINY = ["--runs", "2", "--set", "planner.pso.n_pop=20", "--set", "planner.pso.max_iter=5",
         "--set", "planner.aco.max_iter=5", "-q"]
 TIME_COLUMNS = ("time_s", "time_s_mean", "time_s_std")  # wall clock: the only numbers allowed to differ
-ALGS = ["fusion", "spso", "qpso", "psogsa", "bpso", "pso"]
+ALGS = ["fusion", "spso", "qpso", "psogsa", "bpso", "pso", "roadmap"]
 CATS = ("collision", "altitude", "turn", "climb", "bounds")
 FILES = {
     "compare-static": ("compare-static.png", "compare-static_convergence.png", "compare-static_radar.png"),

@@ -104,8 +104,8 @@ def test_colony_is_deterministic_and_never_worse_than_its_seed(rescue_static, up
 
 
 def test_fusion_never_worse_than_its_spso_phase_over_many_seeds(rescue_static) -> None:
-    sc = load_scenario(rescue_static, ["planner.pso.n_pop=60", "planner.pso.max_iter=40",
-                                       "planner.aco.max_iter=20"])
+    sc = load_scenario(rescue_static, ["planner.roadmap.enabled=false", "planner.pso.n_pop=60",
+                                       "planner.pso.max_iter=40", "planner.aco.max_iter=20"])
     prob = problem_from_scenario(sc)
     improved = 0
     for seed in range(12):

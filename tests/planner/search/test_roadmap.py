@@ -1,0 +1,193 @@
+"""The roadmap of the static world, the guide-relative encoding, the colony on the roadmap and the roadmap
+pipeline of the fusion (docs/method.md §15)."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from planner.bench import hardmaps
+from planner.plan import PlanStatus, plan
+from planner.problem import PlanningProblem
+from planner.search import roadmap as rmap
+from planner.search.encoding import guided_encoding, make_encoding, resample_keeping_vertices
+from planner.search.roadmap_colony import DETOUR_SCALE, adjacency, gkdm_pheromone, walk
+from planner.trajectory.checks import obstacle_clearance
+from planner.world.config import ACOConfig, HazardConfig, PlannerSettings, RoadmapConfig, SPSOConfig, VehicleLimits
+from planner.world.environment import Cylinders, Environment, Threat, Threats
+
+VEHICLE = VehicleLimits()
+HAZARD = HazardConfig(d_safe=60.0, d_coll=15.0)
+CFG = RoadmapConfig(enabled=True)
+
+
+def _cylinders(*rows: tuple[float, float, float]) -> Cylinders:
+    a = np.array(rows, dtype=float).reshape(-1, 3)
+    return Cylinders(a[:, 0], a[:, 1], a[:, 2], np.full(len(a), np.inf), np.zeros(len(a)))
+
+
+def _problem(cyl: Cylinders, start=(100.0, 500.0, 120.0), goal=(1100.0, 500.0, 120.0), size=(1200.0, 1000.0),
+             threats: Threats | None = None, start_time: float | None = None) -> PlanningProblem:
+    env = Environment(size[0], size[1], 50.0, 300.0, cylinders=cyl, threats=threats or Threats())
+    return PlanningProblem(env, np.array(start), np.array(goal), VEHICLE, HAZARD, start_time=start_time)
+
+
+def _densify(route: np.ndarray, step: float = 2.0) -> np.ndarray:
+    return rmap._densify(route, step)
+
+
+# --- roadmap ------------------------------------------------------------------------------------------------
+def test_every_node_and_edge_keeps_the_roadmaps_clearance_band_and_climb() -> None:
+    pb = _problem(_cylinders((600.0, 500.0, 150.0), (300.0, 250.0, 60.0)))
+    rm = rmap.build(pb, CFG)
+    need = HAZARD.d_coll + VEHICLE.acceptance_radius / 2 + CFG.margin
+    assert rm.need == pytest.approx(need)
+    # nodes, independently of the roadmap's own slack
+    assert (obstacle_clearance(rm.nodes, None, pb.env) >= need - 1e-9).all()
+    # edges: dense samples of every edge (a Lipschitz-cleared edge too)
+    a, b = rm.nodes[rm.edges[:, 0]], rm.nodes[rm.edges[:, 1]]
+    t = np.linspace(0.0, 1.0, 21)[:, None, None]
+    pts = (a[None] + t * (b - a)[None]).reshape(-1, 3)
+    assert (obstacle_clearance(pts, None, pb.env) >= need - 1e-6).all()
+    assert ((pts[:, 2] >= pb.env.z_min) & (pts[:, 2] <= pb.env.z_max)).all()
+    horiz = np.hypot(*(b - a)[:, :2].T)
+    assert (np.abs(b[:, 2] - a[:, 2]) <= horiz * math.tan(CFG.climb_share * VEHICLE.max_climb) + 1e-9).all()
+    assert len(np.unique(rm.nodes[:, 2])) > 1  # several levels, joined by climbing edges
+    assert (np.abs(b[:, 2] - a[:, 2]) > 0).any()
+
+
+def test_a_wall_across_the_map_leaves_no_route_and_the_plan_says_at_which_resolution() -> None:
+    ys = np.arange(0.0, 1001.0, 50.0)
+    pb = _problem(_cylinders(*[(600.0, y, 40.0) for y in ys]))
+    rm = rmap.build(pb, CFG)
+    assert rmap.diverse_routes(rm, pb, CFG) == []
+    settings = PlannerSettings(roadmap=CFG, pso=SPSOConfig(n_pop=30, max_iter=10))
+    res = plan(pb, settings, np.random.default_rng(0))
+    assert res.status is PlanStatus.INFEASIBLE
+    # none at the roadmap's spacing, without its margin, nor at half the spacing: the plan names the finest
+    assert res.optimiser.phases["roadmap"].stop_reason == f"no route at {0.5 * rm.spacing:.0f} m resolution"
+    assert {"pso", "aco"} <= res.optimiser.phases.keys()  # then the paper's fusion ran
+
+
+def test_diverse_routes_take_both_sides_of_a_central_obstacle_and_keep_clear() -> None:
+    pb = _problem(_cylinders((600.0, 500.0, 150.0)))
+    routes = rmap.diverse_routes(rmap.build(pb, CFG), pb, CFG)
+    assert len(routes) >= 2
+    sides = {np.sign(np.interp(600.0, r[:, 0], r[:, 1]) - 500.0) for r in routes[:2]}
+    assert sides == {-1.0, 1.0}
+    for r in routes:
+        np.testing.assert_array_equal(r[0], pb.start)
+        np.testing.assert_array_equal(r[-1], pb.goal)
+        assert obstacle_clearance(_densify(r), None, pb.env).min() >= HAZARD.d_coll
+
+
+def test_a_moving_threat_raises_edge_weights_where_the_vehicle_would_meet_it_not_the_graph() -> None:
+    cyl = _cylinders((600.0, 150.0, 40.0))
+    # a threat that sits on the straight line while the vehicle would pass there (600 m at 18 m/s ≈ 28 s)
+    threat = Threat("t1", "loiter", 60.0, (600.0, 500.0, 120.0), circle_radius=1.0, speed=0.1)
+    pb = _problem(cyl, threats=Threats([threat]), start_time=0.0)
+    static = dataclasses.replace(pb, env=dataclasses.replace(pb.env, threats=Threats()), start_time=None)
+    rm = rmap.cached(pb, CFG)
+    assert rmap.cached(static, CFG) is rm  # the same static world: the same roadmap, no rebuild
+    straight = rmap.diverse_routes(rm, static, CFG)[0]
+    dodging = rmap.diverse_routes(rm, pb, CFG)[0]
+    assert abs(np.interp(600.0, straight[:, 0], straight[:, 1]) - 500.0) < 60.0
+    pts = _densify(dodging)
+    assert np.linalg.norm(pts[:, :2] - [600.0, 500.0], axis=1).min() > 60.0 + HAZARD.d_coll
+
+
+# --- guide-relative encoding ----------------------------------------------------------------------------------
+def test_with_the_straight_line_as_guide_the_encoding_is_the_papers() -> None:
+    pb = _problem(_cylinders((600.0, 500.0, 150.0)), goal=(1000.0, 900.0, 200.0))
+    cfg = SPSOConfig(n_waypoints=8)
+    enc, pts = guided_encoding(pb, cfg, np.stack([pb.start, pb.goal]))
+    paper = make_encoding(pb, cfg)
+    np.testing.assert_allclose(enc.lo, paper.lo, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(enc.hi, paper.hi, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(pts, np.linspace(pb.start, pb.goal, 10), atol=1e-9)
+
+
+def test_the_guide_is_a_particle_and_any_route_in_its_corridor_round_trips() -> None:
+    pb = _problem(_cylinders((600.0, 500.0, 150.0)))
+    guide = np.array([pb.start, [300.0, 800.0, 150.0], [700.0, 850.0, 180.0], [1000.0, 300.0, 130.0], pb.goal])
+    enc, pts = guided_encoding(pb, SPSOConfig(n_waypoints=8), guide)
+    for v in guide:  # vertices kept
+        assert np.linalg.norm(pts - v, axis=1).min() < 1e-9
+    x = enc.encode(pts[None])
+    assert ((x >= enc.lo - 1e-12) & (x <= enc.hi + 1e-12)).all()
+    np.testing.assert_allclose(enc.decode(x)[0], pts, atol=1e-9)
+    sample = enc.sample(np.random.default_rng(3), 200)  # any route inside the corridor
+    np.testing.assert_allclose(enc.encode(enc.decode(sample)), sample, atol=1e-9)
+    # azimuth cones follow the guide, not the start→goal bearing (that one is 0 here)
+    mid = 0.5 * (enc.lo[:, 2] + enc.hi[:, 2])
+    assert np.degrees(np.abs(mid)).max() > 60.0
+
+
+def test_resampling_keeps_vertices_and_spreads_points_by_leg_length() -> None:
+    route = np.array([[0.0, 0, 0], [100.0, 0, 0], [100.0, 400.0, 0]])
+    pts = resample_keeping_vertices(route, 7)
+    assert len(pts) == 7
+    np.testing.assert_array_equal(pts[[0, 2, 6]], route)  # 1 extra point on the short leg, 3 on the long one
+    with pytest.raises(ValueError):
+        resample_keeping_vertices(route, 2)
+
+
+# --- the colony on the roadmap ----------------------------------------------------------------------------------
+def test_ants_walk_from_start_to_goal_without_revisiting_and_follow_the_pheromone() -> None:
+    pb = _problem(_cylinders((600.0, 500.0, 150.0)))
+    rm = rmap.build(pb, CFG)
+    q = rmap.attach(rm, pb, CFG)
+    adj = adjacency(q)
+    deg = np.bincount(q.edges.ravel(), minlength=len(q.points))
+    assert ((adj.nbr >= 0).sum(axis=1) == deg).all()
+    w = rmap.clearance_weights(q, pb)
+    from scipy.sparse.csgraph import dijkstra
+
+    to_goal = dijkstra(q.graph(w), indices=q.goal)
+    routes = rmap.diverse_routes(rm, pb, CFG, q, w)
+    side = np.sign(np.interp(600.0, routes[1][:, 0], routes[1][:, 1]) - 500.0)
+    aco = ACOConfig()
+    tau = gkdm_pheromone(q, [routes[1]], aco, rm.spacing)  # the second corridor is the swarm's best
+    hops = int(to_goal[q.start] / rm.spacing) + 2
+
+    def share_on_side(tau: np.ndarray) -> float:
+        seq, arrived = walk(adj, tau, w, to_goal, DETOUR_SCALE * rm.spacing, q.start, q.goal, 60, 3 * hops, aco,
+                            np.random.default_rng(0))
+        assert arrived.mean() > 0.9
+        on_side = []
+        for s in seq[arrived]:
+            nodes = s[s >= 0]
+            assert len(np.unique(nodes)) == len(nodes) and nodes[0] == q.start and nodes[-1] == q.goal
+            p = q.points[nodes]
+            on_side.append(np.sign(np.interp(600.0, p[:, 0], p[:, 1]) - 500.0) == side)
+        return float(np.mean(on_side))
+
+    # the corridor GKDM marked draws more ants than it does on uniform pheromone
+    assert share_on_side(tau) > share_on_side(np.full_like(tau, aco.tau0)) + 0.2
+
+
+# --- the pipeline ------------------------------------------------------------------------------------------------
+def test_roadmap_fusion_flies_a_gates_map_that_the_papers_fusion_cannot_and_is_reproducible(tmp_path) -> None:
+    from planner.plan import problem_from_scenario
+    from planner.world.scenario import load_scenario
+
+    hm = hardmaps.generate("gates", 0, n_walls=3)
+    path = tmp_path / "gates.toml"
+    path.write_text(hm.toml)
+    small = ["planner.pso.n_pop=100", "planner.pso.max_iter=60"]
+    sc = load_scenario(path, [*small, "planner.roadmap.enabled=true"])
+    pb = problem_from_scenario(sc)
+    a = plan(pb, sc.planner, np.random.default_rng(5))
+    b = plan(pb, sc.planner, np.random.default_rng(5))
+    assert a.feasible, a.violations
+    np.testing.assert_array_equal(a.waypoints, b.waypoints)
+    phases = a.optimiser.phases
+    assert set(phases) >= {"roadmap", "pso", "colony", "aco"}
+    swarm_phases = [p for name, p in phases.items() if name != "roadmap"]
+    assert a.optimiser.cost == min(p.best_cost for p in swarm_phases)  # the cheapest phase's route
+    assert a.optimiser.winner in phases and np.all(np.diff(a.optimiser.history) <= 0)
+    paper = load_scenario(path, [*small, "planner.roadmap.enabled=false"])
+    assert not plan(problem_from_scenario(paper), paper.planner, np.random.default_rng(5)).feasible
