@@ -81,6 +81,8 @@ def _parser() -> argparse.ArgumentParser:
     bn = planner_parsers["bench"]
     bn.add_argument("--speedup", type=float, default=1.0,
                     help="bench replan only: simulator speed-up (1 = the latency target's condition)")
+    bn.add_argument("--whole", action="store_true",
+                    help="bench replan only: fly every flight to its end and count replans per conflict")
     sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated autopilot "
                    "at 20x, replanning around an intruder")
     return p
@@ -91,7 +93,7 @@ REPLAN_BENCH_SCENARIOS = ("rescue_dynamic.toml", "crossing_traffic.toml")
 
 def cmd_bench_replan(args: argparse.Namespace) -> int:
     """Replan latency on the simulated autopilot (companion.flight.latency_bench)."""
-    from companion.flight.latency_bench import run_latency_bench
+    from companion.flight.latency_bench import run_flight_bench, run_latency_bench
 
     runs = 5 if args.runs is None else args.runs
     if runs < 1 or not (math.isfinite(args.speedup) and args.speedup > 0):
@@ -99,12 +101,17 @@ def cmd_bench_replan(args: argparse.Namespace) -> int:
     plans = [_plan_doc_for(SCENARIOS / name, None, list(args.overrides), None, for_flight=True)
              for name in REPLAN_BENCH_SCENARIOS]
     say = (lambda _t: None) if args.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
-    say(f"bench replan: {len(plans)} scenarios × {runs} flights at {args.speedup:g}× until the first replan")
+    whole = getattr(args, "whole", False)
+    say(f"bench replan: {len(plans)} scenarios × {runs} flights at {args.speedup:g}× "
+        + ("to the end" if whole else "until the first replan"))
     try:
-        run_latency_bench(plans, runs, args.speedup, args.output, progress=say)
+        if whole:
+            run_flight_bench(plans, runs, args.speedup, args.output, progress=say)
+        else:
+            run_latency_bench(plans, runs, args.speedup, args.output, progress=say)
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
-    console.show_markdown((args.output / "replan.md").read_text())
+    console.show_markdown((args.output / ("replan_flights.md" if whole else "replan.md")).read_text())
     return EXIT_OK
 
 

@@ -154,3 +154,78 @@ def write_report(results: list[LatencyRun], cfg: ReplanConfig, output: Path) -> 
     md = output / "replan.md"
     md.write_text("\n".join(lines) + "\n")
     return [md, csv_path, output / "replan.json"]
+
+
+# --- whole flights: how many replans a conflict takes (issue 15) ----------------------------------------------------
+LIVE_OK = ("exact", "approximate")
+ONE_REPLAN_TARGET = 0.90  # share of conflicts resolved by one replan
+GOOD_REPLAN_TARGET = 0.95  # share of replans exact/approximate with the predicted separation kept
+
+
+@dataclass(frozen=True)
+class FlightRun:
+    scenario: str
+    run: int
+    speedup: float
+    completed: bool
+    conflicts: int  # distinct threats that caused a replan or a hold
+    replans: int  # replans attempted (planned)
+    live: int  # replans whose mission went live
+    good: int  # replans exact/approximate whose predicted separation ≥ d_coll + margin
+    one_replan: int  # conflicts resolved by exactly one live replan
+    statuses: str  # plan status of each replan, in order
+
+
+async def _whole(plan_doc: dict, scenario: Scenario, run: int, speedup: float, cfg: ReplanConfig,
+                 timeout_s: float) -> FlightRun:
+    out, _records, rp, _sim = await fly_on_sim(plan_doc, scenario, speedup=speedup, cfg=cfg, seed=run,
+                                               flight_timeout=timeout_s)
+    need = scenario.hazard.d_coll + cfg.margin_m
+    recs = rp.records
+    planned = [r for r in recs if r.plan_status]
+    good = [r for r in planned if r.plan_status in LIVE_OK and r.sep_after_m is not None and r.sep_after_m >= need]
+    live_by_threat: dict[str, int] = {}
+    for r in recs:
+        live_by_threat.setdefault(r.threat, 0)
+        live_by_threat[r.threat] += r.latency_s is not None
+    return FlightRun(scenario.name, run, speedup, out is not None and out.completed,
+                     len(live_by_threat), len(planned), sum(r.latency_s is not None for r in recs), len(good),
+                     sum(n == 1 for n in live_by_threat.values()), " ".join(r.plan_status or "-" for r in recs))
+
+
+def run_flight_bench(plans: Sequence[tuple[dict, Scenario]], runs: int, speedup: float, output: Path,
+                     cfg: ReplanConfig | None = None, progress: Callable[[str], None] | None = None) -> list[FlightRun]:
+    """``runs`` whole flights per plan; writes replan_flights.md and replan_flights.csv."""
+    cfg = cfg or ReplanConfig()
+    results: list[FlightRun] = []
+    for doc, sc in plans:
+        timeout = 60.0 + 3.0 * float(doc["metrics"]["length_m"]) / sc.vehicle.cruise_speed / speedup
+        for run in range(1, runs + 1):
+            res = asyncio.run(_whole(doc, sc, run, speedup, cfg, timeout))
+            results.append(res)
+            if progress is not None:
+                progress(f"{sc.name} flight {run}/{runs}: {res.conflicts} conflicts, {res.replans} replans "
+                         f"({res.statuses}), {res.live} live")
+    output.mkdir(parents=True, exist_ok=True)
+    write_csv(output / "replan_flights.csv", [asdict(r) for r in results], list(FlightRun.__dataclass_fields__))
+    lines = ["# Replans per conflict over whole flights on the built-in simulated autopilot", "",
+             f"Every flight flown to its end at {speedup:g}× with live replanning (budget {cfg.budget_s:g} s, swarm "
+             f"{cfg.population}, the roadmap pipeline unless the scenario says otherwise). A replan is *good* when "
+             "it ends exact or approximate with a predicted separation of at least d_coll + margin "
+             f"({cfg.margin_m:g} m); a conflict (one threat) is resolved by one replan when exactly one new mission "
+             f"went live for it. Targets (issue 15): good ≥ {100 * GOOD_REPLAN_TARGET:.0f} %, one replan per "
+             f"conflict ≥ {100 * ONE_REPLAN_TARGET:.0f} %.", "",
+             "| scenario | flights | completed | conflicts | replans | good | one replan per conflict | verdict |",
+             "|---|---|---|---|---|---|---|---|"]
+    for name in dict.fromkeys(r.scenario for r in results):
+        rs = [r for r in results if r.scenario == name]
+        conflicts, replans = sum(r.conflicts for r in rs), sum(r.replans for r in rs)
+        good, one = sum(r.good for r in rs), sum(r.one_replan for r in rs)
+        g = good / replans if replans else float("nan")
+        o = one / conflicts if conflicts else float("nan")
+        meets = replans > 0 and g >= GOOD_REPLAN_TARGET and o >= ONE_REPLAN_TARGET
+        lines.append(f"| {name} | {len(rs)} | {sum(r.completed for r in rs)} | {conflicts} | {replans} | "
+                     f"{good} ({100 * g:.0f} %) | {one} ({100 * o:.0f} %) | {'meets' if meets else 'MISSES'} |")
+    lines += ["", "Per flight (statuses of each replan in order, '-' a hold without a plan): replan_flights.csv."]
+    (output / "replan_flights.md").write_text("\n".join(lines) + "\n")
+    return results

@@ -393,6 +393,24 @@ def test_replan_latency_bench_writes_its_report(dynamic_plan: Path, tmp_path: Pa
         assert "| rescue_dynamic | 10× | 1 | 1 |" in md
 
 
+def test_whole_flight_bench_counts_replans_per_conflict(dynamic_plan: Path, tmp_path: Path) -> None:
+    """`fuseplan bench replan --whole` on one fast flight: the flight ends, every replan and conflict is counted
+    as the replanner recorded it (what the counts are is the bench's report, not this test's)."""
+    import csv
+
+    from companion.flight.latency_bench import run_flight_bench
+
+    runs = run_flight_bench([(json.loads(dynamic_plan.read_text()), load_scenario(DYNAMIC))], runs=1,
+                            speedup=10.0, output=tmp_path, cfg=UPLOADS)
+    run = runs[0]
+    assert run.completed and run.conflicts >= 1  # the scripted intruder always conflicts with the first plan
+    assert run.good <= run.replans and run.one_replan <= run.conflicts and run.live <= run.replans
+    assert len(run.statuses.split()) >= run.replans
+    rows = list(csv.DictReader((tmp_path / "replan_flights.csv").open()))
+    assert len(rows) == 1 and int(rows[0]["conflicts"]) == run.conflicts
+    assert "| rescue_dynamic | 1 | 1 |" in (tmp_path / "replan_flights.md").read_text()
+
+
 def test_a_stale_auto_heartbeat_between_hold_and_resume_does_not_leave_the_vehicle_holding(static_plan_doc) -> None:
     """PX4 acknowledges DO_SET_MODE before its HEARTBEAT shows the new mode: a HEARTBEAT still saying AUTO can
     arrive between the replanner's hold and its resume (seen in CI on PX4 SITL: the companion took it for someone
