@@ -117,7 +117,7 @@ def plot_pipeline(path: str | Path, env: Environment, roadmap_edges: np.ndarray,
     routes, the colony's last ants, the flown (smoothed) route and, on a generated map, the planted route."""
     from matplotlib.collections import LineCollection
 
-    fig, ax = plt.subplots(figsize=(9, 8))
+    fig, ax = plt.subplots(figsize=(8, 7))
     draw_plan_view(ax, env)
     ax.add_collection(LineCollection(roadmap_edges, colors="0.6", linewidths=0.3, alpha=0.35, label="roadmap"))
     for k, a in enumerate(ants):
@@ -132,5 +132,5 @@ def plot_pipeline(path: str | Path, env: Environment, roadmap_edges: np.ndarray,
     ax.set_title(title)
     ax.legend(loc="upper left", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=80)
     plt.close(fig)

@@ -79,7 +79,7 @@ def test_encoding_bounds_follow_spec(rescue_static) -> None:
     np.testing.assert_allclose(enc.encode(enc.decode(x)), x, atol=1e-9)
 
 
-SMALL = ["planner.pso.n_pop=60", "planner.pso.max_iter=40"]
+SMALL = ["planner.pso.n_pop=60", "planner.pso.max_iter=40", "planner.roadmap.enabled=false"]  # the paper's SPSO variants
 
 
 @pytest.mark.parametrize("variant", [
@@ -121,7 +121,7 @@ def test_stagnation_and_budget_stop_early(rescue_static) -> None:
 def test_warm_start_seeds_the_swarm(rescue_static) -> None:
     sc = load_scenario(rescue_static, ["planner.pso.n_pop=40", "planner.pso.max_iter=1"])
     prob = problem_from_scenario(sc)
-    full = load_scenario(rescue_static, ['planner.algorithm="spso"'])
+    full = load_scenario(rescue_static, ['planner.algorithm="spso"', "planner.roadmap.enabled=false"])
     good = plan(problem_from_scenario(full), full.planner, np.random.default_rng(1)).waypoints
     cold = SphericalPSO(sc.planner.pso).run(prob, np.random.default_rng(3))
     warm = SphericalPSO(sc.planner.pso).run(prob, np.random.default_rng(3), initial_paths=good[None])
