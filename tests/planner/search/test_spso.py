@@ -79,7 +79,7 @@ def test_encoding_bounds_follow_spec(rescue_static) -> None:
     np.testing.assert_allclose(enc.encode(enc.decode(x)), x, atol=1e-9)
 
 
-SMALL = ["planner.pso.n_pop=60", "planner.pso.max_iter=40", "planner.roadmap.enabled=false"]  # the paper's SPSO variants
+SMALL = ["planner.pso.n_pop=60", "planner.pso.max_iter=40", "planner.roadmap.enabled=false"]  # paper SPSO variants
 
 
 @pytest.mark.parametrize("variant", [
