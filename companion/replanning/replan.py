@@ -190,13 +190,9 @@ def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, thre
                            scenario.hazard, s.weights, s.penalty, start_time)
 
 
-def replan_settings(settings: PlannerSettings, cfg: ReplanConfig, tail_points: int = 0) -> PlannerSettings:
-    """The scenario's planner settings with the replanning swarm size, and as many waypoints as the old route's
-    tail has points (up to twice the scenario's): a route planned around the roadmap's corners keeps them in its
-    warm starts, where resampling it to fewer points would cut them (issue 15)."""
-    n = settings.pso.n_waypoints
-    n = min(max(n, tail_points - 2), 2 * n)
-    return dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=cfg.population, n_waypoints=n))
+def replan_settings(settings: PlannerSettings, cfg: ReplanConfig) -> PlannerSettings:
+    """The scenario's planner settings with the replanning swarm size."""
+    return dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=cfg.population))
 
 
 def splice(items: Sequence[MissionItem], first_new_seq: int, new_route: np.ndarray, goal_seq: int,

@@ -460,7 +460,7 @@ class LiveReplanner:
         rec.commit = [round(float(v), 1) for v in cp.point]
         rec.old_route = cp.old_tail.round(1).tolist()
         problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed)
-        settings = replan_settings(self.scenario.planner, cfg, len(cp.old_tail))
+        settings = replan_settings(self.scenario.planner, cfg)
         t0 = time.monotonic()
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
         # a plan that overruns (a loaded machine, a planner process still starting) must not let the vehicle fly

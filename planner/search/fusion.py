@@ -109,9 +109,10 @@ class Fusion:
             paper.phases = {**extra, **paper.phases}
             paper.time_s = time.perf_counter() - t0
             return paper
-        # the guide is the cheapest candidate: a roadmap route, or a caller's seed (a replan's old route, bent)
+        # the guide is the first roadmap route, or a caller's seed (an old route, bent) when one is cheaper
         candidates = [*routes, *([] if initial_paths is None else list(np.asarray(initial_paths, dtype=float)))]
-        best = int(np.argmin([problem.evaluate(c[None]).total[0] for c in candidates]))
+        costs = [problem.evaluate(c[None]).total[0] for c in candidates]
+        best = 0 if min(costs[len(routes):], default=np.inf) >= costs[0] else int(np.argmin(costs))
         enc, seeds = self._guided(problem, candidates[best], candidates[:best] + candidates[best + 1:], None)
         budget = left()
         share = 1.0 - s.aco.budget_share
@@ -136,9 +137,9 @@ class Fusion:
                 relax = rm.need - problem.hazard.d_coll
                 guide = roadmap.round_corners(roadmap.shortcut(colony.path, problem, cfg, relax, 0.5 * rm.spacing),
                                               problem, cfg, relax)
-                # the ants found a cheaper route (on a hard map: a way SPSO could not make flyable): the swarm
-                # makes it flyable around the ants' corridor
-                if colony.cost < pso.cost:
+                # the ants found a cheaper route (on a hard map: a way SPSO could not make flyable) or another
+                # corridor: the swarm makes it flyable around the ants' corridor
+                if colony.cost < pso.cost or roadmap.mean_distance(guide, pso.path) > rm.spacing:
                     enc2, seeds2 = self._guided(problem, guide, [colony.route, pso.path], None)
                     budget = left()
                     pso2 = SphericalPSO(replace(guided, max_iter=max(1, s.pso.max_iter // 2))).run(
