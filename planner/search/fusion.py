@@ -42,7 +42,6 @@ class FusionResult(OptimiserResult):
 
 MIN_ACO_BUDGET_S = 0.005  # below this a colony cannot even build its lattice
 LATTICE_PAIR_S = 3e-8  # measured cost of one edge–obstacle distance while a lattice colony builds its graph
-QUICK_BUDGET_S = 1.0  # below this time budget the roadmap gives one guide route (a live replan's 0.15 s)
 MIN_COLONY_BUDGET_S = 0.05  # below this the roadmap colony is skipped (a walk of 30 ants takes milliseconds)
 
 
@@ -62,11 +61,7 @@ class Fusion:
         roadmap enabled, the roadmap pipeline (:meth:`_run_roadmap`)."""
         t0 = time.perf_counter()
         s = self.settings
-        # a live replan (a fraction of a second, seeded with the old route) keeps the warm-started paper pipeline:
-        # the roadmap query takes half of a 0.15 s budget, and measured on rescue_dynamic its replans went from
-        # 5 of 5 live to 0 of 5 (docs/method.md §15.3)
-        live_replan = budget_s is not None and budget_s < QUICK_BUDGET_S and initial_paths is not None
-        if s.roadmap.enabled and not live_replan:
+        if s.roadmap.enabled:
             return self._run_roadmap(problem, rng, initial_paths, budget_s, progress, t0)
         pso_budget = None if budget_s is None else budget_s * (1.0 - s.aco.budget_share)
         pso = SphericalPSO(s.pso).run(problem, rng, initial_paths=initial_paths, budget_s=pso_budget,
@@ -86,9 +81,7 @@ class Fusion:
         around it → the corridor-lattice colony refines the winner. Without a roadmap route: the paper's
         fusion, and the record says at which resolution none was found."""
         s = self.settings
-        quick = budget_s is not None and budget_s < QUICK_BUDGET_S  # a live replan: one guide, no detours
-        rm, q, weights, routes, cfg = roadmap.routes(problem, replace(s.roadmap, n_routes=1) if quick
-                                                     else s.roadmap)
+        rm, q, weights, routes, cfg = roadmap.routes(problem, s.roadmap)
         trace: dict[str, list[np.ndarray]] = {"guides": list(routes)}
         extra = {"roadmap": PhaseRecord(math.nan, len(routes), time.perf_counter() - t0, 0,
                                         f"{len(routes)} routes at {rm.spacing:.0f} m resolution" if routes
@@ -109,11 +102,7 @@ class Fusion:
             paper.phases = {**extra, **paper.phases}
             paper.time_s = time.perf_counter() - t0
             return paper
-        # the guide is the first roadmap route, or a caller's seed (an old route, bent) when one is cheaper
-        candidates = [*routes, *([] if initial_paths is None else list(np.asarray(initial_paths, dtype=float)))]
-        costs = [problem.evaluate(c[None]).total[0] for c in candidates]
-        best = 0 if min(costs[len(routes):], default=np.inf) >= costs[0] else int(np.argmin(costs))
-        enc, seeds = self._guided(problem, candidates[best], candidates[:best] + candidates[best + 1:], None)
+        enc, seeds = self._guided(problem, routes[0], routes[1:], initial_paths)
         budget = left()
         share = 1.0 - s.aco.budget_share
         guided = replace(s.pso, stagnation_tol=cfg.stagnation_tol)
