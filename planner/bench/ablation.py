@@ -41,7 +41,7 @@ VARIANTS = (
     Variant("V3", "w/o direction", ('planner.pso.direction="full"',)),
     Variant("V4", "w/o reflection", ("planner.pso.reflection=false",)),
     Variant("V5", "w/o damping", ("planner.pso.damping=false",)),
-    Variant("V1R", "full SPSO, roadmap seeds", (ROADMAP_MODE,)),  # fuseplan's default (docs/method.md §15)
+    Variant("V1R", "full SPSO, roadmap seeds", (ROADMAP_MODE,)),  # fuseplan's roadmap pipeline (docs/method.md §15)
 )
 
 # Paper §6.3 text (Figure 27): only V1 and V2 are quantified; V3–V5 are described in words.
