@@ -32,6 +32,7 @@ from planner.world.config import RoadmapConfig
 from planner.world.geometry import horizontal_turn
 
 TARGET_COLUMNS = 1600  # grid columns of the automatic spacing
+MAX_COLUMNS = 40_000  # the finest grid a configured spacing may ask for (about 10^6 edges per level)
 MIN_SPACING_M = 10.0
 OFFSETS = np.array([(i, j) for i in range(-2, 3) for j in range(-2, 3)
                     if 0 < i * i + j * j <= 5 and (i, j) > (0, 0)])  # half of the 20 neighbours: each edge once
@@ -146,9 +147,10 @@ def climb_ok(problem: PlanningProblem, a: np.ndarray, b: np.ndarray, share: floa
 
 def auto_spacing(problem: PlanningProblem, cfg: RoadmapConfig) -> float:
     """The configured spacing, or sqrt(area / TARGET_COLUMNS) (at least MIN_SPACING_M)."""
-    if cfg.spacing > 0:
-        return cfg.spacing
-    return max(MIN_SPACING_M, math.sqrt(problem.env.size_x * problem.env.size_y / TARGET_COLUMNS))
+    area = problem.env.size_x * problem.env.size_y
+    if cfg.spacing > 0:  # never finer than MAX_COLUMNS grid columns: memory grows with nodes × levels × edges
+        return max(cfg.spacing, math.sqrt(area / MAX_COLUMNS))
+    return max(MIN_SPACING_M, math.sqrt(area / TARGET_COLUMNS))
 
 
 def build(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
