@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 
 from planner.problem import PlanningProblem
-from planner.trajectory.checks import check_trajectory, obstacle_clearance, smooth
+from planner.trajectory.checks import check_trajectory, obstacle_clearance, radar_clearance, smooth
 from planner.trajectory.smoothing import flown_deviation, segment_samples
 from planner.world.config import HazardConfig, PlannerSettings, VehicleLimits
 from planner.world.environment import Cylinders, Environment, Radars, Spheres
@@ -128,13 +128,6 @@ def free_section(env: Environment, x: float, hazard: HazardConfig = HAZARD, step
     free = ((obstacle_clearance(pts, None, env, include_radars=False) >= hazard.d_coll)
             & (radar_clearance(pts, env.radars) >= 0.0))
     return pts[free, 1:]
-
-
-def radar_clearance(points: np.ndarray, radars: Radars) -> np.ndarray:
-    """Distance (M,) from points (M, 3) to the nearest radar's detection range (negative inside; §2.4)."""
-    if not len(radars):
-        return np.full(len(points), np.inf)
-    return (np.linalg.norm(points[None] - radars.center[:, None], axis=-1) - radars.r_det[:, None]).min(axis=0)
 
 
 def _planted_ok(route: np.ndarray, env: Environment, hazard: HazardConfig) -> bool:

@@ -219,14 +219,24 @@ class AntColony:
         if cfg.update == "classic":
             tau *= 1.0 - cfg.rho
             deposit(tau, choice, cfg.deposit * ref / np.maximum(costs, 1e-9))
-        else:  # τ ← ω(t) τ + c1 r Δτ_iteration-best + c2 r Δτ_global-best
-            w_start = 1.0 - cfg.rho
-            omega = w_start + (cfg.w_end - w_start) * it / max(cfg.max_iter - 1, 1)
-            r1, r2 = rng.random(2)
+        else:
+            omega, iter_amount, best_amount = enhanced_update(cfg, it, cfg.max_iter, ref, costs[ib], best_cost, rng)
             tau *= omega
-            deposit(tau, choice[ib : ib + 1], np.array([cfg.c1 * r1 * cfg.deposit * ref / max(costs[ib], 1e-9)]))
-            deposit(tau, best_choice[None], np.array([cfg.c2 * r2 * cfg.deposit * ref / max(best_cost, 1e-9)]))
+            deposit(tau, choice[ib : ib + 1], np.array([iter_amount]))
+            deposit(tau, best_choice[None], np.array([best_amount]))
         np.clip(tau, cfg.tau_min, cfg.tau_max, out=tau)
+
+
+def enhanced_update(cfg: ACOConfig, it: int, max_iter: int, ref: float, iter_cost: float, best_cost: float,
+                    rng: np.random.Generator) -> tuple[float, float, float]:
+    """The enhanced rule τ ← ω(t) τ + c1 r1 Δτ_iteration-best + c2 r2 Δτ_global-best (paper Eq. (36),
+    docs/method.md §8.4) as (ω, iteration-best deposit, global-best deposit): ω falls linearly from 1 − ρ to
+    ``w_end`` over ``max_iter`` iterations (``it`` 0-based); a path of cost ``ref`` deposits Q per edge."""
+    w_start = 1.0 - cfg.rho
+    omega = w_start + (cfg.w_end - w_start) * it / max(max_iter - 1, 1)
+    r1, r2 = rng.random(2)
+    return (omega, cfg.c1 * r1 * cfg.deposit * ref / max(iter_cost, 1e-9),
+            cfg.c2 * r2 * cfg.deposit * ref / max(best_cost, 1e-9))
 
 
 class ColdColony:

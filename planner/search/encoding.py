@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from planner.problem import PlanningProblem
+from planner.trajectory.smoothing import segment_samples
 from planner.world.config import SPSOConfig
 from planner.world.geometry import cartesian_to_spherical, spherical_to_cartesian
 
@@ -96,10 +97,8 @@ def resample_keeping_vertices(route: np.ndarray, count: int) -> np.ndarray:
     parts = 1 + np.floor(share).astype(int)
     rest = count - 1 - parts.sum()
     parts[np.argsort(-(share - np.floor(share)), kind="stable")[:rest]] += 1
-    pts = [route[:1]]
-    for a, b, k in zip(route[:-1], route[1:], parts):  # one guide's legs, once per plan: not a hot path
-        pts.append(a + (np.arange(1, k + 1) / k)[:, None] * (b - a))
-    return np.concatenate(pts)
+    leg, t = segment_samples(parts)
+    return np.concatenate([route[leg] + t[:, None] * (route[leg + 1] - route[leg]), route[-1:]])
 
 
 def guided_encoding(problem: PlanningProblem, cfg: SPSOConfig, guide: np.ndarray, n: int | None = None,

@@ -110,9 +110,7 @@ class Fusion:
                                       budget_s=None if budget is None else max(budget, 0.0) * share)
         done: list[tuple[str, OptimiserResult]] = [("pso", pso)]
         if self.swarm_only:
-            result = self._finish(done, t0, extra, lattice=False)
-            result.trace = trace
-            return result
+            return self._finish(done, t0, extra, lattice=False, trace=trace)
         budget = left()
         if budget is None or budget > MIN_COLONY_BUDGET_S:
             colony = RoadmapColony(s.aco, enc.n + 2, cfg.colony_iter).run(
@@ -123,9 +121,7 @@ class Fusion:
                 done.append(("colony", OptimiserResult(
                     colony.route, colony.cost, colony.evaluation, colony.history, colony.iterations,
                     f"{100 * colony.arrived:.0f}% of ants arrived", colony.time_s, colony.evaluations)))
-                relax = rm.need - problem.hazard.d_coll
-                guide = roadmap.round_corners(roadmap.shortcut(colony.path, problem, cfg, relax, 0.5 * rm.spacing),
-                                              problem, cfg, relax)
+                guide = roadmap.guide(colony.path, rm, problem, cfg)
                 # the ants found a cheaper route (on a hard map: a way SPSO could not make flyable) or another
                 # corridor: the swarm makes it flyable around the ants' corridor
                 if colony.cost < pso.cost or roadmap.mean_distance(guide, pso.path) > rm.spacing:
@@ -140,9 +136,7 @@ class Fusion:
         if budget is None or budget >= max(MIN_ACO_BUDGET_S, 2.0 * _lattice_setup_s(problem, s.aco, len(best.path))):
             done.append(("aco", AntColony(s.aco).run(problem, rng, best.path, best.cost, budget_s=budget,
                                                      progress=progress)))
-        result = self._finish(done, t0, extra)
-        result.trace = trace
-        return result
+        return self._finish(done, t0, extra, trace=trace)
 
     def _guided(self, problem: PlanningProblem, guide: np.ndarray, others: list[np.ndarray],
                 initial_paths: np.ndarray | None) -> tuple[Encoding, np.ndarray]:
@@ -175,10 +169,10 @@ class Fusion:
         return elites
 
     @staticmethod
-    def _finish(done: list[tuple[str, OptimiserResult]], t0: float,
-                extra: dict[str, PhaseRecord] | None = None, lattice: bool = True) -> FusionResult:
+    def _finish(done: list[tuple[str, OptimiserResult]], t0: float, extra: dict[str, PhaseRecord] | None = None,
+                lattice: bool = True, trace: dict[str, list[np.ndarray]] | None = None) -> FusionResult:
         """The best of the phases ``done`` (in the order they ran; SPSO first) and their records; ``extra``:
-        records of the phases that are not swarms (the roadmap, its colony)."""
+        records of the phases that are not swarms (the roadmap); ``trace``: what figures draw."""
         pso = done[0][1]
         phases = dict(extra or {})
         phases.update({name: PhaseRecord(r.cost, r.iterations, r.time_s, r.evaluations, r.stop_reason)
@@ -192,7 +186,8 @@ class Fusion:
         stop = "timeout" if any(r.stop_reason == "timeout" for _, r in done) else pso.stop_reason
         return FusionResult(winner.path, winner.cost, winner.evaluation, history,
                             sum(r.iterations for _, r in done), stop, time.perf_counter() - t0,
-                            sum(r.evaluations for _, r in done), pso.state, phases, win_name)
+                            sum(r.evaluations for _, r in done), pso.state, phases, win_name, dict(trace or {}))
+
 
 def _fit(route: np.ndarray, count: int) -> np.ndarray:
     """A seed route as ``count`` points: vertices kept when they fit, else evenly along its length."""

@@ -17,6 +17,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+import time
 from dataclasses import dataclass, replace
 from functools import cached_property
 
@@ -26,8 +27,8 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from planner.problem import PlanningProblem
-from planner.trajectory.checks import obstacle_clearance
-from planner.trajectory.smoothing import peak_curvature, peak_factor
+from planner.trajectory.checks import obstacle_clearance, radar_clearance
+from planner.trajectory.smoothing import deviation_bound, peak_curvature, peak_factor, segment_samples
 from planner.world.config import RoadmapConfig
 from planner.world.geometry import horizontal_turn
 
@@ -86,29 +87,42 @@ class Roadmap:
     @cached_property
     def pattern(self) -> csr_matrix:
         """The graph's sparsity pattern, two rows more for a start and a goal; entries are edge index + 1."""
-        n = self.n_nodes + 2
-        ids = np.arange(1.0, len(self.edges) + 1.0)
-        e = self.edges
-        return coo_matrix((np.concatenate([ids, ids]), (np.concatenate([e[:, 0], e[:, 1]]),
-                                                       np.concatenate([e[:, 1], e[:, 0]]))), shape=(n, n)).tocsr()
+        return _symmetric(self.edges, np.arange(1.0, len(self.edges) + 1.0), self.n_nodes + 2)
+
+    @cached_property
+    def node_tree(self) -> cKDTree:
+        """The nodes' horizontal positions, to attach a start and a goal."""
+        return cKDTree(self.nodes[:, :2])
+
+
+def _symmetric(edges: np.ndarray, values: np.ndarray, n: int) -> csr_matrix:
+    """An n × n CSR matrix holding ``values`` (E,) at both (u, v) and (v, u) of every edge (E, 2)."""
+    rows = np.concatenate([edges[:, 0], edges[:, 1]])
+    cols = np.concatenate([edges[:, 1], edges[:, 0]])
+    return coo_matrix((np.concatenate([values, values]), (rows, cols)), shape=(n, n)).tocsr()
+
+
+def _extra(problem: PlanningProblem, margin: float) -> float:
+    """Clearance the roadmap keeps beyond d_coll (and beyond radar ranges): the tracking margin A/2 + ``margin``."""
+    return 0.5 * problem.vehicle.acceptance_radius + margin
+
+
+def _swing_room(length: np.ndarray | float, problem: PlanningProblem, margin: float) -> np.ndarray | float:
+    """Slack a leg of ``length`` needs beyond the roadmap's clearance for its smoothed curve to swing off it at
+    the worst turn (docs/method.md §4.4: the Bézier bound (4/27) L), less what the clearance already covers."""
+    return deviation_bound(length, 0.0) - _extra(problem, margin)
 
 
 def clearance_slack(problem: PlanningProblem, points: np.ndarray, margin: float) -> np.ndarray:
     """Metres (M,) by which each point exceeds the roadmap's clearance: d_coll + A/2 + margin from obstacle
     surfaces, A/2 + margin from radar detection ranges (negative: too close)."""
-    extra = 0.5 * problem.vehicle.acceptance_radius + margin
     env = problem.env
     solid = obstacle_clearance(points, None, env, include_radars=False) - problem.hazard.d_coll
-    radar = np.full(len(points), np.inf)
-    if len(env.radars):
-        d = np.linalg.norm(points[None] - env.radars.center[:, None], axis=-1)
-        radar = (d - env.radars.r_det[:, None]).min(axis=0)
-    return np.minimum(solid, radar) - extra
+    return np.minimum(solid, radar_clearance(points, env.radars)) - _extra(problem, margin)
 
 
 def segment_slack(problem: PlanningProblem, a: np.ndarray, b: np.ndarray, margin: float) -> np.ndarray:
     """As :func:`clearance_slack` for segments a→b (E, 3), exactly (the cost's segment geometry)."""
-    extra = 0.5 * problem.vehicle.acceptance_radius + margin
     out = np.full(len(a), np.inf)
     if not len(a):
         return out
@@ -118,7 +132,7 @@ def segment_slack(problem: PlanningProblem, a: np.ndarray, b: np.ndarray, margin
             out = np.minimum(out, c.min(axis=0) - problem.hazard.d_coll)
     if radar_d is not None:
         out = np.minimum(out, (radar_d - problem.env.radars.r_det[:, None]).min(axis=0))
-    return out - extra
+    return out - _extra(problem, margin)
 
 
 def band_ok(problem: PlanningProblem, a: np.ndarray, b: np.ndarray, margin: float) -> np.ndarray:
@@ -146,7 +160,8 @@ def climb_ok(problem: PlanningProblem, a: np.ndarray, b: np.ndarray, share: floa
 
 
 def auto_spacing(problem: PlanningProblem, cfg: RoadmapConfig) -> float:
-    """The configured spacing, or sqrt(area / TARGET_COLUMNS) (at least MIN_SPACING_M)."""
+    """The configured spacing (never finer than MAX_COLUMNS grid columns), or sqrt(area / TARGET_COLUMNS) (at
+    least MIN_SPACING_M)."""
     area = problem.env.size_x * problem.env.size_y
     if cfg.spacing > 0:  # never finer than MAX_COLUMNS grid columns: memory grows with nodes × levels × edges
         return max(cfg.spacing, math.sqrt(area / MAX_COLUMNS))
@@ -155,8 +170,6 @@ def auto_spacing(problem: PlanningProblem, cfg: RoadmapConfig) -> float:
 
 def build(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
     """The roadmap of ``problem``'s static world (its threats, start and goal play no part)."""
-    import time
-
     t0 = time.perf_counter()
     env = problem.env
     h = auto_spacing(problem, cfg)
@@ -209,8 +222,7 @@ def build(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
     used = np.unique(e)  # drop isolated nodes, renumber
     remap = np.full(len(nodes), -1)
     remap[used] = np.arange(len(used))
-    return Roadmap(nodes[used], slack[used], remap[e], length, h,
-                   problem.hazard.d_coll + 0.5 * problem.vehicle.acceptance_radius + cfg.margin,
+    return Roadmap(nodes[used], slack[used], remap[e], length, h, problem.hazard.d_coll + _extra(problem, cfg.margin),
                    time.perf_counter() - t0)
 
 
@@ -256,23 +268,28 @@ class Query:
     length: np.ndarray  # (E',)
 
     @cached_property
-    def _csr(self) -> tuple[csr_matrix, np.ndarray]:
-        """The roadmap's pattern plus the attachments, and which edge each stored entry is."""
+    def _csr(self) -> tuple[csr_matrix, np.ndarray, np.ndarray]:
+        """The roadmap's pattern plus the attachments, which edge each stored entry is, and each entry's key
+        row × (N + 2) + column (ascending: rows in order, columns sorted within a row)."""
         n = len(self.points)
         base = len(self.roadmap.edges)
-        e = self.edges[base:]
-        ids = np.arange(base + 1.0, len(self.edges) + 1.0)
-        att = coo_matrix((np.concatenate([ids, ids]), (np.concatenate([e[:, 0], e[:, 1]]),
-                                                      np.concatenate([e[:, 1], e[:, 0]]))), shape=(n, n)).tocsr()
+        att = _symmetric(self.edges[base:], np.arange(base + 1.0, len(self.edges) + 1.0), n)
         g = (self.roadmap.pattern + att).tocsr()
-        return g, g.data.astype(np.intp) - 1
+        g.sort_indices()
+        keys = np.repeat(np.arange(n), np.diff(g.indptr)) * n + g.indices
+        return g, g.data.astype(np.intp) - 1, keys
 
     def graph(self, weights: np.ndarray) -> csr_matrix:
         """The symmetric graph with edge ``weights`` (E',) (the pattern with new data)."""
-        g, edge = self._csr
+        g, edge, _ = self._csr
         out = g.copy()
         out.data = weights[edge]
         return out
+
+    def edge_ids(self, path: np.ndarray) -> np.ndarray:
+        """Indices into ``edges`` of the consecutive node pairs of ``path`` (each pair is an edge)."""
+        _, edge, keys = self._csr
+        return edge[np.searchsorted(keys, path[:-1] * len(self.points) + path[1:])]
 
     @property
     def start(self) -> int:
@@ -289,10 +306,9 @@ def attach(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, reach: flo
     climb limit; the straight start→goal edge too, when it is clear."""
     pts = np.concatenate([rm.nodes, problem.start[None], problem.goal[None]])
     n = rm.n_nodes
-    tree = cKDTree(rm.nodes[:, :2])
     extra = []
     for end in (n, n + 1):
-        near = np.asarray(tree.query_ball_point(pts[end, :2], reach * rm.spacing), dtype=np.intp)
+        near = np.asarray(rm.node_tree.query_ball_point(pts[end, :2], reach * rm.spacing), dtype=np.intp)
         extra.append(np.column_stack([np.full(len(near), end), near]))
     extra.append(np.array([[n, n + 1]]))
     e = np.concatenate(extra)
@@ -376,9 +392,9 @@ def shortcut(points: np.ndarray, problem: PlanningProblem, cfg: RoadmapConfig, r
              room: float) -> np.ndarray:
     """Drop the nodes a straight leg can skip (greedy, farthest first): a leg kept has ``room`` metres of slack
     beyond the roadmap's clearance, more on a long leg whose smoothed curve may swing further (the first and last
-    only need d_coll, ``relax_ends`` less), stays in the band
-    within the climb limit, and turns at most the vehicle's max turn from the previous leg. The room is where
-    the smoothed curve swings inside a corner (docs/method.md §4.4); the swarm makes the corners flyable."""
+    only need d_coll, ``relax_ends`` less), stays in the band within the climb limit, and turns at most the
+    vehicle's max turn from the previous leg. The room is where the smoothed curve swings inside a corner
+    (docs/method.md §4.4); the swarm makes the corners flyable."""
     veh = problem.vehicle
     keep = [0]
     i = 0
@@ -390,8 +406,7 @@ def shortcut(points: np.ndarray, problem: PlanningProblem, cfg: RoadmapConfig, r
         b = points[j]
         slack = segment_slack(problem, a, b, cfg.margin)
         ends = (i == 0) | (j == m - 1)
-        # room for the Bézier's swing off a leg of length L: at most (4/27) L (docs/method.md §4.4)
-        swing = (4.0 / 27.0) * np.linalg.norm(b - a, axis=1) - (0.5 * veh.acceptance_radius + cfg.margin)
+        swing = _swing_room(np.linalg.norm(b - a, axis=1), problem, cfg.margin)
         ok = ((slack >= np.maximum(np.where(ends, -relax_ends, room), swing))
               & band_ok(problem, a, b, 0.5 * veh.acceptance_radius)
               & climb_ok(problem, a, b, np.where(ends, 1.0, cfg.climb_share))
@@ -442,7 +457,6 @@ def _drop_tight_vertices(route: np.ndarray, problem: PlanningProblem, cfg: Roadm
     """Remove a vertex whose incoming leg is too short for the turn at it (its Bézier would curve tighter than
     R_min, docs/method.md §11.2) when the leg that skips it keeps the roadmap's clearance and room to swing."""
     veh = problem.vehicle
-    extra = 0.5 * veh.acceptance_radius + cfg.margin
     for _ in range(passes):  # a few sweeps over one guide's vertices
         seg = np.diff(route, axis=0)
         length = np.linalg.norm(seg, axis=1)
@@ -456,7 +470,7 @@ def _drop_tight_vertices(route: np.ndarray, problem: PlanningProblem, cfg: Roadm
             if not keep[k - 1] or k + 1 >= len(route):
                 continue
             a, b = route[k - 1], route[k + 1]
-            swing = (4.0 / 27.0) * float(np.linalg.norm(b - a)) - extra
+            swing = _swing_room(float(np.linalg.norm(b - a)), problem, cfg.margin)
             if segment_slack(problem, a[None], b[None], cfg.margin)[0] >= max(swing, 0.0):
                 keep[k] = False
         if keep.all():
@@ -480,8 +494,15 @@ def threat_slack(problem: PlanningProblem, a: np.ndarray, b: np.ndarray, flown: 
     t = problem.start_time + (flown + f * length) / v
     d = np.linalg.norm(p[None] - env.threats.positions(t), axis=-1) - env.threats.radii(t)  # (k, m, E)
     gap = length / (samples - 1)
-    need = problem.hazard.d_coll + 0.5 * problem.vehicle.acceptance_radius + margin
+    need = problem.hazard.d_coll + _extra(problem, margin)
     return d.min(axis=(0, 1)) - need - 0.5 * gap * (1.0 + env.threats.max_speed / v)
+
+
+def guide(points: np.ndarray, rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig) -> np.ndarray:
+    """A roadmap path (M, 3) made a guide route (docs/method.md §15.2): :func:`shortcut` with half a spacing of
+    room, then :func:`round_corners`; its first and last legs need only d_coll (the ends are where they are)."""
+    relax = rm.need - problem.hazard.d_coll
+    return round_corners(shortcut(points, problem, cfg, relax, 0.5 * rm.spacing), problem, cfg, relax)
 
 
 def diverse_routes(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, q: Query | None = None,
@@ -496,18 +517,17 @@ def diverse_routes(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, q:
         weights = timed_weights(q, problem, clearance_weights(q, problem))
     base = weights
     routes: list[np.ndarray] = []
-    relax = rm.need - problem.hazard.d_coll
     for _ in range(cfg.n_routes):
         path = shortest(q, weights)
         if path is None:
             break
-        ids = _edge_ids(q, path)
+        ids = q.edge_ids(path)
         if routes and np.any(base[ids] >= 0.999 * BLOCKED_WEIGHT * q.length[ids]):
             break  # only ways through a moving threat are left
-        pts = round_corners(shortcut(q.points[path], problem, cfg, relax, 0.5 * rm.spacing), problem, cfg, relax)
+        pts = guide(q.points[path], rm, problem, cfg)
         if not any(mean_distance(pts, r) < rm.spacing for r in routes):
             routes.append(pts)
-        dense = _densify(q.points[path], 0.5 * rm.spacing)
+        dense = densify(q.points[path], 0.5 * rm.spacing)
         weights = weights.copy()
         weights[rm.edges_near(dense, 3.0 * rm.spacing)] *= cfg.reuse_penalty
     return routes
@@ -529,26 +549,15 @@ def routes(problem: PlanningProblem, cfg: RoadmapConfig) -> tuple[Roadmap, Query
     return rm, q, weights, found, c
 
 
-def _edge_ids(q: Query, path: np.ndarray) -> np.ndarray:
-    """Indices into ``q.edges`` of the consecutive node pairs of ``path`` (each pair is an edge)."""
-    n = len(q.points) + 1
-    key = np.minimum(q.edges[:, 0], q.edges[:, 1]) * n + np.maximum(q.edges[:, 0], q.edges[:, 1])
-    order = np.argsort(key, kind="stable")
-    want = np.minimum(path[:-1], path[1:]) * n + np.maximum(path[:-1], path[1:])
-    pos = np.searchsorted(key[order], want)
-    return order[np.minimum(pos, len(order) - 1)]
-
-
-def _densify(points: np.ndarray, step: float) -> np.ndarray:
-    """Points along a polyline every ``step`` metres or closer, vertices kept."""
-    out = [points[:1]]
-    for a, b in zip(points[:-1], points[1:]):  # path nodes of one route, once per search: not a hot path
-        k = max(1, int(math.ceil(np.linalg.norm(b - a) / step)))
-        out.append(a + np.linspace(0.0, 1.0, k + 1)[1:, None] * (b - a))
-    return np.concatenate(out)
+def densify(points: np.ndarray, step: float) -> np.ndarray:
+    """Points along a polyline (M, 3) every ``step`` metres or closer, vertices kept."""
+    seg = np.diff(points, axis=0)
+    counts = np.maximum(np.ceil(np.linalg.norm(seg, axis=1) / step).astype(int), 1)
+    idx, t = segment_samples(counts)
+    return np.concatenate([points[idx] + t[:, None] * seg[idx], points[-1:]])
 
 
 def mean_distance(p: np.ndarray, q: np.ndarray) -> float:
     """Mean distance from samples of polyline ``p`` to the nearest sample of ``q`` (symmetrised)."""
-    dp, dq = _densify(p, 10.0), _densify(q, 10.0)
+    dp, dq = densify(p, 10.0), densify(q, 10.0)
     return 0.5 * (cKDTree(dq).query(dp)[0].mean() + cKDTree(dp).query(dq)[0].mean())

@@ -20,8 +20,9 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from planner.problem import Evaluation, PlanningProblem
+from planner.search.aco import enhanced_update
 from planner.search.encoding import resample_paths
-from planner.search.roadmap import Query, _densify
+from planner.search.roadmap import Query, densify
 from planner.search.swarm import take
 from planner.world.config import ACOConfig
 
@@ -76,7 +77,7 @@ def gkdm_pheromone(q: Query, elites: list[np.ndarray], cfg: ACOConfig, sigma: fl
     mids = 0.5 * (q.points[q.edges[:, 0]] + q.points[q.edges[:, 1]])
     boost = np.zeros(len(mids))
     for k, route in enumerate(elites):  # a handful of elite routes
-        d = cKDTree(_densify(route, 0.5 * sigma)).query(mids)[0]
+        d = cKDTree(densify(route, 0.5 * sigma)).query(mids)[0]
         boost = np.maximum(boost, (1.0 if k == 0 else ELITE_WEIGHT) * np.exp(-(d**2) / (2.0 * sigma**2)))
     return cfg.tau0 * (1.0 + cfg.amplitude * boost)
 
@@ -169,20 +170,13 @@ class RoadmapColony:
                 best_route, best_eval = pts[ib], take(ev, ib)
             else:
                 stagnant += 1
-            r1, r2 = rng.random(2)
-            omega = (1.0 - cfg.rho) + (cfg.w_end - (1.0 - cfg.rho)) * (it - 1) / max(self.max_iter - 1, 1)
+            omega, iter_amount, best_amount = enhanced_update(cfg, it - 1, self.max_iter, max(best_cost, 1e-9),
+                                                              float(cost[ib]), best_cost, rng)
             tau *= omega
-            ref = max(best_cost, 1e-9)
-            tau[_path_edges(adj, nodes)] += cfg.c1 * r1 * cfg.deposit * ref / max(float(cost[ib]), 1e-9)
-            tau[_path_edges(adj, best_nodes)] += cfg.c2 * r2 * cfg.deposit
+            tau[q.edge_ids(nodes)] += iter_amount
+            tau[q.edge_ids(best_nodes)] += best_amount
             np.clip(tau, cfg.tau_min, cfg.tau_max, out=tau)
             history.append(best_cost)
         return ColonyResult(best_path, best_route, best_eval, best_cost, it, evals, time.perf_counter() - t0,
                             arrived_total / max(it * cfg.n_ants, 1), last_paths, history)
 
-
-def _path_edges(adj: Adjacency, nodes: np.ndarray) -> np.ndarray:
-    """Edge indices along a node sequence."""
-    u, v = nodes[:-1], nodes[1:]
-    slot = np.argmax(adj.nbr[u] == v[:, None], axis=1)
-    return adj.eid[u, slot]

@@ -12,7 +12,7 @@ import numpy as np
 
 from planner.trajectory.smoothing import climb_angle, sample_trajectory
 from planner.world.config import CATEGORIES, HazardConfig, VehicleLimits
-from planner.world.environment import Environment
+from planner.world.environment import Environment, Radars
 from planner.world.geometry import cylinder_signed_distance, horizontal_turn
 
 _TOL_M = 1e-6  # metres of slack for samples exactly on a limit (start on the band floor, say)
@@ -74,7 +74,7 @@ def obstacle_clearance(
         d = np.linalg.norm(points[None] - env.spheres.center[:, None], axis=-1)
         parts.append((d - env.spheres.radius[:, None]).min(axis=0))
     if include_radars:
-        parts.append(_radar_clearance(points, env))
+        parts.append(radar_clearance(points, env.radars))
     if len(env.threats) and times is not None:
         c = env.threats.positions(times)  # (k, M, 3)
         d = np.linalg.norm(points[None] - c, axis=-1) - env.threats.radii(times)
@@ -91,7 +91,7 @@ def check_trajectory(
     p = traj.points
     times = traj.times if timed else None
     solid = obstacle_clearance(p, times, env, include_radars=False)
-    radar = _radar_clearance(p, env)
+    radar = radar_clearance(p, env.radars)
     bad: dict[str, np.ndarray] = {}
     # obstacles are violated inside d_coll, radars inside their detection range
     bad["collision"] = (solid < hazard.d_coll - _TOL_M) | (radar < -_TOL_M)
@@ -111,11 +111,12 @@ def check_trajectory(
     return CheckResult(counts, {k: v for k, v in locations.items() if v}, np.minimum(solid, radar))
 
 
-def _radar_clearance(points: np.ndarray, env: Environment) -> np.ndarray:
-    if not len(env.radars):
+def radar_clearance(points: np.ndarray, radars: Radars) -> np.ndarray:
+    """Distance (M,) from points (M, 3) to the nearest radar's detection range (negative inside; §2.4)."""
+    if not len(radars):
         return np.full(len(points), np.inf)
-    d = np.linalg.norm(points[None] - env.radars.center[:, None], axis=-1)
-    return (d - env.radars.r_det[:, None]).min(axis=0)
+    d = np.linalg.norm(points[None] - radars.center[:, None], axis=-1)
+    return (d - radars.r_det[:, None]).min(axis=0)
 
 
 def _run_starts(mask: np.ndarray) -> np.ndarray:

@@ -36,7 +36,7 @@ def _problem(cyl: Cylinders, start=(100.0, 500.0, 120.0), goal=(1100.0, 500.0, 1
 
 
 def _densify(route: np.ndarray, step: float = 2.0) -> np.ndarray:
-    return rmap._densify(route, step)
+    return rmap.densify(route, step)
 
 
 # --- roadmap ------------------------------------------------------------------------------------------------
