@@ -100,6 +100,12 @@ class Optimiser(Protocol):
             ) -> OptimiserResult: ...
 
 
+def uses_roadmap(settings: PlannerSettings) -> bool:
+    """True when the chosen optimiser runs the roadmap pipeline (docs/method.md §15): fusion and spso with
+    ``planner.roadmap.enabled``; the baselines never do."""
+    return settings.roadmap.enabled and settings.algorithm in ("fusion", "spso")
+
+
 def make_optimiser(settings: PlannerSettings) -> Optimiser:
     """The optimiser named by ``settings.algorithm``, configured from ``settings``."""
     from planner.search.aco import ColdColony
@@ -113,7 +119,7 @@ def make_optimiser(settings: PlannerSettings) -> Optimiser:
     factories: dict[str, Callable[[], Optimiser]] = {
         "fusion": lambda: Fusion(settings),
         # with the roadmap on, spso is the guided swarm with the roadmap's seeds (docs/method.md §15.3 steps 1–2)
-        "spso": lambda: Fusion(settings, swarm_only=True) if settings.roadmap.enabled else SphericalPSO(settings.pso),
+        "spso": lambda: Fusion(settings, swarm_only=True) if uses_roadmap(settings) else SphericalPSO(settings.pso),
         "pso": lambda: CartesianPSO(settings.pso),
         "qpso": lambda: QPSO(settings.pso, settings.qpso),
         "psogsa": lambda: PSOGSA(settings.pso, settings.psogsa),

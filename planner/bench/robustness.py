@@ -114,7 +114,7 @@ def pipeline_figure(path: Path, family: str, seed: int, overrides: Sequence[str]
     """The roadmap pipeline on generated map ``family``/``seed`` as a picture (docs/method.md §15): the roadmap's
     edges on the level nearest the route's mean height, the guides, the colony's last ants, the final route and the
     planted one."""
-    from planner.bench.runner import generated_map
+    from planner.bench.runner import generated_map, hard_map
     from planner.plan import plan, problem_from_scenario
     from planner.plot import plot_pipeline
     from planner.search import roadmap
@@ -125,13 +125,12 @@ def pipeline_figure(path: Path, family: str, seed: int, overrides: Sequence[str]
     res = plan(problem, sc.planner, np.random.default_rng(seed), seed=seed)
     rm = roadmap.routes(problem, sc.planner.roadmap)[0]
     z = rm.nodes[:, 2]
-    level = np.unique(z)[np.argmin(np.abs(np.unique(z) - res.trajectory.points[:, 2].mean()))]
+    levels = np.unique(z)
+    level = levels[np.argmin(np.abs(levels - res.trajectory.points[:, 2].mean()))]
     flat = (z[rm.edges[:, 0]] == level) & (z[rm.edges[:, 1]] == level)
     segs = rm.nodes[rm.edges[flat]][:, :, :2]
     trace = getattr(res.optimiser, "trace", {})
-    from planner.bench import hardmaps
-
-    planted = hardmaps.generate(family, seed).planted
+    planted = hard_map(family, seed).planted
     plot_pipeline(path, sc.environment, segs, trace.get("guides", []), trace.get("ants", [])[:12],
                   res.trajectory.points, planted,
                   f"{family} map, seed {seed}: roadmap pipeline -> {res.status.value} "

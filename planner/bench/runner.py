@@ -9,6 +9,7 @@ bit for bit, whatever the number of workers or the order in which runs finished.
 from __future__ import annotations
 
 import csv
+import functools
 import hashlib
 import json
 import logging
@@ -114,17 +115,23 @@ def specs_for(settings: BenchSettings) -> list[RunSpec]:
 _MAP_DIR: list[Path] = []  # this process's folder of generated maps
 
 
-def generated_map(family: str, seed: int) -> Path:
-    """The scenario file of hard map ``family``/``seed`` (planner.bench.hardmaps), written once per process."""
-    import tempfile
-
+@functools.lru_cache(maxsize=64)
+def hard_map(family: str, seed: int) -> Any:
+    """Hard map ``family``/``seed`` (planner.bench.hardmaps.HardMap), generated once per process."""
     from planner.bench import hardmaps
+
+    return hardmaps.generate(family, seed)
+
+
+def generated_map(family: str, seed: int) -> Path:
+    """The scenario file of hard map ``family``/``seed``, written once per process."""
+    import tempfile
 
     if not _MAP_DIR:
         _MAP_DIR.append(Path(tempfile.mkdtemp(prefix="fuseplan-maps-")))
     path = _MAP_DIR[0] / f"hardmap_{family}_{seed}.toml"
     if not path.exists():
-        path.write_text(hardmaps.generate(family, seed).toml)
+        path.write_text(hard_map(family, seed).toml)
     return path
 
 
@@ -132,15 +139,13 @@ def _planted_length(spec: RunSpec) -> dict[str, Any]:
     """The planted route's length of a generated map's run, for the records."""
     if not spec.family:
         return {}
-    from planner.bench import hardmaps
-
-    route = hardmaps.generate(spec.family, spec.seed).planted
+    route = hard_map(spec.family, spec.seed).planted
     return {"family": spec.family, "planted_length_m": float(np.linalg.norm(np.diff(route, axis=0), axis=1).sum())}
 
 
 def run_one(spec: RunSpec) -> dict[str, Any]:
     """Plan once (in a worker process) and return a flat, JSON-ready record."""
-    from planner.plan import json_safe, plan, problem_from_scenario
+    from planner.plan import json_safe, plan, problem_from_scenario, uses_roadmap
     from planner.world.scenario import load_scenario
 
     path = generated_map(spec.family, spec.seed) if spec.family else spec.scenario
@@ -149,7 +154,7 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
     if spec.peer:
         return json_safe(_run_peer(spec, problem))
     build_s = None
-    if sc.planner.roadmap.enabled and sc.planner.algorithm == "fusion":  # built once per map, before the clock
+    if uses_roadmap(sc.planner):  # built once per map, before the clock
         from planner.search import roadmap
 
         build_s = roadmap.routes(problem, sc.planner.roadmap)[0].build_s  # builds (and caches) what plan uses
