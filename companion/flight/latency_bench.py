@@ -10,9 +10,11 @@ from __future__ import annotations
 
 import asyncio
 import json
+from collections import Counter
 from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -101,17 +103,29 @@ def run_latency_bench(plans: Sequence[tuple[dict, Scenario]], runs: int, speedup
                       progress: Callable[[str], None] | None = None) -> list[LatencyRun]:
     """``runs`` flights per (PLAN.json document, scenario); writes replan.md, replan.csv, replan.json."""
     cfg = cfg or ReplanConfig()
-    results: list[LatencyRun] = []
+
+    def said(res: LatencyRun) -> str:
+        return (f"{res.status}, latency {res.latency_s:.3f} s (plan {res.plan_s:.3f} s, swap {res.swap_s:.3f} s"
+                f"{', held' if res.held else ''})")
+
+    results = _each_flight(plans, runs, speedup, cfg, _one, 2.0, "run", said, progress)
+    write_report(results, cfg, output)
+    return results
+
+
+def _each_flight(plans: Sequence[tuple[dict, Scenario]], runs: int, speedup: float, cfg: ReplanConfig,
+                 fly: Callable[..., Awaitable[Any]], routes_long: float, word: str, said: Callable[[Any], str],
+                 progress: Callable[[str], None] | None) -> list[Any]:
+    """``runs`` flights of each plan, ``fly(doc, scenario, run, speedup, cfg, timeout_s)`` each, the timeout
+    60 s + ``routes_long`` × the route's flying time; progress says "SCENARIO WORD r/runs: said(result)"."""
+    results = []
     for doc, sc in plans:
-        length = float(doc["metrics"]["length_m"])
-        timeout = 60.0 + 2.0 * length / sc.vehicle.cruise_speed / speedup
+        timeout = 60.0 + routes_long * float(doc["metrics"]["length_m"]) / sc.vehicle.cruise_speed / speedup
         for run in range(1, runs + 1):
-            res = asyncio.run(_one(doc, sc, run, speedup, cfg, timeout))
+            res = asyncio.run(fly(doc, sc, run, speedup, cfg, timeout))
             results.append(res)
             if progress is not None:
-                progress(f"{sc.name} run {run}/{runs}: {res.status}, latency {res.latency_s:.3f} s "
-                         f"(plan {res.plan_s:.3f} s, swap {res.swap_s:.3f} s{', held' if res.held else ''})")
-    write_report(results, cfg, output)
+                progress(f"{sc.name} {word} {run}/{runs}: {said(res)}")
     return results
 
 
@@ -184,33 +198,27 @@ async def _whole(plan_doc: dict, scenario: Scenario, run: int, speedup: float, c
     recs = rp.records
     planned = [r for r in recs if r.plan_status]
     good = [r for r in planned if r.plan_status in LIVE_OK and r.sep_after_m is not None and r.sep_after_m >= need]
-    live_by_threat: dict[str, int] = {}
-    for r in recs:
-        live_by_threat.setdefault(r.threat, 0)
-        live_by_threat[r.threat] += r.latency_s is not None
-    return FlightRun(scenario.name, run, speedup, out is not None and out.completed,
-                     len(live_by_threat), len(planned), sum(r.latency_s is not None for r in recs), len(good),
-                     sum(n == 1 for n in live_by_threat.values()), " ".join(r.plan_status or "-" for r in recs))
+    threats = {r.threat for r in recs}
+    live = Counter(r.threat for r in recs if r.latency_s is not None)
+    return FlightRun(scenario.name, run, speedup, out is not None and out.completed, len(threats), len(planned),
+                     sum(live.values()), len(good), sum(live[t] == 1 for t in threats),
+                     " ".join(r.plan_status or "-" for r in recs))
 
 
 def run_flight_bench(plans: Sequence[tuple[dict, Scenario]], runs: int, speedup: float, output: Path,
                      cfg: ReplanConfig | None = None, progress: Callable[[str], None] | None = None) -> list[FlightRun]:
     """``runs`` whole flights per plan; writes replan_flights.md and replan_flights.csv."""
     cfg = cfg or ReplanConfig()
-    results: list[FlightRun] = []
-    for doc, sc in plans:
-        timeout = 60.0 + 3.0 * float(doc["metrics"]["length_m"]) / sc.vehicle.cruise_speed / speedup
-        for run in range(1, runs + 1):
-            res = asyncio.run(_whole(doc, sc, run, speedup, cfg, timeout))
-            results.append(res)
-            if progress is not None:
-                progress(f"{sc.name} flight {run}/{runs}: {res.conflicts} conflicts, {res.replans} replans "
-                         f"({res.statuses}), {res.live} live")
+
+    def said(res: FlightRun) -> str:
+        return f"{res.conflicts} conflicts, {res.replans} replans ({res.statuses}), {res.live} live"
+
+    results = _each_flight(plans, runs, speedup, cfg, _whole, 3.0, "flight", said, progress)
     output.mkdir(parents=True, exist_ok=True)
     write_csv(output / "replan_flights.csv", [asdict(r) for r in results], list(FlightRun.__dataclass_fields__))
     lines = ["# Replans per conflict over whole flights on the built-in simulated autopilot", "",
              f"Every flight flown to its end at {speedup:g}× with live replanning (budget {cfg.budget_s:g} s, swarm "
-             f"{cfg.population}, the roadmap pipeline unless the scenario says otherwise). A replan is *good* when "
+             f"{cfg.population}, the scenario's planner settings). A replan is *good* when "
              "it ends exact or approximate with a predicted separation of at least d_coll + margin "
              f"({cfg.margin_m:g} m); a conflict (one threat) is resolved by one replan when exactly one new mission "
              f"went live for it. Targets (issue 15): good ≥ {100 * GOOD_REPLAN_TARGET:.0f} %, one replan per "
