@@ -177,7 +177,6 @@ def _gates(seed: int, rng: np.random.Generator, n_walls: int | None = None, spac
     size_x = 200.0 + (n + 1) * spacing
     walls_x = 100.0 + spacing * np.arange(1, n + 1)
     half = 0.2 * spacing
-    env = _free_env(size_x, size_y)
     for _ in range(MAX_ROUTE_DRAWS):
         y0, y1 = size_y / 2 + rng.uniform(-50.0, 50.0, 2)
         line_y = y0 + (y1 - y0) * (walls_x - 100.0) / (size_x - 200.0)
@@ -187,21 +186,13 @@ def _gates(seed: int, rng: np.random.Generator, n_walls: int | None = None, spac
                                                               np.repeat(centres, 2)]), [[size_x - 100.0, y1]]])
         z0, z1 = rng.uniform(80.0, 160.0, 2)
         route = np.round(np.column_stack([xy, _heights(xy, z0, z1)]), 2)
-        if any(route_violations(route, env, hazard).values()):
-            continue
         cyl = np.round(np.concatenate([_wall(x, c, gap, radius, size_y) for x, c in zip(walls_x, centres)]), 2)
         r = np.full(len(cyl), radius)
-        env_full = Environment(size_x, size_y, *BAND, cylinders=_cylinders(cyl, r))
-        points, need = corridor(route, hazard)
-        if (obstacle_clearance(points, None, env_full) < need).any():
+        env_full = _walled_env(size_x, size_y, cyl, r)
+        if not _planted_ok(route, env_full, hazard):
             continue
-        if any(route_violations(route, env_full, hazard).values()):
-            continue
-        blocked = _straight_blocked(route, env_full, hazard)
-        body = "".join(f"\n[[cylinders]]\nx = {x:.2f}\ny = {y:.2f}\nradius = {radius:.2f}\n" for x, y in cyl)
-        text = _header("gates", seed, size_x, size_y, route, hazard,
-                       f"{n} walls of unlimited cylinders, one {gap:g} m gap each on alternating sides") + body
-        return HardMap("gates", seed, text, route, len(cyl), blocked)
+        what = f"{n} walls of unlimited cylinders, one {gap:g} m gap each on alternating sides"
+        return _walled_map("gates", seed, env_full, route, hazard, what, cyl, r)
     raise RuntimeError(f"gates: no flyable route in {MAX_ROUTE_DRAWS} draws (seed {seed})")
 
 
@@ -383,13 +374,12 @@ def _maze(seed: int, rng: np.random.Generator, cells: tuple[int, int] = (7, 7), 
         route = np.round(np.column_stack([xy, _heights(xy, z0, z1)]), 2)
         cyl = _maze_walls(passage, nx, ny, cell, radius)
         r = np.full(len(cyl), radius)
-        env_full = Environment(size_x, size_y, *BAND, cylinders=_cylinders(cyl, r))
-        if not _planted_ok(route, env_full, hazard) or not _straight_blocked(route, env_full, hazard):
+        env_full = _walled_env(size_x, size_y, cyl, r)
+        if not _only_the_planted_way(route, env_full, hazard):
             continue
         what = (f"{nx}x{ny} maze of {cell:g} m cells, walls of unlimited cylinders; the solution runs through "
                 f"{len(path)} cells")
-        text = _header("maze", seed, size_x, size_y, route, hazard, what) + _toml_cylinders(cyl, r)
-        return HardMap("maze", seed, text, route, len(cyl), True)
+        return _walled_map("maze", seed, env_full, route, hazard, what, cyl, r)
     raise RuntimeError(f"maze: no flyable route in {MAX_ROUTE_DRAWS} draws (seed {seed})")
 
 
@@ -461,7 +451,7 @@ def _ridge(seed: int, rng: np.random.Generator, size: float = 2400.0,
                                                                               summits[:, 1] - h_cover)]), 2)
         env_full = Environment(size_x, size_y, *BAND, spheres=_spheres(np.insert(hemi, 2, 0.0, axis=1)),
                                radars=Radars(radars[:, :3], radars[:, 3], np.ones(2)))
-        if not _planted_ok(route, env_full, hazard) or not _straight_blocked(route, env_full, hazard):
+        if not _only_the_planted_way(route, env_full, hazard):
             continue
         way = free_section(env_full, float(hemi[0, 0]), hazard)
         if not len(way) or way[:, 1].max() > h_cover + 1.0 or np.abs(way[:, 0] - ys).max() > max(gap) + 200.0:
@@ -523,16 +513,15 @@ def _canyon(seed: int, rng: np.random.Generator, size_x: float = 2500.0,
         at = np.linspace(s[inside[0]], s[inside[-1]], max(int(round((s[inside[-1]] - s[inside[0]]) / step)), 2) + 1)
         wp = np.column_stack([np.interp(at, s, xy[:, 0]), np.interp(at, s, xy[:, 1])])
         route = np.round(np.column_stack([wp, _heights(wp, z0, z1)]), 2)
-        env_full = Environment(size_x, size_y, *BAND, cylinders=_cylinders(cyl, r))
-        if not _planted_ok(route, env_full, hazard) or not _straight_blocked(route, env_full, hazard):
+        env_full = _walled_env(size_x, size_y, cyl, r)
+        if not _only_the_planted_way(route, env_full, hazard):
             continue
         mid = xy[(xy[:, 0] >= 0.0) & (xy[:, 0] <= size_x)]  # the channel is ≥ w wide all along
         if obstacle_clearance(np.column_stack([mid, np.full(len(mid), z0)]), None, env_full).min() < 0.5 * w - 1.0:
             continue
         what = (f"a canyon {w:.0f} m wide between walls of unlimited cylinders, meandering ±{np.degrees(psi):.0f} deg "
                 f"every {lam:.0f} m from the west edge to the east edge")
-        text = _header("canyon", seed, size_x, size_y, route, hazard, what) + _toml_cylinders(cyl, r)
-        return HardMap("canyon", seed, text, route, len(cyl), True)
+        return _walled_map("canyon", seed, env_full, route, hazard, what, cyl, r)
     raise RuntimeError(f"canyon: no flyable route in {MAX_ROUTE_DRAWS} draws (seed {seed})")
 
 
@@ -569,6 +558,23 @@ def _toml_radars(rows: np.ndarray) -> str:
     """``[[radars]]`` entries with a given detection range for rows (K, 4) of x, y, z, r_det."""
     return "".join(f"\n[[radars]]\nx = {x:.2f}\ny = {y:.2f}\nz = {z:.2f}\nr_det = {r:.2f}\n"
                    for x, y, z, r in rows)
+
+
+def _only_the_planted_way(route: np.ndarray, env: Environment, hazard: HazardConfig) -> bool:
+    """The planted route passes every check on ``env`` (``_planted_ok``) and the straight line does not."""
+    return _planted_ok(route, env, hazard) and _straight_blocked(route, env, hazard)
+
+
+def _walled_env(size_x: float, size_y: float, xy: np.ndarray, r: np.ndarray) -> Environment:
+    """A map of unlimited cylinders at centres xy (K, 2) with radii r (K,), in the hard maps' band."""
+    return Environment(size_x, size_y, *BAND, cylinders=_cylinders(xy, r))
+
+
+def _walled_map(family: str, seed: int, env: Environment, route: np.ndarray, hazard: HazardConfig, what: str,
+                xy: np.ndarray, r: np.ndarray) -> HardMap:
+    """The HardMap of a map of unlimited cylinders (``_walled_env``) and its planted route."""
+    text = _header(family, seed, env.size_x, env.size_y, route, hazard, what) + _toml_cylinders(xy, r)
+    return HardMap(family, seed, text, route, len(xy), _straight_blocked(route, env, hazard))
 
 
 def _straight_blocked(route: np.ndarray, env: Environment, hazard: HazardConfig) -> bool:

@@ -158,13 +158,19 @@ def test_dense_field_is_mostly_unlimited_cylinders_around_a_winding_route(seed: 
     assert m.straight_blocked
 
 
-@pytest.mark.parametrize("seed", range(3))
-def test_maze_is_perfect_and_its_solution_is_the_only_way(seed: int, tmp_path: Path) -> None:
-    m = generate("maze", seed)
+def _walls_only(family: str, seed: int, tmp_path: Path) -> tuple[HardMap, Scenario]:
+    """Map ``family``/``seed`` loaded; it holds unlimited cylinders and nothing else."""
+    m = generate(family, seed)
     sc = _load(m, tmp_path)
     doc = tomllib.loads(m.toml)
     assert not doc.get("spheres") and not doc.get("hemispheres") and not doc.get("radars")
     assert all("top" not in c for c in doc["cylinders"])
+    return m, sc
+
+
+@pytest.mark.parametrize("seed", range(3))
+def test_maze_is_perfect_and_its_solution_is_the_only_way(seed: int, tmp_path: Path) -> None:
+    sc = _walls_only("maze", seed, tmp_path)[1]
     cell, n = 350.0, 7  # the defaults
     assert sc.environment.size_x == sc.environment.size_y == n * cell
     # a side between two cells is open where its midpoint is free: n² − 1 open sides joining all cells = a tree
@@ -205,11 +211,7 @@ def test_ridge_is_crossed_only_through_the_saddle_and_low(seed: int, tmp_path: P
 
 @pytest.mark.parametrize("seed", range(3))
 def test_canyon_is_narrow_and_the_only_way(seed: int, tmp_path: Path) -> None:
-    m = generate("canyon", seed)
-    sc = _load(m, tmp_path)
-    doc = tomllib.loads(m.toml)
-    assert not doc.get("spheres") and not doc.get("hemispheres") and not doc.get("radars")
-    assert all("top" not in c for c in doc["cylinders"])
+    m, sc = _walls_only("canyon", seed, tmp_path)
     traj = smooth(m.planted, sc.planner.sample_spacing, sc.vehicle.cruise_speed)
     clear = obstacle_clearance(traj.points, None, sc.environment)
     assert 55.0 <= clear.min() and np.median(clear) <= 85.0  # 120-160 m between the walls, the route in the middle
