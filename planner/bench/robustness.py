@@ -91,6 +91,10 @@ def _table(rows: Sequence[dict[str, Any]], peers: bool) -> list[str]:
     return lines
 
 
+def _mark(ok: bool, text: str) -> str:
+    return f"{text} ({'met' if ok else 'not met'})"
+
+
 def _verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
     """The issue's targets for the roadmap pipeline, family by family."""
     lines = ["| family | Table 6 ≥ 95 % | 0.15 s ≥ 90 % | median length ≤ 1.10 × planted |", "|---|---|---|---|"]
@@ -99,14 +103,10 @@ def _verdicts(rows: Sequence[dict[str, Any]]) -> list[str]:
         t6, rp = by.get(f"{fam}/roadmap"), by.get(f"{fam}/roadmap@0.15s")
         if t6 is None or rp is None:
             continue
-
-        def mark(ok: bool, text: str) -> str:
-            return f"{text} ({'met' if ok else 'not met'})"
-
         t6_s, rp_s, ratio = t6["success_rate"], rp["success_rate"], t6["length_ratio_median"]
-        lines.append(f"| {fam} | {mark(t6_s >= TARGETS['table6'], f'{100 * t6_s:.0f} %')} "
-                     f"| {mark(rp_s >= TARGETS['replan'], f'{100 * rp_s:.0f} %')} "
-                     f"| {mark(ratio <= LENGTH_TARGET, f'{ratio:.3f}')} |")
+        lines.append(f"| {fam} | {_mark(t6_s >= TARGETS['table6'], f'{100 * t6_s:.0f} %')} "
+                     f"| {_mark(rp_s >= TARGETS['replan'], f'{100 * rp_s:.0f} %')} "
+                     f"| {_mark(ratio <= LENGTH_TARGET, f'{ratio:.3f}')} |")
     return lines
 
 
