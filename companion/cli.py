@@ -16,6 +16,7 @@ from pathlib import Path
 
 import numpy as np
 
+from companion.flight import HEARTBEAT_WAIT_S
 from planner import cli as planner_cli
 from planner import console
 from planner.cli import EXIT_BAD_INPUT, EXIT_INFEASIBLE, EXIT_OK, check_writable, write_text
@@ -64,6 +65,8 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--backend", choices=("pymavlink", "mavsdk"), default="pymavlink",
                     help="how the companion talks to the autopilot: its own pymavlink link (default), or MAVSDK "
                     "(mission_raw, action, mavlink_direct); planning, replanning and the report stay the same")
+    fl.add_argument("--heartbeat-timeout", type=float, default=None, metavar="S",
+                    help=f"seconds to wait for the autopilot's first HEARTBEAT (default {HEARTBEAT_WAIT_S:g})")
     fl.add_argument("--report", type=Path, default=Path("fuseplan-report"), help="report directory")
     fl.add_argument("--scenario-file", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
     fl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
@@ -222,10 +225,15 @@ def cmd_fly(args: argparse.Namespace) -> int:
         if not (math.isfinite(args.replan_budget) and args.replan_budget > 0):
             raise FuseplanError("--replan-budget must be a finite number of seconds > 0")
         replan_cfg = ReplanConfig(budget_s=args.replan_budget)
+    waits = {}
+    if getattr(args, "heartbeat_timeout", None) is not None:
+        if not (math.isfinite(args.heartbeat_timeout) and args.heartbeat_timeout > 0):
+            raise FuseplanError("--heartbeat-timeout must be a finite number of seconds > 0")
+        waits["heartbeat_timeout"] = args.heartbeat_timeout
     opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
                       arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report,
                       replan=not getattr(args, "no_replan", False), replan_config=replan_cfg,
-                      signing_key=key, traffic=getattr(args, "traffic", None), backend=backend)
+                      signing_key=key, traffic=getattr(args, "traffic", None), backend=backend, **waits)
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
     try:
         flight = asyncio.run(fly(doc, sc, opts, events))

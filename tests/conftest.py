@@ -27,14 +27,37 @@ def rescue_static() -> Path:
     return SCENARIOS / "rescue_static.toml"
 
 
-def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+def pytest_addoption(parser: pytest.Parser) -> None:
+    parser.addoption("--with-covered", action="store_true",
+                     help="also run the slow tests that a faster test covers (marked slow(covered_by=...))")
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Mark every test that uses an ArduPilot SITL fixture ``sitl`` and every one that uses a PX4 fixture ``px4``, so
-    ``-m "not sitl"`` / ``-m "not px4"`` leaves them out."""
+    ``-m "not sitl"`` / ``-m "not px4"`` leaves them out. Leave out a test marked ``slow(covered_by=NAME)`` when the
+    faster test NAME (of its module, or PATH::NAME from tests/) runs (``--with-covered`` keeps it): the suite must
+    fit CI's 20 minutes."""
     for item in items:
         if SITL_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.sitl)
         if PX4_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.px4)
+    if config.getoption("--with-covered"):
+        return
+    ids = {item.nodeid for item in items}
+    covered = []
+    for item in items:
+        mark = item.get_closest_marker("slow")
+        by = mark.kwargs.get("covered_by") if mark is not None else None
+        if not by:
+            continue
+        # NAME: a test of the same module; PATH::NAME: one of another module (PATH from tests/)
+        by_id = item.nodeid.split("::")[0] + "::" + by if "::" not in by else "tests/" + by
+        if by_id in ids:
+            covered.append(item)
+    if covered:
+        config.hook.pytest_deselected(items=covered)
+        items[:] = [item for item in items if item not in covered]
 
 
 def _stopped_afterwards(launch: Callable[..., T]) -> Iterator[Callable[..., T]]:

@@ -13,6 +13,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from companion.flight import HEARTBEAT_WAIT_S
 from companion.flight.report import plot_track, write_json
 from companion.flight.supervisor import FlightOutcome, FlightSupervisor
 from companion.mavlink.link import Link
@@ -53,6 +54,7 @@ class FlyOptions:
     signing_key: SigningKey | None = None  # MAVLink 2 signing (our simulator uses the same key)
     traffic: str | None = None  # a real autopilot's spare port: fly the scenario's intruders there (TrafficFeed)
     backend: str = "pymavlink"  # or "mavsdk": the vehicle through MAVSDK (companion.mavlink.mavsdk_backend)
+    heartbeat_timeout: float = HEARTBEAT_WAIT_S  # s to wait for the autopilot's first HEARTBEAT
 
 
 async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, events: EventLog) -> dict[str, Any]:
@@ -74,7 +76,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             events.log("signing", key=opts.signing_key.fingerprint)
         async with _link(url, opts) as link:
             rates = TelemetryRates(link, on_results=lambda answers: events.log("telemetry_rates", **answers)).start()
-            await link.wait_heartbeat(timeout=15.0)
+            await link.wait_heartbeat(timeout=opts.heartbeat_timeout)
             # the streams we do not read turned off before the first transfer (PX4 floods a companion link with
             # ~500 messages/s times its speed-up: an upload in that flood timed out three times on a busy machine)
             with contextlib.suppress(TimeoutError):

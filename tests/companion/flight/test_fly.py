@@ -24,8 +24,10 @@ def _flight(report: Path) -> dict:
 
 
 def test_fly_sim_completes_and_writes_the_report(tmp_path) -> None:
+    """`fly --sim` end to end, through a little packet loss (`--sim-loss`; 30 % below and in test_faults)."""
     report = tmp_path / "rep"
-    code = main(["fly", str(STATIC), "--sim", "--speedup", "20", "--report", str(report), "-q", *FAST])
+    code = main(["fly", str(STATIC), "--sim", "--speedup", "20", "--sim-loss", "0.05", "--report", str(report), "-q",
+                 *FAST])
     assert code == 0
     for name in ("PLAN.json", "mission.waypoints", "mission.plan", "mission.geojson", "events.jsonl",
                  "flight.json", "track.png"):
@@ -36,13 +38,17 @@ def test_fly_sim_completes_and_writes_the_report(tmp_path) -> None:
     assert fl["min_clearance_m"] >= fl["d_coll_m"]  # the flown (truth) track kept clear
     n_wp = len(json.loads((report / "PLAN.json").read_text())["waypoints"])
     assert len(fl["items_reached"]) >= n_wp - 1  # every route waypoint after the start
-    events = [json.loads(line)["event"] for line in (report / "events.jsonl").read_text().splitlines()]
+    records = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    assert records[0]["event"] == "sim_started" and records[0]["loss"] == 0.05
+    events = [r["event"] for r in records]
     order = [events.index(e) for e in ("connected", "upload_verified", "ready", "armed", "mission_start", "finished")]
     assert order == sorted(order)
     loaded = mavwp.MAVWPLoader()
     assert loaded.load(str(report / "mission.waypoints")) == fl["mission_items"]
 
 
+@pytest.mark.slow(covered_by="companion/flight/test_faults.py::"
+                           "test_full_flight_through_30_percent_drop_with_duplicates_and_reordering[plane-1]")
 def test_fly_sim_with_30_percent_loss_still_completes(tmp_path) -> None:
     report = tmp_path / "lossy"
     code = main(["fly", str(STATIC), "--sim", "--speedup", "20", "--sim-loss", "0.3", "--report", str(report),
@@ -76,10 +82,10 @@ def test_fly_unreachable_autopilot_exits_4(tmp_path, capsys) -> None:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     code = main(["fly", str(STATIC), "--connect", f"udpout:127.0.0.1:{port}", "--report", str(tmp_path / "r"),
-                 "-q", *FAST])
+                 "--heartbeat-timeout", "2", "-q", *FAST])
     assert code == 4
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 1 and err[0].startswith("fuseplan: error:")
+    assert len(err) == 1 and err[0].startswith("fuseplan: error:") and "within 2 s" in err[0], err
 
 
 def test_fly_refused_item_exits_4_with_one_line_and_the_previous_mission_restored(tmp_path, capsys) -> None:
