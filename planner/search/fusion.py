@@ -15,6 +15,7 @@ from planner.problem import PlanningProblem
 from planner.search import roadmap
 from planner.search.aco import AntColony
 from planner.search.encoding import Encoding, guided_encoding, resample_keeping_vertices, resample_paths
+from planner.search.repair import repair
 from planner.search.roadmap_colony import RoadmapColony
 from planner.search.spso import SphericalPSO
 from planner.search.swarm import OptimiserResult
@@ -43,6 +44,7 @@ class FusionResult(OptimiserResult):
 MIN_ACO_BUDGET_S = 0.005  # below this a colony cannot even build its lattice
 LATTICE_PAIR_S = 3e-8  # measured cost of one edge–obstacle distance while a lattice colony builds its graph
 MIN_COLONY_BUDGET_S = 0.05  # below this the roadmap colony is skipped (a walk of 30 ants takes milliseconds)
+REPAIR_SHARE = 0.8  # of the time left that the guide's repair may use (docs/method.md §15.5)
 
 
 class Fusion:
@@ -102,7 +104,7 @@ class Fusion:
             paper.phases = {**extra, **paper.phases}
             paper.time_s = time.perf_counter() - t0
             return paper
-        enc, seeds = self._guided(problem, routes[0], routes[1:], initial_paths)
+        enc, seeds = self._guided(problem, routes[0], routes[1:], initial_paths, rng, left(), extra)
         budget = left()
         share = 1.0 - s.aco.budget_share
         guided = replace(s.pso, stagnation_tol=cfg.stagnation_tol)
@@ -125,7 +127,7 @@ class Fusion:
                 # the ants found a cheaper route (on a hard map: a way SPSO could not make flyable) or another
                 # corridor: the swarm makes it flyable around the ants' corridor
                 if colony.cost < pso.cost or roadmap.mean_distance(guide, pso.path) > rm.spacing:
-                    enc2, seeds2 = self._guided(problem, guide, [colony.route, pso.path], None)
+                    enc2, seeds2 = self._guided(problem, guide, [colony.route, pso.path], None, rng, left())
                     budget = left()
                     pso2 = SphericalPSO(replace(guided, max_iter=max(1, s.pso.max_iter // 2))).run(
                         problem, rng, initial_paths=seeds2, encoding=enc2, progress=progress,
@@ -139,13 +141,23 @@ class Fusion:
         return self._finish(done, t0, extra, trace=trace)
 
     def _guided(self, problem: PlanningProblem, guide: np.ndarray, others: list[np.ndarray],
-                initial_paths: np.ndarray | None) -> tuple[Encoding, np.ndarray]:
-        """The encoding around ``guide`` (docs/method.md §15.2) and the seeds: the guide, then ``others`` and the
-        caller's ``initial_paths``, each fitted to the encoding's waypoint count."""
+                initial_paths: np.ndarray | None, rng: np.random.Generator, budget_s: float | None,
+                record: dict[str, PhaseRecord] | None = None) -> tuple[Encoding, np.ndarray]:
+        """The encoding around ``guide`` (docs/method.md §15.2) and the seeds: the guide as the swarm's points,
+        repaired where it has faults (§15.5, on at most ``REPAIR_SHARE`` of ``budget_s``), then ``others`` and
+        the caller's ``initial_paths``, each fitted to the encoding's waypoint count. ``record``: gets the
+        repair's phase record."""
         cfg = self.settings.roadmap
         if len(guide) - 2 > cfg.max_guide_points:
             guide = resample_paths(guide[None], cfg.max_guide_points + 2)[0]
         enc, guide_pts = guided_encoding(problem, self.settings.pso, guide)
+        t = time.perf_counter()
+        fix = repair(problem, guide_pts, rng, None if budget_s is None else t + REPAIR_SHARE * max(budget_s, 0.0))
+        if fix.evaluations > 1:  # the guide had faults: the encoding follows the repaired route
+            enc, guide_pts = guided_encoding(problem, self.settings.pso, fix.path, n=len(fix.path) - 2)
+        if record is not None:
+            record["repair"] = PhaseRecord(fix.cost, fix.rounds, time.perf_counter() - t, fix.evaluations,
+                                           f"{fix.violations} violations left")
         seeds = [guide_pts] + [_fit(r, enc.n + 2) for r in others]
         if initial_paths is not None:
             seeds += [_fit(p, enc.n + 2) for p in np.asarray(initial_paths, dtype=float)]

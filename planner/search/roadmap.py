@@ -508,8 +508,9 @@ def guide(points: np.ndarray, rm: Roadmap, problem: PlanningProblem, cfg: Roadma
 def diverse_routes(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, q: Query | None = None,
                    weights: np.ndarray | None = None) -> list[np.ndarray]:
     """Up to ``cfg.n_routes`` start→goal routes (M_k, 3) in different corridors, best first, shortcut: after
-    each, edges within three spacings of it weigh ``reuse_penalty`` times more and the search repeats; a route
-    within one spacing (mean distance) of an earlier one is dropped. ``q``/``weights``: the attached query and its
+    each, edges within three spacings of it weigh ``reuse_penalty`` times more and the search repeats; a roadmap
+    path within one spacing (mean distance) of an earlier one is dropped before it is made a guide.
+    ``q``/``weights``: the attached query and its
     edge weights (default: :func:`attach`, clearance and threat weights). Empty: no route at this resolution."""
     if q is None:
         q = attach(rm, problem, cfg)
@@ -517,6 +518,7 @@ def diverse_routes(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, q:
         weights = timed_weights(q, problem, clearance_weights(q, problem))
     base = weights
     routes: list[np.ndarray] = []
+    found: list[np.ndarray] = []  # the roadmap paths of the routes kept
     for _ in range(cfg.n_routes):
         path = shortest(q, weights)
         if path is None:
@@ -524,9 +526,9 @@ def diverse_routes(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, q:
         ids = q.edge_ids(path)
         if routes and np.any(base[ids] >= 0.999 * BLOCKED_WEIGHT * q.length[ids]):
             break  # only ways through a moving threat are left
-        pts = guide(q.points[path], rm, problem, cfg)
-        if not any(mean_distance(pts, r) < rm.spacing for r in routes):
-            routes.append(pts)
+        if not any(mean_distance(q.points[path], f) < rm.spacing for f in found):  # a new corridor: its guide
+            found.append(q.points[path])
+            routes.append(guide(q.points[path], rm, problem, cfg))
         dense = densify(q.points[path], 0.5 * rm.spacing)
         weights = weights.copy()
         weights[rm.edges_near(dense, 3.0 * rm.spacing)] *= cfg.reuse_penalty

@@ -1,0 +1,88 @@
+"""Local repair of a nearly flyable route (docs/method.md §15.5): a roadmap guide usually misses by one or two
+local faults (a leg a little short for the turn at its end, a corner grazing an obstacle). A swarm on a replan
+budget gets a handful of iterations, which move every waypoint at once and rarely fix that; here each fault's own
+waypoints are moved, many candidates at a time (one batched cost evaluation), and a candidate is kept only when
+the whole route's cost falls."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, replace
+
+import numpy as np
+
+from planner.problem import PlanningProblem
+
+WINDOW = 4  # points per locating window: the middle segment sees its neighbours' turns on both sides
+
+
+@dataclass(frozen=True)
+class RepairResult:
+    path: np.ndarray  # (N, 3), the same number of points as the input
+    cost: float
+    violations: int
+    rounds: int
+    evaluations: int
+
+
+def fault_windows(problem: PlanningProblem, path: np.ndarray) -> np.ndarray:
+    """First indices j of the 4-point windows path[j : j + 4] that have a static violation (collision, band,
+    turn, climb, bounds): where a fault of the route lies. Moving threats are not located (their times depend
+    on the whole route before the window)."""
+    n = len(path)
+    if n < WINDOW:
+        return np.zeros(1, dtype=int) if n > 2 else np.zeros(0, dtype=int)
+    j = np.arange(n - WINDOW + 1)
+    windows = path[j[:, None] + np.arange(WINDOW)]
+    static = problem if problem.start_time is None else replace(problem, start_time=None)
+    return j[static.evaluate(windows).n_violations > 0]
+
+
+def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator, deadline: float | None = None,
+           rounds: int = 8, candidates: int = 48) -> RepairResult:
+    """Move the waypoints of each faulty window of ``path`` (N, 3; the ends stay) until the route has no
+    violation, ``rounds`` rounds pass or ``deadline`` (time.perf_counter()) is reached. Per window and round,
+    ``candidates`` routes with that window's interior points displaced (Gaussian, a third of the shorter
+    neighbouring leg horizontally, a quarter of that vertically; the scale halves after a round without
+    gain) are scored by the cost of the stretch they change (every other term of the route's cost is the same
+    for all of them; with moving threats, the whole route), and the cheapest replaces the route when it is
+    cheaper. Without a located fault (a moving threat) every interior point may move."""
+    best = np.array(path, dtype=float)
+    ev = problem.evaluate(best)
+    cost, viol = float(ev.total[0]), int(ev.n_violations[0])
+    n = len(best)
+    legs = np.linalg.norm(np.diff(best[:, :2], axis=0), axis=1)
+    scale = np.full(n, 1.0 / 3.0)
+    timed = bool(len(problem.env.threats)) and problem.start_time is not None
+    evaluations = used = 1
+    while used <= rounds and viol and n > 2 and (deadline is None or time.perf_counter() < deadline):
+        starts = fault_windows(problem, best)
+        evaluations += max(n - WINDOW + 1, 1)
+        for idx in [np.arange(j, j + WINDOW) for j in starts] or [np.arange(n)]:  # a route's few faults
+            idx = idx[(idx > 0) & (idx < n - 1)]
+            if not len(idx) or (deadline is not None and time.perf_counter() >= deadline):
+                continue
+            reach = np.minimum(legs[idx - 1], legs[np.minimum(idx, n - 2)]) * scale[idx]
+            step = rng.standard_normal((candidates, len(idx), 3)) * reach[None, :, None]
+            step[..., 2] *= 0.25
+            # the stretch whose cost the moved points change (their segments, the turns at their ends, the
+            # corner cuts after them); with moving threats every later time changes, so the whole route
+            lo, hi = (0, n) if timed else (max(int(idx[0]) - 3, 0), min(int(idx[-1]) + 4, n))
+            trial = np.repeat(best[None, lo:hi], candidates + 1, axis=0)
+            trial[1:, idx - lo] += step
+            ev = problem.evaluate(trial)  # row 0: as it is
+            evaluations += candidates + 1
+            k = 1 + int(np.argmin(ev.total[1:]))
+            if ev.total[k] < ev.total[0]:
+                best = best.copy()
+                best[lo:hi] = trial[k]
+                ev = problem.evaluate(best)
+                cost, viol = float(ev.total[0]), int(ev.n_violations[0])
+                evaluations += 1
+                legs = np.linalg.norm(np.diff(best[:, :2], axis=0), axis=1)
+            else:
+                scale[idx] *= 0.5
+            if not viol:
+                break
+        used += 1
+    return RepairResult(best, cost, viol, used - 1, evaluations)
