@@ -341,7 +341,7 @@ def timed_weights(q: Query, problem: PlanningProblem, weights: np.ndarray) -> np
     dist = dijkstra(q.graph(weights), indices=q.start)
     reach = np.isfinite(dist)
     t_node = problem.start_time + np.where(reach, dist, 0.0) / v
-    cand = _near_threats(q, problem, float(t_node.max()))
+    cand = _near_in_time(q, problem, _near_threats(q, problem, float(t_node.max())), t_node)
     e = q.edges[cand]
     length = q.length[cand]
     a, b = q.points[e[:, 0]], q.points[e[:, 1]]
@@ -375,6 +375,32 @@ def _near_threats(q: Query, problem: PlanningProblem, t_end: float) -> np.ndarra
     reach = (float(env.threats.radii(times).max()) + rm.need + 0.5 * rm.spacing
              + 0.5 * longest * (2.0 + speed / problem.vehicle.cruise_speed))
     return np.concatenate([rm.edges_near(centres, reach), np.arange(len(rm.edges), len(q.edges))])
+
+
+def _near_in_time(q: Query, problem: PlanningProblem, cand: np.ndarray, t_node: np.ndarray) -> np.ndarray:
+    """The edges of ``cand`` that a threat is near when the vehicle flies them: each threat's position at the
+    sample time nearest the vehicle's arrival at the edge (samples half a spacing of threat travel apart),
+    against a reach that covers everything :func:`timed_weights` checks (the edge's half length, how far the
+    threat moves while the vehicle flies it and within half a sample, its largest radius), so no edge it would
+    block is dropped. A replan's threats sweep most of the map over a flight; at one time they are in one place."""
+    env, rm = problem.env, q.roadmap
+    if not len(cand):
+        return cand
+    v, speed = problem.vehicle.cruise_speed, max(env.threats.max_speed, 1e-9)
+    t_start = float(problem.start_time or 0.0)
+    e = q.edges[cand]
+    length = q.length[cand]
+    t0 = np.minimum(t_node[e[:, 0]], t_node[e[:, 1]])
+    t_end = max(float(t0.max()), t_start)
+    count = int(min(4000, max(2, math.ceil((t_end - t_start) * speed / (0.5 * rm.spacing)) + 1)))
+    times = np.linspace(t_start, t_end, count)
+    step = times[1] - times[0]
+    j = np.clip(np.rint((t0 - t_start) / max(step, 1e-12)).astype(np.intp), 0, count - 1)
+    mid = 0.5 * (q.points[e[:, 0]] + q.points[e[:, 1]])
+    d = np.linalg.norm(mid[None] - env.threats.positions(times)[:, j], axis=-1)  # (k, C)
+    radius = env.threats.radii(np.array([t_end + float(length.max()) / v]))  # (k, 1): radii only grow
+    reach = (radius + rm.need + 0.5 * length * (2.0 + speed / v) + speed * (length / v + 0.5 * step)) * (1 + 1e-9)
+    return cand[(d < reach).any(axis=0)]
 
 
 def shortest(q: Query, weights: np.ndarray) -> np.ndarray | None:

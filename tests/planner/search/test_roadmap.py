@@ -99,6 +99,32 @@ def test_a_moving_threat_raises_edge_weights_where_the_vehicle_would_meet_it_not
     assert np.linalg.norm(pts[:, :2] - [600.0, 500.0], axis=1).min() > 60.0 + HAZARD.d_coll
 
 
+def test_the_time_filter_keeps_every_edge_a_moving_threat_blocks(monkeypatch) -> None:
+    """timed_weights checks only the edges a threat is near at the vehicle's time there (_near_in_time): the
+    weights are the same as when every edge near a threat's sweep is checked, for loiter, patrol and track
+    threats (a growing track radius too), and the filter drops edges that the sweep alone keeps."""
+    threats = Threats([
+        Threat("l", "loiter", 50.0, (500.0, 450.0, 120.0), circle_radius=150.0, speed=20.0),
+        Threat("p", "patrol", 40.0, (300.0, 100.0, 150.0), p1=(900.0, 900.0, 150.0), speed=25.0),
+        Threat("t", "track", 30.0, (1100.0, 200.0, 120.0), p1=(-15.0, 10.0, 0.0), radius_growth=1.0)])
+    pb = _problem(_cylinders((600.0, 150.0, 40.0)), threats=threats, start_time=3.0)
+    rm = rmap.cached(pb, CFG)
+    q = rmap.attach(rm, pb, CFG)
+    base = rmap.clearance_weights(q, pb)
+    filtered = rmap.timed_weights(q, pb, base)
+    kept: list[int] = []
+
+    def count(q_, pb_, cand, t_node):  # noqa: ANN001, ANN202 - the filter's share, then no filter
+        kept.extend([len(real(q_, pb_, cand, t_node)), len(cand)])
+        return cand
+
+    real = rmap._near_in_time
+    monkeypatch.setattr(rmap, "_near_in_time", count)
+    unfiltered = rmap.timed_weights(q, pb, base)
+    np.testing.assert_array_equal(filtered, unfiltered)
+    assert (filtered > base).sum() > 0 and kept[0] < 0.8 * kept[1], kept
+
+
 # --- guide-relative encoding ----------------------------------------------------------------------------------
 def test_with_the_straight_line_as_guide_the_encoding_is_the_papers() -> None:
     pb = _problem(_cylinders((600.0, 500.0, 150.0)), goal=(1000.0, 900.0, 200.0))
