@@ -30,6 +30,7 @@ from planner.world.environment import Environment
 from planner.world.geometry import horizontal_turn, segment_point_distance_2d
 from planner.world.scenario import Scenario, load_scenario
 
+REPO = Path(__file__).resolve().parents[3]
 SEEDS = range(5)
 CASES = [(family, seed) for family in FAMILIES for seed in SEEDS]
 GRID_M = 10.0  # plan-view grid of the reachability tests
@@ -114,6 +115,16 @@ def test_write_scenarios_writes_the_generated_text(tmp_path: Path) -> None:
         assert p.read_text() == generate(family, int(seed)).toml
         assert load_scenario(p).name == p.stem
     assert [p.name for p in write_scenarios(tmp_path)] == [f"hardmap_{f}_0.toml" for f in FAMILIES]
+
+
+def test_the_shipped_hard_maps_are_the_generators_own_planned_with_the_roadmap(tmp_path: Path) -> None:
+    """sitl_scenarios/hardmap_*.toml are write_scenarios(..., roadmap=True) of today's generator, byte for byte
+    (regenerate them when the generator changes), and they load with the roadmap pipeline on."""
+    shipped = sorted((REPO / "sitl_scenarios").glob("hardmap_*.toml"))
+    assert {p.stem for p in shipped} == {f"hardmap_{f}_0" for f in FAMILIES}
+    for p in write_scenarios(tmp_path, roadmap=True):
+        assert p.read_text() == (REPO / "sitl_scenarios" / p.name).read_text(), p.name
+        assert load_scenario(p).planner.roadmap.enabled
 
 
 @pytest.mark.parametrize("seed", SEEDS)

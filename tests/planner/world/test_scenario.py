@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 import pytest
 
+from planner.bench.hardmaps import FAMILIES
 from planner.errors import ScenarioError
 from planner.world.config import HazardConfig, PlannerSettings, VehicleLimits
 from planner.world.dem import synthetic_hills
@@ -77,7 +78,7 @@ def expect_error(path: Path, field: str, word: str, overrides: tuple[str, ...] =
 
 def test_shipped_scenarios() -> None:
     assert {p.stem for p in SHIPPED} == {"rescue_static", "rescue_dynamic", "large_obstacle_field", "mountain_rescue",
-                                         "crossing_traffic"}
+                                         "crossing_traffic", *(f"hardmap_{f}_0" for f in FAMILIES)}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
