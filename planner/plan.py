@@ -143,7 +143,7 @@ def plan(
                                        progress=progress)
     waypoints = merge_close_waypoints(opt.path)
     evaluation = problem.evaluate(waypoints[None]) if len(waypoints) != len(opt.path) else opt.evaluation
-    timed = problem.start_time is not None and len(problem.env.threats) > 0
+    timed = problem.timed_threats
     traj = smooth(waypoints, settings.sample_spacing, problem.vehicle.cruise_speed,
                   problem.start_time or 0.0)
     check = check_trajectory(traj, waypoints, problem.env, problem.hazard, problem.vehicle, timed)

@@ -109,6 +109,11 @@ class PlanningProblem:
         object.__setattr__(self, "_terrain_slope", terrain.max_slope if terrain is not None else 0.0)
 
     @property
+    def timed_threats(self) -> bool:
+        """Moving threats that the cost meets in time (docs/method.md §4.6): some, and a start time."""
+        return bool(len(self.env.threats)) and self.start_time is not None
+
+    @property
     def direct_distance(self) -> float:
         """‖G − S‖ in metres."""
         return float(np.linalg.norm(self.goal - self.start))
@@ -235,7 +240,7 @@ class PlanningProblem:
             add("collision", r_det - (radar_d - dev), self.penalty.per_metre, 1)
             soft = env.radars.soft_weight[:, None, None] * (r_det / np.maximum(radar_d, r_det)) ** 4
             total += _per_particle(soft, 1)
-        if len(env.threats) and self.start_time is not None:
+        if self.timed_threats:
             pts, times = self._timed_samples(a, b, seg_len)
             centres = env.threats.positions(times)  # (k, P, M, 3)
             dist = np.linalg.norm(pts[None] - centres, axis=-1) - env.threats.radii(times)

@@ -335,17 +335,21 @@ def timed_weights(q: Query, problem: PlanningProblem, weights: np.ndarray) -> np
     of the edge when the vehicle flies it, the vehicle's time at a node taken from its shortest distance from
     the start at cruise speed (docs/method.md §15.1)."""
     env = problem.env
-    if not len(env.threats) or problem.start_time is None:
+    if not problem.timed_threats:
         return weights
     v = problem.vehicle.cruise_speed
     dist = dijkstra(q.graph(weights), indices=q.start)
     reach = np.isfinite(dist)
     t_node = problem.start_time + np.where(reach, dist, 0.0) / v
-    cand = _near_in_time(q, problem, _near_threats(q, problem, float(t_node.max())), t_node)
+    times = _sample_times(problem, q.roadmap, float(t_node.max()))
+    centres = env.threats.positions(times)  # (k, T, 3)
+    cand = _near_threats(q, problem, times, centres)
     e = q.edges[cand]
     length = q.length[cand]
-    a, b = q.points[e[:, 0]], q.points[e[:, 1]]
     t0 = np.minimum(t_node[e[:, 0]], t_node[e[:, 1]])
+    near = _near_in_time(q, problem, times, centres, e, length, t0)
+    cand, e, length, t0 = cand[near], e[near], length[near], t0[near]
+    a, b = q.points[e[:, 0]], q.points[e[:, 1]]
     t1 = t0 + length / v
     hit = np.zeros(len(e), dtype=bool)
     for f in (0.0, 0.5, 1.0):  # the edge's ends and middle at the times the vehicle passes them
@@ -360,47 +364,46 @@ def timed_weights(q: Query, problem: PlanningProblem, weights: np.ndarray) -> np
     return out
 
 
-def _near_threats(q: Query, problem: PlanningProblem, t_end: float) -> np.ndarray:
-    """Indices of the edges (attachments always) whose midpoint a threat comes near enough, between the start
-    time and ``t_end``, to matter to :func:`timed_weights`: threat positions sampled so that a threat moves at most
-    half a spacing between samples, each the centre of a ball of its radius + the clearance + the longest edge
-    (and the speed-scaled half edge) + half a spacing."""
-    env, rm = problem.env, q.roadmap
+def _sample_times(problem: PlanningProblem, rm: Roadmap, t_end: float) -> np.ndarray:
+    """Times from the problem's start to ``t_end`` at which a threat moves at most half a spacing between two
+    (at least 2, at most 2000)."""
     t_start = float(problem.start_time or 0.0)
-    speed = max(env.threats.max_speed, 1e-9)
+    speed = max(problem.env.threats.max_speed, 1e-9)
     count = int(min(2000, max(2, math.ceil((t_end - t_start) * speed / (0.5 * rm.spacing)) + 1)))
-    times = np.linspace(t_start, max(t_end, t_start), count)
-    centres = env.threats.positions(times).reshape(-1, 3)  # (k × count, 3)
+    return np.linspace(t_start, max(t_end, t_start), count)
+
+
+def _near_threats(q: Query, problem: PlanningProblem, times: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """Indices of the edges (attachments always) whose midpoint a threat comes near enough, at the sample
+    ``times`` (threat ``centres`` (k, T, 3) then, :func:`_sample_times`), to matter to :func:`timed_weights`: each
+    centre the middle of a ball of its radius + the clearance + the longest edge (and the speed-scaled half edge)
+    + half a spacing."""
+    env, rm = problem.env, q.roadmap
+    speed = max(env.threats.max_speed, 1e-9)
     longest = float(rm.length.max()) if len(rm.length) else 0.0  # attachments are candidates anyway
     reach = (float(env.threats.radii(times).max()) + rm.need + 0.5 * rm.spacing
              + 0.5 * longest * (2.0 + speed / problem.vehicle.cruise_speed))
-    return np.concatenate([rm.edges_near(centres, reach), np.arange(len(rm.edges), len(q.edges))])
+    return np.concatenate([rm.edges_near(centres.reshape(-1, 3), reach), np.arange(len(rm.edges), len(q.edges))])
 
 
-def _near_in_time(q: Query, problem: PlanningProblem, cand: np.ndarray, t_node: np.ndarray) -> np.ndarray:
-    """The edges of ``cand`` that a threat is near when the vehicle flies them: each threat's position at the
-    sample time nearest the vehicle's arrival at the edge (samples half a spacing of threat travel apart),
+def _near_in_time(q: Query, problem: PlanningProblem, times: np.ndarray, centres: np.ndarray, e: np.ndarray,
+                  length: np.ndarray, t0: np.ndarray) -> np.ndarray:
+    """Which edges ``e`` (C, 2) of length (C,), entered at ``t0`` (C,), a threat is near when the vehicle flies
+    them (C,) bool: each threat at the sample time nearest the vehicle's arrival (``centres`` at ``times``),
     against a reach that covers everything :func:`timed_weights` checks (the edge's half length, how far the
     threat moves while the vehicle flies it and within half a sample, its largest radius), so no edge it would
     block is dropped. A replan's threats sweep most of the map over a flight; at one time they are in one place."""
     env, rm = problem.env, q.roadmap
-    if not len(cand):
-        return cand
+    if not len(e):
+        return np.zeros(0, dtype=bool)
     v, speed = problem.vehicle.cruise_speed, max(env.threats.max_speed, 1e-9)
-    t_start = float(problem.start_time or 0.0)
-    e = q.edges[cand]
-    length = q.length[cand]
-    t0 = np.minimum(t_node[e[:, 0]], t_node[e[:, 1]])
-    t_end = max(float(t0.max()), t_start)
-    count = int(min(4000, max(2, math.ceil((t_end - t_start) * speed / (0.5 * rm.spacing)) + 1)))
-    times = np.linspace(t_start, t_end, count)
     step = times[1] - times[0]
-    j = np.clip(np.rint((t0 - t_start) / max(step, 1e-12)).astype(np.intp), 0, count - 1)
+    j = np.clip(np.rint((t0 - times[0]) / max(step, 1e-12)).astype(np.intp), 0, len(times) - 1)
     mid = 0.5 * (q.points[e[:, 0]] + q.points[e[:, 1]])
-    d = np.linalg.norm(mid[None] - env.threats.positions(times)[:, j], axis=-1)  # (k, C)
-    radius = env.threats.radii(np.array([t_end + float(length.max()) / v]))  # (k, 1): radii only grow
+    d = np.linalg.norm(mid[None] - centres[:, j], axis=-1)  # (k, C)
+    radius = env.threats.radii(np.array([times[-1] + float(length.max()) / v]))  # (k, 1): radii only grow
     reach = (radius + rm.need + 0.5 * length * (2.0 + speed / v) + speed * (length / v + 0.5 * step)) * (1 + 1e-9)
-    return cand[(d < reach).any(axis=0)]
+    return (d < reach).any(axis=0)
 
 
 def shortest(q: Query, weights: np.ndarray) -> np.ndarray | None:
@@ -511,7 +514,7 @@ def threat_slack(problem: PlanningProblem, a: np.ndarray, b: np.ndarray, flown: 
     reaching a at ``flown`` metres from the start at cruise speed (docs/method.md §4.6); +inf without timed threats.
     Between samples the vehicle and the threat both move: half a sample gap at each one's speed is subtracted."""
     env = problem.env
-    if not len(env.threats) or problem.start_time is None or not len(a):
+    if not problem.timed_threats or not len(a):
         return np.full(len(a), np.inf)
     v = problem.vehicle.cruise_speed
     f = np.linspace(0.0, 1.0, samples)[:, None]

@@ -114,9 +114,9 @@ def test_the_time_filter_keeps_every_edge_a_moving_threat_blocks(monkeypatch) ->
     filtered = rmap.timed_weights(q, pb, base)
     kept: list[int] = []
 
-    def count(q_, pb_, cand, t_node):  # noqa: ANN001, ANN202 - the filter's share, then no filter
-        kept.extend([len(real(q_, pb_, cand, t_node)), len(cand)])
-        return cand
+    def count(q_, pb_, times, centres, e, length, t0):  # noqa: ANN001, ANN202 - the filter's share, then no filter
+        kept.extend([int(real(q_, pb_, times, centres, e, length, t0).sum()), len(e)])
+        return np.ones(len(e), dtype=bool)
 
     real = rmap._near_in_time
     monkeypatch.setattr(rmap, "_near_in_time", count)
