@@ -181,6 +181,14 @@ def cmd_export(args: argparse.Namespace) -> int:
 EXIT_LINK, EXIT_ABORTED = 4, 5
 
 
+def _seconds(args: argparse.Namespace, name: str) -> float | None:
+    """Option ``--name`` of ``args`` (None when not given, or absent as in demo): a finite number of seconds > 0."""
+    value = getattr(args, name, None)
+    if value is not None and not (math.isfinite(value) and value > 0):
+        raise FuseplanError(f"--{name.replace('_', '-')} must be a finite number of seconds > 0")
+    return value
+
+
 def cmd_fly(args: argparse.Namespace) -> int:
     import asyncio
 
@@ -220,20 +228,14 @@ def cmd_fly(args: argparse.Namespace) -> int:
         print(f"fuseplan: no feasible plan ({doc['status']}); not flying. See {args.report / 'PLAN.json'}",
               file=sys.stderr)
         return EXIT_INFEASIBLE
-    replan_cfg = None
-    if getattr(args, "replan_budget", None) is not None:
-        if not (math.isfinite(args.replan_budget) and args.replan_budget > 0):
-            raise FuseplanError("--replan-budget must be a finite number of seconds > 0")
-        replan_cfg = ReplanConfig(budget_s=args.replan_budget)
-    waits = {}
-    if getattr(args, "heartbeat_timeout", None) is not None:
-        if not (math.isfinite(args.heartbeat_timeout) and args.heartbeat_timeout > 0):
-            raise FuseplanError("--heartbeat-timeout must be a finite number of seconds > 0")
-        waits["heartbeat_timeout"] = args.heartbeat_timeout
+    budget = _seconds(args, "replan_budget")
+    heartbeat = _seconds(args, "heartbeat_timeout")
     opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
                       arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report,
-                      replan=not getattr(args, "no_replan", False), replan_config=replan_cfg,
-                      signing_key=key, traffic=getattr(args, "traffic", None), backend=backend, **waits)
+                      replan=not getattr(args, "no_replan", False),
+                      replan_config=None if budget is None else ReplanConfig(budget_s=budget),
+                      signing_key=key, traffic=getattr(args, "traffic", None), backend=backend,
+                      heartbeat_timeout=HEARTBEAT_WAIT_S if heartbeat is None else heartbeat)
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
     try:
         flight = asyncio.run(fly(doc, sc, opts, events))

@@ -57,7 +57,8 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             covered.append(item)
     if covered:
         config.hook.pytest_deselected(items=covered)
-        items[:] = [item for item in items if item not in covered]
+        left_out = {item.nodeid for item in covered}
+        items[:] = [item for item in items if item.nodeid not in left_out]
 
 
 def _stopped_afterwards(launch: Callable[..., T]) -> Iterator[Callable[..., T]]:

@@ -153,7 +153,7 @@ class Fusion:
         enc, guide_pts = guided_encoding(problem, self.settings.pso, guide)
         t = time.perf_counter()
         fix = repair(problem, guide_pts, rng, None if budget_s is None else t + REPAIR_SHARE * max(budget_s, 0.0))
-        if fix.evaluations > 1:  # the guide had faults: the encoding follows the repaired route
+        if fix.rounds:  # the guide had faults: the encoding follows the repaired route
             enc, guide_pts = guided_encoding(problem, self.settings.pso, fix.path, n=len(fix.path) - 2)
         if record is not None:
             record["repair"] = PhaseRecord(fix.cost, fix.rounds, time.perf_counter() - t, fix.evaluations,

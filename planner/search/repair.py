@@ -30,8 +30,8 @@ def fault_windows(problem: PlanningProblem, path: np.ndarray) -> np.ndarray:
     turn, climb, bounds): where a fault of the route lies. Moving threats are not located (their times depend
     on the whole route before the window)."""
     n = len(path)
-    if n < WINDOW:
-        return np.zeros(1, dtype=int) if n > 2 else np.zeros(0, dtype=int)
+    if n < WINDOW:  # too short to locate anything: the caller moves every interior point
+        return np.zeros(0, dtype=int)
     j = np.arange(n - WINDOW + 1)
     windows = path[j[:, None] + np.arange(WINDOW)]
     static = problem if problem.start_time is None else replace(problem, start_time=None)
@@ -53,16 +53,16 @@ def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator,
     n = len(best)
     legs = np.linalg.norm(np.diff(best[:, :2], axis=0), axis=1)
     scale = np.full(n, 1.0 / 3.0)
-    timed = bool(len(problem.env.threats)) and problem.start_time is not None
+    timed = problem.timed_threats
     evaluations = used = 1
     while used <= rounds and viol and n > 2 and (deadline is None or time.perf_counter() < deadline):
         starts = fault_windows(problem, best)
-        evaluations += max(n - WINDOW + 1, 1)
+        evaluations += max(n - WINDOW + 1, 0)  # the windows scored
         for idx in [np.arange(j, j + WINDOW) for j in starts] or [np.arange(n)]:  # a route's few faults
             idx = idx[(idx > 0) & (idx < n - 1)]
             if not len(idx) or (deadline is not None and time.perf_counter() >= deadline):
                 continue
-            reach = np.minimum(legs[idx - 1], legs[np.minimum(idx, n - 2)]) * scale[idx]
+            reach = np.minimum(legs[idx - 1], legs[idx]) * scale[idx]  # interior: both legs exist
             step = rng.standard_normal((candidates, len(idx), 3)) * reach[None, :, None]
             step[..., 2] *= 0.25
             # the stretch whose cost the moved points change (their segments, the turns at their ends, the
@@ -74,7 +74,6 @@ def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator,
             evaluations += candidates + 1
             k = 1 + int(np.argmin(ev.total[1:]))
             if ev.total[k] < ev.total[0]:
-                best = best.copy()
                 best[lo:hi] = trial[k]
                 ev = problem.evaluate(best)
                 cost, viol = float(ev.total[0]), int(ev.n_violations[0])
