@@ -41,6 +41,11 @@ SKIP_REASON = (
     f"PX4 SITL not available: set {ENV} to a folder with bin/px4 and start.sh, or to a PX4 build/px4_sitl_default "
     "(see README: Flying against PX4 SITL)"
 )
+# the fastest lockstep a 2-core machine keeps up with (measured): 10x ran at 8.9x on one core, ATTITUDE never more
+# than 0.02 s apart; 20x ran at 15-16x on both cores with gaps up to 0.4 s (6 s of PX4's time, more than its 5 s
+# mission-protocol timeout), so uploads failed with MAV_MISSION_ERROR and the companion's planner process, starved,
+# took 24 s to start: a rescue_static flight took 102 s at 20x, 37 s at 10x
+FAST = 10.0
 DEFAULT_MODEL = "sihsim_quadx"  # airframe 10040; sihsim_airplane boots but cannot fly a mission in SIH
 FIRST_INSTANCE, LAST_INSTANCE = 0, 9
 COMPANION_PORT, OWN_PORTS = 14540, (14580, 18570, 14280, 13030, 19450)  # each + instance
@@ -268,6 +273,9 @@ def start_px4(
         lock.close()
         raise
     env = dict(os.environ, TMPDIR=str(root), PX4_SIM_MODEL=model, PX4_SIM_SPEED_FACTOR=f"{speedup:g}")
+    # PX4's flight log (ulog) off unless asked for: it is deleted with the instance, and at 20x it wrote 3.6 MB/s
+    # and took a quarter of a core (rcS turns PX4_PARAM_<NAME> variables into parameters)
+    env.setdefault("PX4_PARAM_SDLOG_MODE", "-1")
     env["PX4_INSTANCE"] = str(instance)
     links = _make_command_links(px4_dir, root / "bin")
     if links is not None:

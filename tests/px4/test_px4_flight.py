@@ -9,6 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 import pytest
+from px4_harness import FAST
 from pymavlink import mavutil
 
 from companion.cli import main
@@ -17,7 +18,7 @@ from planner.world.scenario import load_scenario
 ROOT = Path(__file__).resolve().parents[2]
 MOUNTAIN = ROOT / "sitl_scenarios" / "mountain_rescue.toml"
 SC = load_scenario(MOUNTAIN)
-SPEEDUP = 20.0
+SPEEDUP = FAST  # SIH in lockstep, as fast as 2 cores keep up with
 AUTO_MISSION = 0x04040000  # PX4 custom_mode (sub << 24 | main << 16), as HEARTBEAT shows it
 ARMED = 0x80  # MAV_MODE_FLAG_SAFETY_ARMED
 
@@ -90,7 +91,7 @@ def test_rescue_static_flies_on_px4_as_a_copter(px4_factory_fn, tmp_path: Path) 
     assert code == 0 and flight["completed"] is True, flight.get("reason")
     assert flight["backend"] == "pymavlink" and flight["fence_items"] > 0
     assert flight["track_points"] > 10 and flight["min_clearance_m"] > 0.0
-    time.sleep(1.0)  # 20 s of PX4's time after the goal
+    time.sleep(2.0)  # 20 s of PX4's time after the goal
     hb = _after_the_flight(px4.companion_url, lambda m: True)
     assert hb.custom_mode == AUTO_MISSION and hb.base_mode & ARMED, hex(hb.custom_mode)
 
@@ -104,7 +105,7 @@ def test_px4_replans_around_an_intruder(px4_factory_fn, tmp_path: Path, backend:
     item there, so the swap holds first (AUTO.LOITER), uploads, sets the item and resumes. Through MAVSDK as
     through our own link (measured by hand: 2 replans, 180.5 m at the closest through MAVSDK)."""
     scenario = ROOT / "sitl_scenarios" / "rescue_dynamic.toml"
-    px4 = px4_factory_fn(load_scenario(scenario).home, speedup=10.0)
+    px4 = px4_factory_fn(load_scenario(scenario).home, speedup=SPEEDUP)
     report = tmp_path / "report"
     code = main(["fly", str(scenario), "--connect", px4.companion_url, "--arm", "--set", 'vehicle.type="copter"',
                  "--traffic", f"udpout:127.0.0.1:{px4.gcs_port}", "--backend", backend, "--report", str(report),
