@@ -35,8 +35,8 @@ def pytest_addoption(parser: pytest.Parser) -> None:
 def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
     """Mark every test that uses an ArduPilot SITL fixture ``sitl`` and every one that uses a PX4 fixture ``px4``, so
     ``-m "not sitl"`` / ``-m "not px4"`` leaves them out. Leave out a test marked ``slow(covered_by=NAME)`` when the
-    faster test NAME (of its module, or PATH::NAME from tests/) runs (``--with-covered`` keeps it): the suite must
-    fit CI's 20 minutes."""
+    faster test NAME (of its module, or PATH::NAME from tests/; or every one of a tuple of them) runs, its autopilot
+    installed (``--with-covered`` keeps it): the suite must fit CI's 20 minutes."""
     for item in items:
         if SITL_FIXTURES & set(getattr(item, "fixturenames", ())):
             item.add_marker(pytest.mark.sitl)
@@ -44,16 +44,19 @@ def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item
             item.add_marker(pytest.mark.px4)
     if config.getoption("--with-covered"):
         return
-    ids = {item.nodeid for item in items}
+    # the tests that will run: an autopilot test only where that autopilot is installed (else it skips)
+    missing = {"sitl": bool(unavailable("plane") or unavailable("copter")), "px4": bool(px4_unavailable())}
+    runs = {item.nodeid for item in items if not any(item.get_closest_marker(k) and missing[k] for k in missing)}
     covered = []
     for item in items:
         mark = item.get_closest_marker("slow")
         by = mark.kwargs.get("covered_by") if mark is not None else None
         if not by:
             continue
-        # NAME: a test of the same module; PATH::NAME: one of another module (PATH from tests/)
-        by_id = item.nodeid.split("::")[0] + "::" + by if "::" not in by else "tests/" + by
-        if by_id in ids:
+        # NAME: a test of the same module; PATH::NAME: one of another module (PATH from tests/); a tuple: all of them
+        names = (by,) if isinstance(by, str) else by
+        by_ids = [item.nodeid.split("::")[0] + "::" + n if "::" not in n else "tests/" + n for n in names]
+        if all(i in runs for i in by_ids):
             covered.append(item)
     if covered:
         config.hook.pytest_deselected(items=covered)

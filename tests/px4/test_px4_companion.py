@@ -75,10 +75,12 @@ async def px4_link(request: pytest.FixtureRequest, px4) -> AsyncIterator[tuple[L
         yield link, client, sup
 
 
-def _mission(end_action: str) -> list[MissionItem]:
+def _mission(end_action: str, scale: float = 1.0) -> list[MissionItem]:
+    """A 4-point route ending ``end_action``, its horizontal legs ``scale`` × 150-180 m."""
     vehicle = replace(SC.vehicle, end_action=end_action)
-    route = [[0.0, 0.0, 30.0], [150.0, 100.0, 40.0], [300.0, 0.0, 40.0], [300.0, -150.0, 30.0]]
-    return build_mission(route, MissionSpec("px4", vehicle, SC.home))
+    route = np.array([[0.0, 0.0, 30.0], [150.0, 100.0, 40.0], [300.0, 0.0, 40.0], [300.0, -150.0, 30.0]])
+    route[:, :2] *= scale
+    return build_mission(route.tolist(), MissionSpec("px4", vehicle, SC.home))
 
 
 @pytest.mark.parametrize("end_action", ["loiter", "rtl", "land"])
@@ -159,7 +161,7 @@ async def test_the_rtl_end_action_returns_lands_and_disarms(px4_link) -> None:
     """The "rtl" end action as PX4 carries it out (a route with nothing between its end and home, no fence):
     after the last waypoint PX4 switches to AUTO.RTL, flies home, lands and disarms itself."""
     link, _, sup = px4_link
-    await sup.upload(_mission("rtl"))
+    await sup.upload(_mission("rtl", scale=0.5))  # a short flight: what is tested is what follows it
     seen: list[int] = []
     with link.subscribe("HEARTBEAT") as beats:
         await sup.start(0)
@@ -174,3 +176,23 @@ async def test_the_rtl_end_action_returns_lands_and_disarms(px4_link) -> None:
     home = await link.wait_for("GLOBAL_POSITION_INT", timeout=5.0)
     north, east = _offset_m(home.lat, home.lon)
     assert math.hypot(north, east) < 10.0 and home.relative_alt < 2000  # on the ground at home (mm)
+
+
+@pytest.mark.parametrize("px4_link", ["pymavlink"], indirect=True)
+async def test_the_loiter_end_action_holds_over_the_goal_armed(px4_link) -> None:
+    """The "loiter" end action (LOITER_UNLIM at the goal) as PX4 carries it out: once there it stays, armed, in
+    AUTO.MISSION, over the goal and in the air."""
+    link, _, sup = px4_link
+    items = _mission("loiter", scale=0.5)
+    last = len(items) - 1
+    assert items[last].command == mavlink.MAV_CMD_NAV_LOITER_UNLIM
+    await sup.upload(items)
+    with link.subscribe("MISSION_CURRENT", predicate=lambda m: m.seq == last) as current:
+        await sup.start(0)
+        await current.get(90.0)
+    await asyncio.sleep(2.0)  # 20 s of PX4's time: there, whatever the last leg's length
+    hb = await link.wait_for("HEARTBEAT", timeout=5.0)
+    pos = await link.wait_for("GLOBAL_POSITION_INT", timeout=5.0)
+    assert hb.custom_mode == AUTO_MISSION and hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED, hex(hb.custom_mode)
+    (n, e), (gn, ge) = _offset_m(pos.lat, pos.lon), _offset_m(items[last].x, items[last].y)
+    assert math.hypot(n - gn, e - ge) < 20.0 and pos.relative_alt > 10_000  # over the goal, in the air (mm)

@@ -75,6 +75,9 @@ def test_mountain_rescue_flies_on_px4_with_the_default_options(px4_factory_fn, m
     assert hb.custom_mode == AUTO_MISSION
 
 
+@pytest.mark.slow(covered_by=(  # a flight on PX4 with the default options, and the end action "loiter" on PX4
+    "test_mountain_rescue_flies_on_px4_with_the_default_options",
+    "px4/test_px4_companion.py::test_the_loiter_end_action_holds_over_the_goal_armed[pymavlink]"))
 def test_rescue_static_flies_on_px4_as_a_copter(px4_factory_fn, tmp_path: Path) -> None:
     """`fuseplan fly rescue_static.toml --set vehicle.type=copter --arm` on the PX4 quad, default options:
     planned, uploaded with its fence, flown to the goal clear of every cylinder; then PX4 carries out the end
@@ -96,7 +99,10 @@ def test_rescue_static_flies_on_px4_as_a_copter(px4_factory_fn, tmp_path: Path) 
     assert hb.custom_mode == AUTO_MISSION and hb.base_mode & ARMED, hex(hb.custom_mode)
 
 
-@pytest.mark.parametrize("backend", ["pymavlink", "mavsdk"])
+@pytest.mark.parametrize("backend", ["pymavlink", pytest.param("mavsdk", marks=pytest.mark.slow(covered_by=(
+    # PX4's side of it through our link, and an in-flight replan through MAVSDK on the built-in simulator
+    "test_px4_replans_around_an_intruder[pymavlink]",
+    "companion/mavlink/test_mavsdk_backend.py::test_fly_and_replan_through_mavsdk_on_the_simulator")))])
 def test_px4_replans_around_an_intruder(px4_factory_fn, tmp_path: Path, backend: str) -> None:
     """rescue_dynamic flown by the PX4 quad (10x), its intruder reported as ADSB_VEHICLE by an ADS-B source on
     PX4's ground-station link (system 1, component 156), which PX4 passes on to the companion's link as its own.

@@ -59,7 +59,11 @@ def test_full_flight_through_30_percent_drop_with_duplicates_and_reordering(
     assert len(stored) == len(items)
 
 
-@pytest.mark.parametrize("transport", ["udp", "tcp"])
+@pytest.mark.parametrize("transport", ["udp", pytest.param("tcp", marks=pytest.mark.slow(covered_by=(
+    # a silent TCP connection dropped and reconnected in flight on ArduPlane SITL, mission read back, flown to
+    # the goal; and connects refused meanwhile, retried with back-off
+    "sitl/test_sitl_link.py::test_a_10_s_tcp_link_outage_in_flight_is_survived",
+    "companion/mavlink/test_link.py::test_tcp_reconnect_backs_off_exponentially_with_a_cap")))])
 def test_a_10_s_link_outage_mid_flight_is_survived(static_plan_doc, transport: str) -> None:
     """The link goes silent for 10 s while the vehicle flies: the companion says so (the vehicle flies on with
     its verified mission), waits, and when the link is back reads the mission back (it must still be ours)

@@ -94,11 +94,13 @@ def test_fly_with_mavsdk_refuses_signing_in_one_line(tmp_path: Path, capsys: pyt
     assert code != 0 and len(err) == 1 and "MAVSDK" in err[0] and "signing" in err[0], err
 
 
-def test_fly_through_mavsdk_on_the_simulator(tmp_path: Path) -> None:
-    """`fuseplan fly rescue_static.toml --sim --backend mavsdk`: uploaded (mission and fence) and verified
-    through MAVSDK, started, flown to the goal; the report says which backend flew it."""
+def test_fly_and_replan_through_mavsdk_on_the_simulator(tmp_path: Path) -> None:
+    """`fuseplan fly rescue_dynamic.toml --sim --backend mavsdk`: uploaded (mission and fence) and verified
+    through MAVSDK, started, the intruder's conflict replanned in flight through MAVSDK (a new mission uploaded,
+    verified and made current, or the vehicle held until it had passed), flown to the goal clear of it; the
+    report says which backend flew it."""
     report = tmp_path / "report"
-    code = main(["fly", str(ROOT / "sitl_scenarios" / "rescue_static.toml"), "--sim", "--speedup", "30",
+    code = main(["fly", str(ROOT / "sitl_scenarios" / "rescue_dynamic.toml"), "--sim", "--speedup", "20",
                  "--backend", "mavsdk", "--report", str(report), "-q"])
     flight = json.loads((report / "flight.json").read_text())
     events = [json.loads(line)["event"] for line in (report / "events.jsonl").read_text().splitlines()]
@@ -106,6 +108,12 @@ def test_fly_through_mavsdk_on_the_simulator(tmp_path: Path) -> None:
     assert flight["backend"] == "mavsdk" and flight["fence_items"] > 0
     assert events.index("upload_verified") < events.index("armed") < events.index("mission_start")
     assert len(flight["items_reached"]) >= 3
+    assert flight["replan_attempts"] >= 1
+    assert min(flight["min_separation_m"].values()) >= flight["d_coll_m"], flight["min_separation_m"]
+    if flight["replans"]:  # a new mission went live through MAVSDK
+        assert events.index("conflict") < events.index("replan_verified") < events.index("replanned")
+    else:  # no safe detour in time: held until the intruder had passed
+        assert "hold" in events and "resume" in events
 
 
 @pytest.mark.asyncio

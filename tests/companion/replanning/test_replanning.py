@@ -91,7 +91,14 @@ def test_rescue_dynamic_without_replanning_loses_separation(dynamic_plan: Path, 
     assert min(fl["min_separation_m"][t] for t in _intruder_ids(DYNAMIC)) < fl["d_coll_m"]
 
 
-@pytest.mark.parametrize("replan", [True, False], ids=["replan", "no-replan"])
+ON_ARDUPLANE = "sitl/test_flights.py::test_crossing_traffic_on_serial1_with_adsb_from_a_receiver"
+
+
+@pytest.mark.parametrize("replan", [
+    True,  # (ArduPlane SITL flying the same replans came 5.8-6.1 m from a cylinder in 4 of 8 runs: not covered there)
+    # the same scenario and intruders on ArduPlane SITL, the same assertion, in less time (with SITL installed)
+    pytest.param(False, marks=pytest.mark.slow(covered_by=f"{ON_ARDUPLANE}[no-replan]")),
+], ids=["replan", "no-replan"])
 def test_two_intruders_in_a_static_field(crossing_plan: Path, tmp_path: Path, replan: bool) -> None:
     # replanning at 5×: the first intruder crosses 11 s after the route start, so this flight is the most sensitive to a
     # loaded machine stretching wall-clock steps into simulated seconds (at 10× the flown track came 8.1 m and
