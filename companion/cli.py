@@ -86,6 +86,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="bench replan only: simulator speed-up (1 = the latency target's condition)")
     bn.add_argument("--whole", action="store_true",
                     help="bench replan only: fly every flight to its end and count replans per conflict")
+    bn.add_argument("--replan-roadmap", action="store_true",
+                    help="bench replan only: replans run the roadmap pipeline (the first route as the scenario says)")
     sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated autopilot "
                    "at 20x, replanning around an intruder")
     return p
@@ -97,6 +99,7 @@ REPLAN_BENCH_SCENARIOS = ("rescue_dynamic.toml", "crossing_traffic.toml")
 def cmd_bench_replan(args: argparse.Namespace) -> int:
     """Replan latency on the simulated autopilot (companion.flight.latency_bench)."""
     from companion.flight.latency_bench import run_flight_bench, run_latency_bench
+    from companion.replanning.replan import ReplanConfig
 
     runs = 5 if args.runs is None else args.runs
     if runs < 1 or not (math.isfinite(args.speedup) and args.speedup > 0):
@@ -108,10 +111,11 @@ def cmd_bench_replan(args: argparse.Namespace) -> int:
     say(f"bench replan: {len(plans)} scenarios × {runs} flights at {args.speedup:g}× "
         + ("to the end" if whole else "until the first replan"))
     try:
+        cfg = ReplanConfig(roadmap=getattr(args, "replan_roadmap", False))
         if whole:
-            run_flight_bench(plans, runs, args.speedup, args.output, progress=say)
+            run_flight_bench(plans, runs, args.speedup, args.output, cfg, progress=say)
         else:
-            run_latency_bench(plans, runs, args.speedup, args.output, progress=say)
+            run_latency_bench(plans, runs, args.speedup, args.output, cfg, progress=say)
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
     console.show_markdown((args.output / ("replan_flights.md" if whole else "replan.md")).read_text())

@@ -133,6 +133,11 @@ def _pct(values: np.ndarray, q: float) -> float:
     return float(np.percentile(values, q)) if values.size else float("nan")
 
 
+def _pipeline(cfg: ReplanConfig) -> str:
+    """What the report says of the replans' planner beyond the budget and swarm."""
+    return "; replans by the roadmap pipeline" if cfg.roadmap else ""
+
+
 def write_report(results: list[LatencyRun], cfg: ReplanConfig, output: Path) -> list[Path]:
     output.mkdir(parents=True, exist_ok=True)
     csv_path = output / "replan.csv"
@@ -143,7 +148,7 @@ def write_report(results: list[LatencyRun], cfg: ReplanConfig, output: Path) -> 
         "",
         "Conflict seen → new mission current (verified by readback, MAV_CMD_DO_SET_MISSION_CURRENT confirmed by "
         f"MISSION_CURRENT), first replan of each flight. Replan budget {cfg.budget_s:g} s, swarm "
-        f"{cfg.population}. Targets: planning ≤ {PLAN_TARGET_S * 1000:.0f} ms, end to end ≤ "
+        f"{cfg.population}{_pipeline(cfg)}. Targets: planning ≤ {PLAN_TARGET_S * 1000:.0f} ms, end to end ≤ "
         f"{END_TO_END_TARGET_S:g} s.",
         "",
         "| scenario | speed-up | runs | replanned | planning median / max (s) | swap median / max (s) "
@@ -218,7 +223,7 @@ def run_flight_bench(plans: Sequence[tuple[dict, Scenario]], runs: int, speedup:
     write_csv(output / "replan_flights.csv", [asdict(r) for r in results], list(FlightRun.__dataclass_fields__))
     lines = ["# Replans per conflict over whole flights on the built-in simulated autopilot", "",
              f"Every flight flown to its end at {speedup:g}× with live replanning (budget {cfg.budget_s:g} s, swarm "
-             f"{cfg.population}, the scenario's planner settings). A replan is *good* when "
+             f"{cfg.population}, the scenario's planner settings{_pipeline(cfg)}). A replan is *good* when "
              "it ends exact or approximate with a predicted separation of at least d_coll + margin "
              f"({cfg.margin_m:g} m); a conflict (one threat) is resolved by one replan when exactly one new mission "
              f"went live for it. Targets (issue 15): good ≥ {100 * GOOD_REPLAN_TARGET:.0f} %, one replan per "

@@ -32,6 +32,9 @@ class ReplanConfig:
     enabled: bool = True
     budget_s: float = 0.15  # wall seconds the planner may use for one replan
     population: int = 100  # swarm size for a replan (the scenario's other planner settings are kept)
+    # replans run the roadmap pipeline (docs/method.md §15) whatever [planner.roadmap] says of the first route;
+    # the worker builds the roadmap once, at its warm-up (opt-in until it meets its targets: docs/design.md)
+    roadmap: bool = False
     detour_offsets_m: tuple[float, ...] = (-400.0, -250.0, -120.0, 120.0, 250.0, 400.0)  # warm-start bulges
     horizon_s: float = 90.0  # how far ahead conflicts are predicted
     margin_m: float = 15.0  # a conflict is a predicted separation below d_coll + margin
@@ -191,8 +194,11 @@ def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, thre
 
 
 def replan_settings(settings: PlannerSettings, cfg: ReplanConfig) -> PlannerSettings:
-    """The scenario's planner settings with the replanning swarm size."""
-    return dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=cfg.population))
+    """The scenario's planner settings with the replanning swarm size, and the roadmap on if ``cfg.roadmap``."""
+    out = dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=cfg.population))
+    if cfg.roadmap:
+        out = dataclasses.replace(out, roadmap=dataclasses.replace(out.roadmap, enabled=True))
+    return out
 
 
 def splice(items: Sequence[MissionItem], first_new_seq: int, new_route: np.ndarray, goal_seq: int,

@@ -43,7 +43,9 @@ FULL_FLIGHT_PLANE = "test_full_flight_through_30_percent_drop_with_duplicates_an
 @pytest.mark.parametrize("vehicle,seed", [
     ("plane", 1),
     pytest.param("plane", 2, marks=pytest.mark.slow(covered_by=FULL_FLIGHT_PLANE)),  # another seed, same flight
-    ("copter", 1),
+    # the same faults on the plane's flight, and the copter's start sequence (GUIDED, arm, AUTO) flown to its end
+    pytest.param("copter", 1, marks=pytest.mark.slow(covered_by=(
+        FULL_FLIGHT_PLANE, "companion/flight/test_fly.py::test_fly_copter_scenario_on_sim"))),
 ])
 def test_full_flight_through_30_percent_drop_with_duplicates_and_reordering(
         static_plan_doc, vehicle: str, seed: int) -> None:

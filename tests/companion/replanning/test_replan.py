@@ -9,7 +9,16 @@ import pytest
 
 from companion.mavlink.items import compare_items
 from companion.mission.builder import MissionSpec, build_mission, time_to_start
-from companion.replanning.replan import MissionRoute, VehicleClock, commit_point, replan_problem, splice, warm_starts
+from companion.replanning.replan import (
+    MissionRoute,
+    ReplanConfig,
+    VehicleClock,
+    commit_point,
+    replan_problem,
+    replan_settings,
+    splice,
+    warm_starts,
+)
 from companion.replanning.separation import min_separations, separation_to_law, separation_to_track
 from planner.world.environment import Threat, Threats
 from planner.world.scenario import load_scenario
@@ -138,3 +147,25 @@ def test_separation_to_scripted_threats_runs_on_mission_time() -> None:
     both = min_separations(vehicle, {"i": (np.array([[100.0, 50, 30, 100], [101, 50, 30, 100]]), 5.0)},
                            Threats(items=(loiter,)), mission_t0=100.0)
     assert set(both) == {"i", "l"} and both["i"].separation == pytest.approx(25.0)
+
+
+def test_replan_settings_take_the_swarm_size_and_the_roadmap_when_asked() -> None:
+    """A replan plans with the replanning swarm; the roadmap pipeline only with ``[replan] roadmap`` (or when the
+    scenario's planner has it on already), every other setting as the scenario says."""
+    sc = load_scenario(Path(__file__).resolve().parents[3] / "sitl_scenarios" / "rescue_dynamic.toml")
+    assert not sc.planner.roadmap.enabled
+    plain = replan_settings(sc.planner, ReplanConfig(population=37))
+    assert plain.pso.n_pop == 37 and not plain.roadmap.enabled and plain.aco == sc.planner.aco
+    on = replan_settings(sc.planner, ReplanConfig(roadmap=True))
+    assert on.roadmap.enabled and on.roadmap.spacing == sc.planner.roadmap.spacing and on.pso.n_pop == 100
+
+
+def test_the_latency_report_says_which_planner_made_the_replans(tmp_path: Path) -> None:
+    """`bench replan --replan-roadmap`: the report says the replans ran the roadmap pipeline (and only then)."""
+    from companion.flight.latency_bench import LatencyRun, write_report
+
+    run = [LatencyRun("crossing_traffic", 1, 1.0, "approximate", False, 0.16, 0.14, 0.02, 40.0)]
+    write_report(run, ReplanConfig(roadmap=True), tmp_path / "on")
+    write_report(run, ReplanConfig(), tmp_path / "off")
+    assert "replans by the roadmap pipeline" in (tmp_path / "on" / "replan.md").read_text()
+    assert "roadmap" not in (tmp_path / "off" / "replan.md").read_text()
