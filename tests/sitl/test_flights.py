@@ -24,6 +24,13 @@ def _fly(scenario: Path, url: str, report: Path, *extra: str) -> tuple[int, dict
     return code, flight, events
 
 
+def _assert_started_once_verified(events: list[dict]) -> None:
+    """Upload verified, then armed, then MISSION_START, with no upload failing on the way."""
+    kinds = [e["event"] for e in events]
+    assert kinds.index("upload_verified") < kinds.index("armed") < kinds.index("mission_start")
+    assert "upload_failed" not in kinds
+
+
 def _steps_into_unverified_items(events: list[dict]) -> list[dict]:
     """Every change of the active item, during a replan's upload, to an item being rewritten (seq ≥ the first new
     one) while the vehicle was not held: the vehicle then flew an item of an unverified, maybe mixed, mission."""
@@ -60,9 +67,7 @@ def test_plane_scenarios_fly_on_arduplane_with_default_options(sitl_factory_fn, 
     assert code == 0, flight
     assert flight["completed"] is True and flight["fence_items"] > 0
     assert flight["items_reached"][-1] == max(flight["items_reached"])
-    kinds = [e["event"] for e in events]
-    assert kinds.index("upload_verified") < kinds.index("armed") < kinds.index("mission_start")
-    assert "upload_failed" not in kinds
+    _assert_started_once_verified(events)
 
 
 def test_copter_scenario_flies_on_arducopter(sitl_factory_fn, tmp_path: Path) -> None:
@@ -100,9 +105,7 @@ def test_crossing_traffic_on_serial1_with_adsb_from_a_receiver(sitl_factory_fn, 
         assert min(seps.values()) >= flight["d_coll_m"], seps
         assert flight["replan_attempts"] >= 1
         assert _steps_into_unverified_items(events) == []
-        kinds = [e["event"] for e in events]
-        assert kinds.index("upload_verified") < kinds.index("armed") < kinds.index("mission_start")
-        assert "upload_failed" not in kinds
+        _assert_started_once_verified(events)
     else:
         assert max(seps.values()) < flight["d_coll_m"], seps
 

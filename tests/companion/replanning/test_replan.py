@@ -152,12 +152,11 @@ def test_separation_to_scripted_threats_runs_on_mission_time() -> None:
 def test_replan_settings_take_the_swarm_size_and_the_roadmap_when_asked() -> None:
     """A replan plans with the replanning swarm; the roadmap pipeline only with ``[replan] roadmap`` (or when the
     scenario's planner has it on already), every other setting as the scenario says."""
-    sc = load_scenario(Path(__file__).resolve().parents[3] / "sitl_scenarios" / "rescue_dynamic.toml")
-    assert not sc.planner.roadmap.enabled
-    plain = replan_settings(sc.planner, ReplanConfig(population=37))
-    assert plain.pso.n_pop == 37 and not plain.roadmap.enabled and plain.aco == sc.planner.aco
-    on = replan_settings(sc.planner, ReplanConfig(roadmap=True))
-    assert on.roadmap.enabled and on.roadmap.spacing == sc.planner.roadmap.spacing and on.pso.n_pop == 100
+    assert not SC.planner.roadmap.enabled
+    plain = replan_settings(SC.planner, ReplanConfig(population=37))
+    assert plain.pso.n_pop == 37 and not plain.roadmap.enabled and plain.aco == SC.planner.aco
+    on = replan_settings(SC.planner, ReplanConfig(roadmap=True))
+    assert on.roadmap.enabled and on.roadmap.spacing == SC.planner.roadmap.spacing and on.pso.n_pop == 100
 
 
 def test_the_latency_report_says_which_planner_made_the_replans(tmp_path: Path) -> None:
