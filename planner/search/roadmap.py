@@ -30,6 +30,7 @@ from planner.problem import PlanningProblem
 from planner.trajectory.checks import obstacle_clearance, radar_clearance
 from planner.trajectory.smoothing import deviation_bound, peak_curvature, peak_factor, segment_samples
 from planner.world.config import RoadmapConfig
+from planner.world.environment import TRACK
 from planner.world.geometry import horizontal_turn
 
 TARGET_COLUMNS = 1600  # grid columns of the automatic spacing
@@ -281,10 +282,8 @@ class Query:
 
     def graph(self, weights: np.ndarray) -> csr_matrix:
         """The symmetric graph with edge ``weights`` (E',) (the pattern with new data)."""
-        g, edge, _ = self._csr
-        out = g.copy()
-        out.data = weights[edge]
-        return out
+        g, edge, _ = self._csr  # the pattern's index arrays shared, not copied: only the data is new
+        return csr_matrix((weights[edge], g.indices, g.indptr), shape=g.shape, copy=False)
 
     def edge_ids(self, path: np.ndarray) -> np.ndarray:
         """Indices into ``edges`` of the consecutive node pairs of ``path`` (each pair is an edge)."""
@@ -331,9 +330,13 @@ def clearance_weights(q: Query, problem: PlanningProblem) -> np.ndarray:
 
 
 def timed_weights(q: Query, problem: PlanningProblem, weights: np.ndarray) -> np.ndarray:
-    """Edge weights (E',) raised by BLOCKED_WEIGHT where a moving threat would be within the roadmap's clearance
-    of the edge when the vehicle flies it, the vehicle's time at a node taken from its shortest distance from
-    the start at cruise speed (docs/method.md §15.1)."""
+    """Edge weights (E',) raised by BLOCKED_WEIGHT where a moving threat could be within the roadmap's clearance
+    of the edge while the vehicle flies it (docs/method.md §15.1). The vehicle is at a node at its shortest
+    distance from the start at cruise speed. Each point of an edge is within L/2 of an end x, and the vehicle is
+    there within max(L/v, |t_a − t_b|) − L/2v of t_x (whether it flies the edge at cruise speed from the earlier
+    end or between its ends' times); so with g the least clearance of the ends from the threats' surfaces at
+    their times, the edge keeps at least g − L/2 − s·(max(L/v, |t_a − t_b|) − L/2v), s the fastest a surface
+    moves (speed plus radius growth). One threat position per node, not per edge and time sample."""
     env = problem.env
     if not problem.timed_threats:
         return weights
@@ -341,69 +344,16 @@ def timed_weights(q: Query, problem: PlanningProblem, weights: np.ndarray) -> np
     dist = dijkstra(q.graph(weights), indices=q.start)
     reach = np.isfinite(dist)
     t_node = problem.start_time + np.where(reach, dist, 0.0) / v
-    times = _sample_times(problem, q.roadmap, float(t_node.max()))
-    centres = env.threats.positions(times)  # (k, T, 3)
-    cand = _near_threats(q, problem, times, centres)
-    e = q.edges[cand]
-    length = q.length[cand]
-    t0 = np.minimum(t_node[e[:, 0]], t_node[e[:, 1]])
-    near = _near_in_time(q, problem, times, centres, e, length, t0)
-    cand, e, length, t0 = cand[near], e[near], length[near], t0[near]
-    a, b = q.points[e[:, 0]], q.points[e[:, 1]]
-    t1 = t0 + length / v
-    hit = np.zeros(len(e), dtype=bool)
-    for f in (0.0, 0.5, 1.0):  # the edge's ends and middle at the times the vehicle passes them
-        p = a + f * (b - a)
-        t = t0 + f * (t1 - t0)
-        d = np.linalg.norm(p[None] - env.threats.positions(t), axis=-1) - env.threats.radii(t)  # (k, C)
-        slack = d - q.roadmap.need - 0.5 * length * (1.0 + env.threats.max_speed / v)
-        hit |= (slack < 0.0).any(axis=0)
+    gap = (np.linalg.norm(q.points[None] - env.threats.positions(t_node), axis=-1)
+           - env.threats.radii(t_node)).min(axis=0)  # (N + 2,)
+    growth = np.where(env.threats.kind == TRACK, env.threats.radius_growth, 0.0)
+    s = env.threats.max_speed + float(growth.max(initial=0.0))
+    ea, eb = q.edges[:, 0], q.edges[:, 1]
+    duration = np.maximum(q.length / v, np.abs(t_node[ea] - t_node[eb]))
+    slack = np.minimum(gap[ea], gap[eb]) - q.roadmap.need - 0.5 * q.length - s * (duration - 0.5 * q.length / v)
     out = weights.copy()
-    blocked = cand[hit & reach[e[:, 0]]]
-    out[blocked] *= BLOCKED_WEIGHT
+    out[(slack < 0.0) & reach[ea]] *= BLOCKED_WEIGHT
     return out
-
-
-def _sample_times(problem: PlanningProblem, rm: Roadmap, t_end: float) -> np.ndarray:
-    """Times from the problem's start to ``t_end`` at which a threat moves at most half a spacing between two
-    (at least 2, at most 2000)."""
-    t_start = float(problem.start_time or 0.0)
-    speed = max(problem.env.threats.max_speed, 1e-9)
-    count = int(min(2000, max(2, math.ceil((t_end - t_start) * speed / (0.5 * rm.spacing)) + 1)))
-    return np.linspace(t_start, max(t_end, t_start), count)
-
-
-def _near_threats(q: Query, problem: PlanningProblem, times: np.ndarray, centres: np.ndarray) -> np.ndarray:
-    """Indices of the edges (attachments always) whose midpoint a threat comes near enough, at the sample
-    ``times`` (threat ``centres`` (k, T, 3) then, :func:`_sample_times`), to matter to :func:`timed_weights`: each
-    centre the middle of a ball of its radius + the clearance + the longest edge (and the speed-scaled half edge)
-    + half a spacing."""
-    env, rm = problem.env, q.roadmap
-    speed = max(env.threats.max_speed, 1e-9)
-    longest = float(rm.length.max()) if len(rm.length) else 0.0  # attachments are candidates anyway
-    reach = (float(env.threats.radii(times).max()) + rm.need + 0.5 * rm.spacing
-             + 0.5 * longest * (2.0 + speed / problem.vehicle.cruise_speed))
-    return np.concatenate([rm.edges_near(centres.reshape(-1, 3), reach), np.arange(len(rm.edges), len(q.edges))])
-
-
-def _near_in_time(q: Query, problem: PlanningProblem, times: np.ndarray, centres: np.ndarray, e: np.ndarray,
-                  length: np.ndarray, t0: np.ndarray) -> np.ndarray:
-    """Which edges ``e`` (C, 2) of length (C,), entered at ``t0`` (C,), a threat is near when the vehicle flies
-    them (C,) bool: each threat at the sample time nearest the vehicle's arrival (``centres`` at ``times``),
-    against a reach that covers everything :func:`timed_weights` checks (the edge's half length, how far the
-    threat moves while the vehicle flies it and within half a sample, its largest radius), so no edge it would
-    block is dropped. A replan's threats sweep most of the map over a flight; at one time they are in one place."""
-    env, rm = problem.env, q.roadmap
-    if not len(e):
-        return np.zeros(0, dtype=bool)
-    v, speed = problem.vehicle.cruise_speed, max(env.threats.max_speed, 1e-9)
-    step = times[1] - times[0]
-    j = np.clip(np.rint((t0 - times[0]) / max(step, 1e-12)).astype(np.intp), 0, len(times) - 1)
-    mid = 0.5 * (q.points[e[:, 0]] + q.points[e[:, 1]])
-    d = np.linalg.norm(mid[None] - centres[:, j], axis=-1)  # (k, C)
-    radius = env.threats.radii(np.array([times[-1] + float(length.max()) / v]))  # (k, 1): radii only grow
-    reach = (radius + rm.need + 0.5 * length * (2.0 + speed / v) + speed * (length / v + 0.5 * step)) * (1 + 1e-9)
-    return (d < reach).any(axis=0)
 
 
 def shortest(q: Query, weights: np.ndarray) -> np.ndarray | None:
