@@ -146,7 +146,8 @@ def plan(
     timed = problem.timed_threats
     traj = smooth(waypoints, settings.sample_spacing, problem.vehicle.cruise_speed,
                   problem.start_time or 0.0)
-    check = check_trajectory(traj, waypoints, problem.env, problem.hazard, problem.vehicle, timed)
+    check = check_trajectory(traj, waypoints, problem.env, problem.hazard, problem.vehicle, timed,
+                             problem.start_heading)
     feasible = int(evaluation.n_violations[0]) == 0 and check.feasible
     if opt.stop_reason == "timeout":
         status = PlanStatus.APPROXIMATE if feasible else PlanStatus.TIMEOUT

@@ -13,7 +13,9 @@ import numpy as np
 from planner.trajectory.smoothing import (
     bezier_point,
     climb_angle,
+    corner_cut_bound,
     cubic_range,
+    deviation_bound,
     flown_deviation,
     peak_climb,
     peak_curvature,
@@ -88,6 +90,8 @@ class PlanningProblem:
 
     ``start_time`` (s) enables time-aware dynamic threats: the vehicle flies the path at cruise speed
     from that time, and each sample is compared with the threats' positions at the same time.
+    ``start_heading`` (3,): the direction the vehicle already flies at the start (a replan's commit point); the
+    turn from it into the first leg is held to the vehicle's limits like any waypoint's (docs/method.md §4.8).
     """
 
     env: Environment
@@ -98,12 +102,20 @@ class PlanningProblem:
     weights: CostWeights = field(default_factory=CostWeights)
     penalty: PenaltyConfig = field(default_factory=PenaltyConfig)
     start_time: float | None = None
+    start_heading: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         for name in ("start", "goal"):
             v = np.array(getattr(self, name), dtype=float).reshape(3)
             v.setflags(write=False)
             object.__setattr__(self, name, v)
+        if self.start_heading is not None:  # a unit vector; a zero one (no motion) means no heading
+            h = np.array(self.start_heading, dtype=float).reshape(3)
+            n = float(np.linalg.norm(h[:2]))
+            h = h / max(float(np.linalg.norm(h)), _EPS) if n > 1e-6 else None
+            if h is not None:
+                h.setflags(write=False)
+            object.__setattr__(self, "start_heading", h)
         object.__setattr__(self, "_cyl_fin", np.flatnonzero(np.isfinite(self.env.cylinders.top)))
         terrain = self.env.terrain
         object.__setattr__(self, "_terrain_slope", terrain.max_slope if terrain is not None else 0.0)
@@ -147,6 +159,10 @@ class PlanningProblem:
         v = np.concatenate([u[:, 1:], u[:, -1:]], axis=1)  # next direction; the last segment stays straight
         cos_turn = _dot3(u, v)
         dev = flown_deviation(seg_len, cos_turn, self.vehicle.acceptance_radius)  # (P, S) m off each chord
+        if self.start_heading is not None:  # the first leg also swings out of the turn at the start
+            c0 = _dot3(u[:, 0], self.start_heading)
+            dev[:, 0] = np.maximum(dev[:, 0], np.maximum(deviation_bound(seg_len[:, 0], c0),
+                                                         corner_cut_bound(self.vehicle.acceptance_radius, c0)))
         q2 = b - (seg_len / 3.0)[..., None] * v  # Q1 = a + seg/3 lies on the chord
         z_lo, z_hi = _height_range(a[..., 2], a[..., 2] + seg[..., 2] / 3.0, q2[..., 2], b[..., 2], self.env)
 
@@ -295,4 +311,12 @@ class PlanningProblem:
         kappa = peak_curvature(seg_len, cos_turn)  # zero on the straight last segment
         add("turn", kappa * veh.min_turn_radius - 1.0, self.penalty.per_radian)
         add("climb", peak_climb(u, v) - veh.max_climb, self.penalty.per_radian)
+        if self.start_heading is not None:  # the turn at the start, from the way the vehicle already flies
+            h = np.broadcast_to(self.start_heading, seg[:, :1].shape)
+            turn0 = horizontal_turn(np.concatenate([h, seg[:, :1]], axis=1))[:, 0]
+            over0 = np.maximum(turn0 - veh.max_turn, 0.0)
+            j4 = j4 + turn0 + over0**2
+            add("turn", over0, self.penalty.per_radian)
+            add("turn", peak_curvature(seg_len[:, 0], _dot3(u[:, 0], self.start_heading)) * veh.min_turn_radius
+                - 1.0, self.penalty.per_radian)
         return j4

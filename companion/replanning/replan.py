@@ -142,6 +142,7 @@ class CommitPoint:
     t: float
     first_new_seq: int
     old_tail: np.ndarray  # (J, 3) the old route from the commit point to the goal (the warm start)
+    heading: np.ndarray | None = None  # (3,) the direction the vehicle flies through the point (None: climbing out)
 
 
 def commit_point(route: np.ndarray, route_seqs: np.ndarray, current_seq: int, lead_m: float, speed: float,
@@ -156,7 +157,7 @@ def commit_point(route: np.ndarray, route_seqs: np.ndarray, current_seq: int, le
     k = int(seg[0])  # on leg route[k] → route[k+1]
     first_new = current_seq if k == 0 else int(route_seqs[k]) + 1
     tail = np.vstack([p, route[k + 1:]])
-    return CommitPoint(p[0], lead, t_now + lead / max(speed, 1e-6), first_new, tail)
+    return CommitPoint(p[0], lead, t_now + lead / max(speed, 1e-6), first_new, tail, route[k + 1] - route[k])
 
 
 def warm_starts(tail: np.ndarray, offsets_m: Sequence[float], n_points: int = 10) -> np.ndarray:
@@ -182,15 +183,17 @@ def warm_starts(tail: np.ndarray, offsets_m: Sequence[float], n_points: int = 10
 
 
 def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, threats: Threats,
-                   start_time: float, speed: float | None = None) -> PlanningProblem:
+                   start_time: float, speed: float | None = None,
+                   heading: np.ndarray | None = None) -> PlanningProblem:
     """The scenario's static world with the current threat picture, from ``start`` to ``goal``, flown from
     mission time ``start_time`` (time-aware threats, docs/method.md §4.6) at ``speed`` (default: the scenario's cruise
-    speed; the replanner passes the vehicle's measured pace)."""
+    speed; the replanner passes the vehicle's measured pace), arriving at ``start`` flying along ``heading`` (the
+    turn onto the new route is held to the vehicle's limits: an autopilot overshoots a sharper one)."""
     env = dataclasses.replace(scenario.environment, threats=threats)
     s = scenario.planner
     vehicle = scenario.vehicle if speed is None else dataclasses.replace(scenario.vehicle, cruise_speed=speed)
     return PlanningProblem(env, np.asarray(start, dtype=float), np.asarray(goal, dtype=float), vehicle,
-                           scenario.hazard, s.weights, s.penalty, start_time)
+                           scenario.hazard, s.weights, s.penalty, start_time, heading)
 
 
 def replan_settings(settings: PlannerSettings, cfg: ReplanConfig) -> PlannerSettings:

@@ -459,7 +459,7 @@ class LiveReplanner:
                                                   ground + env.z_max - BAND_INSET_M)
         rec.commit = [round(float(v), 1) for v in cp.point]
         rec.old_route = cp.old_tail.round(1).tolist()
-        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed)
+        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed, cp.heading)
         settings = replan_settings(self.scenario.planner, cfg)
         t0 = time.monotonic()
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)

@@ -34,8 +34,11 @@ def fault_windows(problem: PlanningProblem, path: np.ndarray) -> np.ndarray:
         return np.zeros(0, dtype=int)
     j = np.arange(n - WINDOW + 1)
     windows = path[j[:, None] + np.arange(WINDOW)]
-    static = problem if problem.start_time is None else replace(problem, start_time=None)
-    return j[static.evaluate(windows).n_violations > 0]
+    static = replace(problem, start_time=None, start_heading=None)  # a window's start is not the route's
+    bad = static.evaluate(windows).n_violations > 0
+    if problem.start_heading is not None:  # the first window starts where the vehicle arrives with its heading
+        bad[0] |= replace(problem, start_time=None).evaluate(windows[:1]).n_violations[0] > 0
+    return j[bad]
 
 
 def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator, deadline: float | None = None,

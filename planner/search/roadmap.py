@@ -302,7 +302,8 @@ class Query:
 def attach(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, reach: float = 3.0) -> Query:
     """Join the start and the goal to the roadmap nodes within ``reach`` spacings whose edges keep d_coll
     (the start may sit closer to an obstacle than the roadmap's margin: the vehicle is there already) and the
-    climb limit; the straight start→goal edge too, when it is clear."""
+    climb limit; the straight start→goal edge too, when it is clear. With a start heading, the start's edges
+    turn at most the vehicle's max turn from it."""
     pts = np.concatenate([rm.nodes, problem.start[None], problem.goal[None]])
     n = rm.n_nodes
     extra = []
@@ -314,6 +315,10 @@ def attach(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, reach: flo
     a, b = pts[e[:, 0]], pts[e[:, 1]]
     relax = rm.need - problem.hazard.d_coll  # attachments need only d_coll
     ok = (segment_slack(problem, a, b, cfg.margin) >= -relax) & climb_ok(problem, a, b, 1.0)
+    if problem.start_heading is not None:  # leave the start within the turn limit of the way the vehicle flies
+        out = e[:, 0] == n
+        turn = horizontal_turn(np.stack([np.broadcast_to(problem.start_heading, b.shape), b - a], axis=1))[:, 0]
+        ok &= ~out | (turn <= problem.vehicle.max_turn)
     e = e[ok]
     length = np.linalg.norm(pts[e[:, 1]] - pts[e[:, 0]], axis=1)
     return Query(rm, pts, np.concatenate([rm.edges, e]), np.concatenate([rm.length, length]))
@@ -372,8 +377,8 @@ def shortcut(points: np.ndarray, problem: PlanningProblem, cfg: RoadmapConfig, r
     """Drop the nodes a straight leg can skip (greedy, farthest first): a leg kept has ``room`` metres of slack
     beyond the roadmap's clearance, more on a long leg whose smoothed curve may swing further (the first and last
     only need d_coll, ``relax_ends`` less), stays in the band within the climb limit, and turns at most the
-    vehicle's max turn from the previous leg. The room is where the smoothed curve swings inside a corner
-    (docs/method.md §4.4); the swarm makes the corners flyable."""
+    vehicle's max turn from the previous leg (the first leg from the start heading, if any). The room is where
+    the smoothed curve swings inside a corner (docs/method.md §4.4); the swarm makes the corners flyable."""
     veh = problem.vehicle
     keep = [0]
     i = 0
@@ -390,8 +395,10 @@ def shortcut(points: np.ndarray, problem: PlanningProblem, cfg: RoadmapConfig, r
               & band_ok(problem, a, b, 0.5 * veh.acceptance_radius)
               & climb_ok(problem, a, b, np.where(ends, 1.0, cfg.climb_share))
               & (threat_slack(problem, a, b, flown, cfg.margin) >= 0.0))
-        if len(keep) > 1:
-            prev = np.broadcast_to(points[i] - points[keep[-2]], b.shape)
+        prev = (points[i] - points[keep[-2]] if len(keep) > 1
+                else problem.start_heading)  # the first leg turns from the way the vehicle flies (if known)
+        if prev is not None:
+            prev = np.broadcast_to(prev, b.shape)
             ok &= horizontal_turn(np.stack([prev, b - a], axis=1))[:, 0] <= veh.max_turn
         ok[0] = True  # the roadmap's own edge
         nxt = int(j[np.flatnonzero(ok)[-1]])

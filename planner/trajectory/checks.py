@@ -10,7 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from planner.trajectory.smoothing import climb_angle, sample_trajectory
+from planner.trajectory.smoothing import climb_angle, peak_curvature, sample_trajectory
 from planner.world.config import CATEGORIES, HazardConfig, VehicleLimits
 from planner.world.environment import Environment, Radars
 from planner.world.geometry import cylinder_signed_distance, horizontal_turn
@@ -84,10 +84,12 @@ def obstacle_clearance(
 
 def check_trajectory(
     traj: Trajectory, waypoints: np.ndarray, env: Environment, hazard: HazardConfig,
-    vehicle: VehicleLimits, timed: bool = False,
+    vehicle: VehicleLimits, timed: bool = False, start_heading: np.ndarray | None = None,
 ) -> CheckResult:
     """Count violations of collision (clearance < d_coll; radars: inside detection range), altitude
-    band above terrain, region bounds, turn (curvature > 1/R_min or a waypoint turn > max) and climb."""
+    band above terrain, region bounds, turn (curvature > 1/R_min or a waypoint turn > max) and climb.
+    ``start_heading``: the vehicle's direction at the start; the turn from it into the first leg is a waypoint
+    turn too, and the first leg must be long enough to fly it (its Bézier's peak curvature, §11.2)."""
     p = traj.points
     times = traj.times if timed else None
     solid = obstacle_clearance(p, times, env, include_radars=False)
@@ -106,6 +108,12 @@ def check_trajectory(
     # waypoint turn angles beyond the vehicle's limit (horizontal heading change)
     seg = np.diff(np.asarray(waypoints, dtype=float), axis=0)
     sharp = np.flatnonzero(horizontal_turn(seg) > vehicle.max_turn * (1.0 + _TOL_REL))
+    if start_heading is not None and len(seg):
+        first = seg[0] / max(float(np.linalg.norm(seg[0])), 1e-9)
+        tight = peak_curvature(np.linalg.norm(seg[0]), first @ start_heading) * vehicle.min_turn_radius
+        if horizontal_turn(np.stack([start_heading, seg[0]]))[0] > vehicle.max_turn * (1.0 + _TOL_REL) \
+                or tight > 1.0 + _TOL_REL:
+            sharp = np.concatenate([[-1], sharp])  # the turn at the start (waypoint 0)
     counts["turn"] += len(sharp)
     locations["turn"] += np.asarray(waypoints)[sharp + 1][:MAX_REPORTED].round(1).tolist()
     return CheckResult(counts, {k: v for k, v in locations.items() if v}, np.minimum(solid, radar))

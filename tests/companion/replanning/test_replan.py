@@ -60,6 +60,10 @@ def test_mission_route_reads_the_waypoints_back_from_items() -> None:
     assert np.allclose(route[1:], ROUTE[1:], atol=0.05) and list(seqs[1:]) == list(r.seqs[1:])
 
 
+def _cos(a: np.ndarray, b: np.ndarray) -> float:
+    return float(a @ b / (np.linalg.norm(a) * np.linalg.norm(b)))
+
+
 def test_commit_point_on_the_current_leg_replaces_the_active_item() -> None:
     r = MissionRoute.of(_items(), SC.home)
     here = np.array([250.0, 200, 55])
@@ -70,6 +74,7 @@ def test_commit_point_on_the_current_leg_replaces_the_active_item() -> None:
     assert cp.first_new_seq == r.seqs[1]  # the active item's slot gets the commit point
     assert cp.t == pytest.approx(100 + 30 / 18)
     assert np.allclose(cp.old_tail[0], cp.point) and np.allclose(cp.old_tail[1:], ROUTE[1:], atol=0.05)
+    assert _cos(cp.heading, leg) > 0.9999  # the vehicle's direction through the commit point: along the leg
 
 
 def test_commit_point_beyond_the_active_waypoint_keeps_the_waypoints_before_it() -> None:
@@ -81,6 +86,7 @@ def test_commit_point_beyond_the_active_waypoint_keeps_the_waypoints_before_it()
     leg = ROUTE[2] - ROUTE[1]  # 100 m up the second leg
     assert np.allclose(cp.point, ROUTE[1] + 100.0 * leg / np.linalg.norm(leg), atol=0.05)
     assert cp.first_new_seq == r.seqs[2]  # waypoint seqs[1] (300, 200) is kept and flown first
+    assert _cos(cp.heading, leg) > 0.9999
     far = commit_point(route, seqs, int(r.seqs[1]), lead_m=1e6, speed=18.0, t_now=0.0)
     assert far.lead_m < np.sum(np.linalg.norm(np.diff(route, axis=0), axis=1))  # kept short of the goal
 
@@ -110,8 +116,10 @@ def test_warm_starts_bend_the_old_route_both_ways_and_keep_its_ends() -> None:
 
 def test_replan_problem_uses_the_threat_picture_and_the_commit_time() -> None:
     tr = Threat(id="adsb-1", kind="track", radius=40.0, p0=(500.0, 500, 120), p1=(-10.0, 0, 0), t_ref=5.0)
-    p = replan_problem(SC, np.array([300.0, 300, 80]), SC.goal, Threats(items=(tr,)), 12.5)
+    p = replan_problem(SC, np.array([300.0, 300, 80]), SC.goal, Threats(items=(tr,)), 12.5,
+                       heading=np.array([3.0, 4.0, 0.0]))
     assert p.start_time == 12.5 and [t.id for t in p.env.threats.items] == ["adsb-1"]
+    assert np.allclose(p.start_heading, [0.6, 0.8, 0.0])  # the turn onto the new route is held to the limits
     assert len(p.env.cylinders) == len(SC.environment.cylinders)
 
 

@@ -10,6 +10,7 @@ import pytest
 
 from planner.trajectory.checks import (
     CATEGORIES,
+    CheckResult,
     check_trajectory,
     convergence_iteration,
     obstacle_clearance,
@@ -184,6 +185,26 @@ def test_turn_count_for_tight_curvature():
     assert nonzero(res.counts) == {"turn"}
     assert np.linalg.norm(np.array(res.locations["turn"][0]) - path[1]) < 40.0
     assert check(turn_path(30.0, 100.0), env_with()).feasible
+
+
+def test_the_turn_from_the_start_heading_counts_as_a_waypoint_turn():
+    """With the vehicle's heading at the start (a replan's commit point), turning 90° onto the first leg, or
+    50° onto a 20 m leg (tighter than R_min), is a turn at the start; 30° onto a long leg is not."""
+    path = np.array([[1000.0, 500.0, MID], [1000.0, 1500.0, MID]])  # north
+    traj = smooth(path, SPACING, VEH.cruise_speed, 0.0)
+
+    def turns(p: np.ndarray, deg: float) -> CheckResult:  # heading ``deg`` east of north
+        h = np.array([math.sin(math.radians(deg)), math.cos(math.radians(deg)), 0.0])
+        return check_trajectory(smooth(p, SPACING, VEH.cruise_speed, 0.0), p, env_with(), HAZ, VEH, start_heading=h)
+
+    assert check_trajectory(traj, path, env_with(), HAZ, VEH).feasible
+    assert turns(path, 30.0).feasible
+    sharp = turns(path, 90.0)
+    assert sharp.counts["turn"] == 1 and nonzero(sharp.counts) == {"turn"}
+    np.testing.assert_allclose(sharp.locations["turn"][0], path[0], atol=0.1)
+    short = np.array([[1000.0, 500.0, MID], [1000.0, 520.0, MID], [1000.0, 1500.0, MID]])
+    assert turns(short, 50.0).counts["turn"] == 1
+    assert turns(short, 0.0).feasible
 
 
 def test_bounds_count():
