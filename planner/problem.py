@@ -15,7 +15,6 @@ from planner.trajectory.smoothing import (
     climb_angle,
     corner_cut_bound,
     cubic_range,
-    deviation_bound,
     flown_deviation,
     peak_climb,
     peak_curvature,
@@ -159,10 +158,9 @@ class PlanningProblem:
         v = np.concatenate([u[:, 1:], u[:, -1:]], axis=1)  # next direction; the last segment stays straight
         cos_turn = _dot3(u, v)
         dev = flown_deviation(seg_len, cos_turn, self.vehicle.acceptance_radius)  # (P, S) m off each chord
-        if self.start_heading is not None:  # the first leg also swings out of the turn at the start
-            c0 = _dot3(u[:, 0], self.start_heading)
-            dev[:, 0] = np.maximum(dev[:, 0], np.maximum(deviation_bound(seg_len[:, 0], c0),
-                                                         corner_cut_bound(self.vehicle.acceptance_radius, c0)))
+        if self.start_heading is not None:  # the corner the autopilot cuts at the start, as at any waypoint
+            cut0 = corner_cut_bound(self.vehicle.acceptance_radius, _dot3(u[:, 0], self.start_heading))
+            dev[:, 0] = np.maximum(dev[:, 0], cut0)
         q2 = b - (seg_len / 3.0)[..., None] * v  # Q1 = a + seg/3 lies on the chord
         z_lo, z_hi = _height_range(a[..., 2], a[..., 2] + seg[..., 2] / 3.0, q2[..., 2], b[..., 2], self.env)
 

@@ -459,7 +459,10 @@ class LiveReplanner:
                                                   ground + env.z_max - BAND_INSET_M)
         rec.commit = [round(float(v), 1) for v in cp.point]
         rec.old_route = cp.old_tail.round(1).tolist()
-        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed, cp.heading)
+        # the vehicle flies through the commit point along the old route, unless it is held (circling: it will
+        # come back to the route from wherever the hold took it)
+        heading = cp.heading if self.holding is None else None
+        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed, heading)
         settings = replan_settings(self.scenario.planner, cfg)
         t0 = time.monotonic()
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)

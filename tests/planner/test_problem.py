@@ -133,7 +133,7 @@ def test_j4_turn_and_climb_change_angles():
 def test_a_start_heading_holds_the_turn_at_the_start_to_the_vehicles_limits():
     """A replan starts where the vehicle already flies (docs/method.md §5.4): turning 90° there is a turn
     violation like at any waypoint, a 30° turn onto a leg long enough is not, and the first leg must keep the
-    room it swings out of the turn; without a heading the cost is the paper's, unchanged."""
+    room of the corner cut there; without a heading the cost is the paper's, unchanged."""
     path = np.array([[1000.0, 500.0, MID], [1000.0, 1000.0, MID], [1000.0, 1800.0, MID]])  # north
     plain = evaluate_one(env_with(), path)
     east = evaluate_one(env_with(), path, start_heading=np.array([1.0, 0.0, 0.0]))
@@ -147,8 +147,8 @@ def test_a_start_heading_holds_the_turn_at_the_start_to_the_vehicles_limits():
     heading = np.array([math.sin(math.radians(50.0)), math.cos(math.radians(50.0)), 0.0])
     assert evaluate_one(env_with(), tight, start_heading=heading).violations["turn"][0] >= 1
     assert evaluate_one(env_with(), tight).violations["turn"][0] == 0
-    # an obstacle 25 m west of the first leg: clear of its chord (d_coll 20 m), not of the swing out of a
-    # 60° turn from the north-west onto it (the first leg's Bézier bound (4/27) L sin θ ≈ 64 m)
+    # an obstacle 25 m west of the first leg: clear of its chord (d_coll 20 m), not of the corner an autopilot
+    # cuts turning 60° onto it from the north-west ((A/2) sin θ ≈ 8.7 m, A = 20 m)
     wall = {"cylinders": cylinders([[1000.0 - 25.0 - 50.0, 750.0, 50.0, np.inf]])}
     nw = np.array([-math.sin(math.radians(60.0)), math.cos(math.radians(60.0)), 0.0])
     assert evaluate_one(env_with(**wall), path).violations["collision"][0] == 0
