@@ -312,7 +312,10 @@ async def test_request_message_and_set_current_answers(static: Scenario) -> None
     before home is set, ADSB_VEHICLE with no traffic: ACCEPTED, nothing); an unknown one → FAILED;
     MISSION_SET_CURRENT → MISSION_CURRENT (its only acknowledgement), out of range → nothing;
     DO_SET_MISSION_CURRENT out of range → DENIED."""
-    async with (SimAutopilot(static, "udpin:127.0.0.1:0", speedup=2.0, vehicle="copter", streams_unasked=None) as sim,
+    # home comes 6 sim s after power-up (3 s of wall time): the first commands, asked before it, must not race it
+    # on a loaded machine (with home at 1 s, CI once saw GET_HOME_POSITION accepted)
+    async with (SimAutopilot(static, "udpin:127.0.0.1:0", speedup=2.0, vehicle="copter", streams_unasked=None,
+                             ready_after_s=6.0) as sim,
                 Client(sim.port) as gcs):
         assert await gcs.command(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_HOME_POSITION) == ACCEPTED
         assert await gcs.command(mavlink.MAV_CMD_GET_HOME_POSITION) == mavlink.MAV_RESULT_FAILED
