@@ -459,10 +459,10 @@ class LiveReplanner:
                                                   ground + env.z_max - BAND_INSET_M)
         rec.commit = [round(float(v), 1) for v in cp.point]
         rec.old_route = cp.old_tail.round(1).tolist()
-        # the vehicle flies through the commit point along the old route, unless it is held (circling: it will
-        # come back to the route from wherever the hold took it)
-        heading = cp.heading if self.holding is None else None
-        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed, heading)
+        # cp.heading (the way the vehicle flies through the commit point) is not passed yet: with it the first
+        # replans failed more often, and the guard's LOITER hold that followed took the simulated plane into a
+        # cylinder (docs/design.md, "The start heading"); a hold that keeps clear of obstacles comes first
+        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed)
         settings = replan_settings(self.scenario.planner, cfg)
         t0 = time.monotonic()
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
