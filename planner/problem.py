@@ -10,6 +10,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planner import kernel
 from planner.trajectory.smoothing import (
     bezier_point,
     climb_angle,
@@ -131,7 +132,26 @@ class PlanningProblem:
 
     # -- public -----------------------------------------------------------------------------------
     def evaluate(self, paths: np.ndarray) -> Evaluation:
-        """Score paths (P, N, 3) → :class:`Evaluation` with arrays shaped (P,)."""
+        """Score paths (P, N, 3) → :class:`Evaluation` with arrays shaped (P,): the compiled kernel
+        (planner/kernel.py) unless FUSEPLAN_KERNEL=numpy picks this module's reference implementation."""
+        paths = np.asarray(paths, dtype=float)
+        if paths.ndim == 2:
+            paths = paths[None]
+        if kernel.chosen() == "compiled":
+            return self._evaluate_compiled(paths)
+        return self.evaluate_reference(paths)
+
+    def _evaluate_compiled(self, paths: np.ndarray) -> Evaluation:
+        j, pen, viol = kernel.evaluate(self, paths, _THREAT_T, _TERRAIN_T)
+        terms = {name: j[:, i] for i, name in enumerate(TERMS)}
+        total = pen
+        for name, weight in self.weights.by_term().items():  # the reference's order of additions
+            total = total + weight * terms[name]
+        return Evaluation(total=total, terms=terms, penalty=pen,
+                          violations={c: viol[:, i] for i, c in enumerate(CATEGORIES)})
+
+    def evaluate_reference(self, paths: np.ndarray) -> Evaluation:
+        """The numpy implementation of :meth:`evaluate` (paths (P, N, 3)), the reference the kernel is held to."""
         paths = np.asarray(paths, dtype=float)
         if paths.ndim == 2:
             paths = paths[None]

@@ -8,6 +8,7 @@ import math
 import numpy as np
 import pytest
 
+from planner import kernel
 from planner.problem import CATEGORIES, TERMS, PlanningProblem
 from planner.world.config import CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
 from planner.world.environment import Cylinders, Environment, Radars, Spheres, Threat, Threats
@@ -19,6 +20,15 @@ PEN = PenaltyConfig(constant=1.0e4, per_metre=1.0e3, per_radian=1.0e4)
 SIZE = 2000.0
 Z_LO, Z_HI = 50.0, 300.0
 MID = 0.5 * (Z_LO + Z_HI)
+
+
+@pytest.fixture(autouse=True, params=kernel.KERNELS)
+def cost_kernel(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
+    """Every test here runs on the compiled kernel and on the numpy reference (planner/kernel.py)."""
+    if request.param == "compiled" and kernel.njit is None:
+        pytest.skip("numba is not installed")
+    monkeypatch.setenv(kernel.ENV_VAR, request.param)
+    return request.param
 
 
 def env_with(**kw) -> Environment:

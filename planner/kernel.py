@@ -1,0 +1,478 @@
+"""The cost J of docs/method.md §4–§5 as one compiled loop over particle × segment × obstacle (numba).
+
+The numpy implementation in :mod:`planner.problem` is the reference; this kernel computes the same terms,
+penalties and violation counts without the numpy temporaries that dominate small swarms (a replan's swarm of
+100 × 9 segments spends most of its time in array set-up, not arithmetic). ``FUSEPLAN_KERNEL=numpy`` picks the
+reference; without numba installed the reference is used. tests/planner/test_kernel.py holds the two to 1e-9.
+"""
+
+from __future__ import annotations
+
+import math
+import os
+
+import numpy as np
+
+try:
+    from numba import njit
+except ImportError:  # pragma: no cover - numba is a dependency; the reference path still works without it
+    njit = None
+
+ENV_VAR = "FUSEPLAN_KERNEL"
+KERNELS = ("compiled", "numpy")
+_EPS = 1e-9  # as planner.problem: unit directions
+_EPS_CURV = 1e-12  # as planner.trajectory.smoothing: curvature's segment-length floor
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+_LOITER, _PATROL, _TRACK = 0, 1, 2  # planner.world.environment's threat kinds
+
+
+def chosen() -> str:
+    """The kernel evaluations use: ``compiled`` unless FUSEPLAN_KERNEL says ``numpy`` or numba is missing."""
+    want = os.environ.get(ENV_VAR, "compiled").strip().lower() or "compiled"
+    if want not in KERNELS:
+        raise ValueError(f"{ENV_VAR}={want!r}: expected one of {', '.join(KERNELS)}")
+    return "compiled" if want == "compiled" and njit is not None else "numpy"
+
+
+def _jit(fn):  # noqa: ANN001, ANN202
+    """Compile with an on-disk cache (no JIT pause after the first run on a machine); identity without numba."""
+    return fn if njit is None else njit(cache=True, nogil=True, error_model="numpy")(fn)
+
+
+def _inline(fn):  # noqa: ANN001, ANN202
+    """A helper compiled into its caller (a call passing arrays costs more than the arithmetic inside)."""
+    return fn if njit is None else njit(inline="always", error_model="numpy")(fn)
+
+
+@_inline
+def _seg_point(ax, ay, az, bx, by, bz, px, py, pz):  # noqa: ANN001, ANN202
+    """Distance from point p to segment a→b (geometry.segment_point_distance)."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    wx, wy, wz = px - ax, py - ay, pz - az
+    dd = dx * dx + dy * dy + dz * dz
+    t = (wx * dx + wy * dy + wz * dz) / (dd if dd > 0.0 else 1.0)
+    t = min(max(t, 0.0), 1.0)
+    ex, ey, ez = wx - t * dx, wy - t * dy, wz - t * dz
+    return math.sqrt(ex * ex + ey * ey + ez * ez)
+
+
+@_inline
+def _seg_point_2d(ax, ay, bx, by, px, py):  # noqa: ANN001, ANN202
+    dx, dy = bx - ax, by - ay
+    dd = dx * dx + dy * dy
+    wx, wy = px - ax, py - ay
+    t = (wx * dx + wy * dy) / (dd if dd > 0.0 else 1.0)
+    t = min(max(t, 0.0), 1.0)
+    ex, ey = wx - t * dx, wy - t * dy
+    return math.sqrt(ex * ex + ey * ey)
+
+
+@_inline
+def _cyl_signed(ax, ay, az, dx, dy, dz, t, cx, cy, r, top):  # noqa: ANN001, ANN202
+    """Signed distance of a + t·d from a cylinder with a finite top (geometry.cylinder_signed_distance)."""
+    px, py, pz = ax + t * dx, ay + t * dy, az + t * dz
+    u = math.hypot(px - cx, py - cy) - r
+    w = pz - top
+    uo, wo = max(u, 0.0), max(w, 0.0)
+    return math.sqrt(uo * uo + wo * wo) + min(max(u, w), 0.0)
+
+
+@_inline
+def _seg_cyl_finite(ax, ay, az, bx, by, bz, cx, cy, r, top, iters):  # noqa: ANN001, ANN202
+    """Golden-section minimum over the segment, step for step as geometry.segment_cylinder_clearance."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    lo, hi = 0.0, 1.0
+    x1 = hi - _GOLDEN * (hi - lo)
+    x2 = lo + _GOLDEN * (hi - lo)
+    f1 = _cyl_signed(ax, ay, az, dx, dy, dz, x1, cx, cy, r, top)
+    f2 = _cyl_signed(ax, ay, az, dx, dy, dz, x2, cx, cy, r, top)
+    for _ in range(iters):
+        if f1 <= f2:
+            hi = x2
+            xn = hi - _GOLDEN * (hi - lo)
+            fn = _cyl_signed(ax, ay, az, dx, dy, dz, xn, cx, cy, r, top)
+            x2, x1 = x1, xn
+            f2, f1 = f1, fn
+        else:
+            lo = x1
+            xn = lo + _GOLDEN * (hi - lo)
+            fn = _cyl_signed(ax, ay, az, dx, dy, dz, xn, cx, cy, r, top)
+            x1, x2 = x2, xn
+            f1, f2 = f2, fn
+    f0 = _cyl_signed(ax, ay, az, dx, dy, dz, 0.0, cx, cy, r, top)
+    f_1 = _cyl_signed(ax, ay, az, dx, dy, dz, 1.0, cx, cy, r, top)
+    return min(min(f1, f2), min(f0, f_1))
+
+
+@_inline
+def _ground(x, y, has_terrain, tx0, ty0, tdx, tdy, h):  # noqa: ANN001, ANN202
+    """Bilinear ground height (terrain.Terrain.height_at); zero on flat terrain."""
+    if not has_terrain:
+        return 0.0
+    ny, nx = h.shape
+    fx = min(max((x - tx0) / tdx, 0.0), nx - 1.0)
+    fy = min(max((y - ty0) / tdy, 0.0), ny - 1.0)
+    i0 = min(int(fx), nx - 2)
+    j0 = min(int(fy), ny - 2)
+    wx = fx - i0
+    wy = fy - j0
+    return ((h[j0, i0] * (1 - wx) + h[j0, i0 + 1] * wx) * (1 - wy)
+            + (h[j0 + 1, i0] * (1 - wx) + h[j0 + 1, i0 + 1] * wx) * wy)
+
+
+@_inline
+def _bezier(q0, q1, q2, q3, t):  # noqa: ANN001, ANN202
+    s = 1.0 - t
+    return s**3 * q0 + 3 * s**2 * t * q1 + 3 * s * t**2 * q2 + t**3 * q3
+
+
+@_inline
+def _cubic_range(q0, q1, q2, q3):  # noqa: ANN001, ANN202
+    """Exact min and max of a scalar cubic Bézier on [0, 1] (smoothing.cubic_range)."""
+    a, b, c = q1 - q0, q2 - q1, q3 - q2
+    qa = a - 2 * b + c
+    qb = 2 * (b - a)
+    disc = qb * qb - 4 * qa * a
+    sq = math.sqrt(max(disc, 0.0))
+    if abs(qa) < 1e-12:
+        r1 = -a / qb if abs(qb) > 1e-12 else 0.0  # numpy divides by inf: ±0, outside (0, 1) either way
+        r2 = r1
+    else:
+        r1 = (-qb - sq) / (2 * qa)
+        r2 = (-qb + sq) / (2 * qa)
+    lo, hi = min(q0, q3), max(q0, q3)
+    for r in (r1, r2):
+        if disc >= 0 and 0.0 < r < 1.0:
+            val = _bezier(q0, q1, q2, q3, r)
+            lo = min(lo, val)
+            hi = max(hi, val)
+    return lo, hi
+
+
+@_inline
+def _peak_factor(c, table):  # noqa: ANN001, ANN202
+    n = table.shape[0]
+    f = (min(max(c, -1.0), 1.0) + 1.0) * ((n - 1) / 2.0)
+    i = min(int(f), n - 2)
+    w = f - i
+    return table[i] * (1.0 - w) + table[i + 1] * w
+
+
+@_inline
+def _peak_curvature(seg_len, cos_turn, table):  # noqa: ANN001, ANN202
+    c = min(max(cos_turn, -1.0), 1.0)
+    return _peak_factor(c, table) * math.sqrt(1.0 - c * c) / max(seg_len, _EPS_CURV)
+
+
+@_inline
+def _sin_or_one(cos_turn):  # noqa: ANN001, ANN202
+    """sin θ for turns up to 90°, 1 past it (smoothing.deviation_bound / corner_cut_bound)."""
+    c = min(max(cos_turn, -1.0), 1.0)
+    return math.sqrt(1.0 - c * c) if c >= 0.0 else 1.0
+
+
+@_inline
+def _peak_climb(ux, uy, uz, vx, vy, vz):  # noqa: ANN001, ANN202
+    """Largest |flight-path angle| on a segment's Bézier (smoothing.peak_climb)."""
+    dx, dy, dz = vx - ux, vy - uy, vz - uz
+    hu_dh = ux * dx + uy * dy
+    hu2 = ux * ux + uy * uy
+    dh2 = dx * dx + dy * dy
+    num = uz * hu_dh - dz * hu2
+    den = dz * hu_dh - uz * dh2
+    beta = num / den if abs(den) > 1e-15 else 0.0
+    beta = min(max(beta, -1.0 / 3.0), 1.0)
+    best = 0.0
+    for bb in (-1.0 / 3.0, 1.0, beta):
+        wz = uz + bb * dz
+        wx = ux + bb * dx
+        wy = uy + bb * dy
+        best = max(best, wz * wz / max(wx * wx + wy * wy, 1e-300))
+    return math.atan(math.sqrt(best))
+
+
+@_jit
+def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w,
+          terrain_h, thr, peak_table, threat_t, terrain_t, golden_iters):  # noqa: ANN001, ANN202
+    """terms (P, 5), penalty (P,), violations (P, 5) for paths (P, N, 3); ``sc`` holds the scalars and ``thr`` the
+    threats' laws, a row each (see _arrays)."""
+    (acc_r, d_safe, d_coll, pen_c, per_m, per_rad, max_turn, r_min, max_climb, z_min, z_max, size_x, size_y,
+     direct, cruise, start_time, timed, max_speed, has_heading, has_terrain, tx0, ty0, tdx, tdy, slope) = (
+        sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7], sc[8], sc[9], sc[10], sc[11], sc[12], sc[13], sc[14],
+        sc[15], sc[16] > 0, sc[17], sc[18] > 0, sc[19] > 0, sc[20], sc[21], sc[22], sc[23], sc[24])
+    n_p, n_pts = paths.shape[0], paths.shape[1]
+    n_s = n_pts - 1
+    terms = np.zeros((n_p, 5))
+    pen = np.zeros(n_p)
+    viol = np.zeros((n_p, 5), dtype=np.int64)  # collision, altitude, bounds, turn, climb
+    seg = np.empty((n_s, 3))
+    u = np.empty((n_s, 3))
+    v = np.empty((n_s, 3))
+    seg_len = np.empty(n_s)
+    cos_t = np.empty(n_s)
+    dev = np.empty(n_s)
+    q2 = np.empty((n_s, 3))
+    s0 = np.empty(n_s)
+    gap_cap = d_safe - d_coll
+    n_thr_t = threat_t.shape[0]
+    n_ter_t = terrain_t.shape[0]
+    for p in range(n_p):
+        pp = paths[p]
+        penalty = 0.0
+        # -- segments, unit directions, turn cosines, the flown curve's deviation (§4.4) ---------------
+        j1 = 0.0
+        for s in range(n_s):
+            for i in range(3):
+                seg[s, i] = pp[s + 1, i] - pp[s, i]
+            seg_len[s] = math.sqrt(seg[s, 0] * seg[s, 0] + seg[s, 1] * seg[s, 1] + seg[s, 2] * seg[s, 2])
+            j1 += seg_len[s]
+            inv = max(seg_len[s], _EPS)
+            for i in range(3):
+                u[s, i] = seg[s, i] / inv
+        cum = 0.0
+        for s in range(n_s):
+            nxt = s + 1 if s + 1 < n_s else n_s - 1
+            for i in range(3):
+                v[s, i] = u[nxt, i]
+            cos_t[s] = u[s, 0] * v[s, 0] + u[s, 1] * v[s, 1] + u[s, 2] * v[s, 2]
+            cum += seg_len[s]
+            s0[s] = cum - seg_len[s]
+        prev_cut = 0.0
+        for s in range(n_s):
+            so = _sin_or_one(cos_t[s])
+            cut = 0.5 * acc_r * so
+            dev[s] = max((4.0 / 27.0) * seg_len[s] * so, max(cut, prev_cut))
+            prev_cut = cut
+            for i in range(3):
+                q2[s, i] = pp[s + 1, i] - (seg_len[s] / 3.0) * v[s, i]
+        if has_heading:
+            c0 = u[0, 0] * heading[0] + u[0, 1] * heading[1] + u[0, 2] * heading[2]
+            dev[0] = max(dev[0], 0.5 * acc_r * _sin_or_one(c0))
+        # -- J2 hazard (§4.3, §4.5, §4.6) ---------------------------------------------------------------
+        soft_cyl = 0.0
+        soft_sph = 0.0
+        soft_rad = 0.0
+        soft_thr = 0.0
+        for s in range(n_s):
+            ax, ay, az = pp[s, 0], pp[s, 1], pp[s, 2]
+            bx, by, bz = pp[s + 1, 0], pp[s + 1, 1], pp[s + 1, 2]
+            for k in range(cyl_x.shape[0]):
+                c = _seg_point_2d(ax, ay, bx, by, cyl_x[k], cyl_y[k]) - cyl_r[k]
+                if math.isfinite(cyl_top[k]) and c < d_safe + dev[s]:
+                    c = _seg_cyl_finite(ax, ay, az, bx, by, bz, cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k],
+                                        golden_iters)
+                c -= dev[s]
+                g = d_safe - c
+                depth = g - gap_cap
+                if depth > 0.0:
+                    viol[p, 0] += 1
+                    penalty += pen_c + per_m * depth
+                g = min(max(g, 0.0), gap_cap)
+                soft_cyl += g * g
+            for k in range(sph_r.shape[0]):
+                c = _seg_point(ax, ay, az, bx, by, bz, sph_c[k, 0], sph_c[k, 1], sph_c[k, 2]) - sph_r[k] - dev[s]
+                g = d_safe - c
+                depth = g - gap_cap
+                if depth > 0.0:
+                    viol[p, 0] += 1
+                    penalty += pen_c + per_m * depth
+                g = min(max(g, 0.0), gap_cap)
+                soft_sph += g * g
+            for k in range(rad_det.shape[0]):
+                d = _seg_point(ax, ay, az, bx, by, bz, rad_c[k, 0], rad_c[k, 1], rad_c[k, 2])
+                depth = rad_det[k] - (d - dev[s])
+                if depth > 0.0:
+                    viol[p, 0] += 1
+                    penalty += pen_c + per_m * depth
+                soft_rad += rad_w[k] * (rad_det[k] / max(d, rad_det[k])) ** 4
+            if timed:
+                gap = seg_len[s] / (n_thr_t - 1)
+                margin = dev[s] + 0.5 * gap * (1.0 + max_speed / cruise)
+                for m in range(n_thr_t):
+                    tt = threat_t[m]
+                    px, py, pz = ax + tt * (bx - ax), ay + tt * (by - ay), az + tt * (bz - az)
+                    time = start_time + (s0[s] + tt * seg_len[s]) / cruise
+                    for k in range(thr.shape[0]):  # centre and radius at this time (Threats.positions, .radii)
+                        kind, rad, t_ref = thr[k, 0], thr[k, 1], thr[k, 3]
+                        if kind == _LOITER:  # a1 circle radius, a2 angular rate, a3 phase
+                            ang = thr[k, 9] + thr[k, 8] * time
+                            cx = thr[k, 4] + thr[k, 7] * math.cos(ang)
+                            cy = thr[k, 5] + thr[k, 7] * math.sin(ang)
+                            cz = thr[k, 6]
+                        elif kind == _PATROL:  # a1..a3 unit direction A→B, a4 length, a5 speed
+                            along = (thr[k, 11] * time) % (2 * thr[k, 10])
+                            if along > thr[k, 10]:
+                                along = 2 * thr[k, 10] - along
+                            cx = thr[k, 4] + thr[k, 7] * along
+                            cy = thr[k, 5] + thr[k, 8] * along
+                            cz = thr[k, 6] + thr[k, 9] * along
+                        else:  # track: a1..a3 velocity from t_ref; the radius grows with prediction time
+                            dt = time - t_ref
+                            cx = thr[k, 4] + thr[k, 7] * dt
+                            cy = thr[k, 5] + thr[k, 8] * dt
+                            cz = thr[k, 6] + thr[k, 9] * dt
+                            rad = rad + thr[k, 2] * max(dt, 0.0)
+                        ex, ey, ez = px - cx, py - cy, pz - cz
+                        c = math.sqrt(ex * ex + ey * ey + ez * ez) - rad - margin
+                        g = d_safe - c
+                        depth = g - gap_cap
+                        if depth > 0.0:
+                            viol[p, 0] += 1
+                            penalty += pen_c + per_m * depth
+                        g = min(max(g, 0.0), gap_cap)
+                        soft_thr += g * g
+        j2 = soft_cyl / d_safe + soft_sph / d_safe + soft_rad + soft_thr / d_safe
+        # -- J3 altitude: mid-band distance of interior waypoints; band violations of the curve (§4.7) ---
+        mid, half = 0.5 * (z_min + z_max), 0.5 * (z_max - z_min)
+        j3 = 0.0
+        for w in range(1, n_pts - 1):
+            h = pp[w, 2] - _ground(pp[w, 0], pp[w, 1], has_terrain, tx0, ty0, tdx, tdy, terrain_h)
+            j3 += abs(h - mid) / half
+        for s in range(n_s):
+            z0 = pp[s, 2]
+            z1 = z0 + seg[s, 2] / 3.0
+            z2 = q2[s, 2]
+            z3 = pp[s + 1, 2]
+            if not has_terrain:
+                lo = min(min(z0, z3), min(z1, z2))
+                hi = max(max(z0, z3), max(z1, z2))
+                if lo < z_min or hi > z_max:
+                    lo, hi = _cubic_range(z0, z1, z2, z3)
+                depth = max(z_min - lo, hi - z_max)
+                if depth > 0.0:
+                    viol[p, 1] += 1
+                    penalty += pen_c + per_m * depth
+            else:
+                q1x = pp[s, 0] + seg[s, 0] / 3.0
+                q1y = pp[s, 1] + seg[s, 1] / 3.0
+                q1z = pp[s, 2] + seg[s, 2] / 3.0
+                ddx, ddy, ddz = q1x - pp[s, 0], q1y - pp[s, 1], q1z - pp[s, 2]
+                gap = math.sqrt(ddx * ddx + ddy * ddy + ddz * ddz) * (3.0 / (n_ter_t - 1))
+                margin = 0.5 * slope * gap
+                for m in range(n_ter_t):
+                    tt = terrain_t[m]
+                    x = _bezier(pp[s, 0], q1x, q2[s, 0], pp[s + 1, 0], tt)
+                    y = _bezier(pp[s, 1], q1y, q2[s, 1], pp[s + 1, 1], tt)
+                    z = _bezier(pp[s, 2], q1z, q2[s, 2], pp[s + 1, 2], tt)
+                    z = z - _ground(x, y, has_terrain, tx0, ty0, tdx, tdy, terrain_h)
+                    depth = max(z_min + margin - z, z - z_max)
+                    if depth > 0.0:
+                        viol[p, 1] += 1
+                        penalty += pen_c + per_m * depth
+        # -- bounds: the curve lies in the hull of a, Q1 (on the chord), Q2 and b -------------------------
+        for s in range(n_s):
+            lo_x = min(min(pp[s, 0], pp[s + 1, 0]), q2[s, 0])
+            lo_y = min(min(pp[s, 1], pp[s + 1, 1]), q2[s, 1])
+            hi_x = max(max(pp[s, 0], pp[s + 1, 0]), q2[s, 0])
+            hi_y = max(max(pp[s, 1], pp[s + 1, 1]), q2[s, 1])
+            depth = max(max(-lo_x, hi_x - size_x), max(-lo_y, hi_y - size_y))
+            if depth > 0.0:
+                viol[p, 2] += 1
+                penalty += pen_c + per_m * depth
+        # -- J4 smoothness: turns and climb changes; turn, curvature and climb limits (§4.4, §11) -------
+        j4 = 0.0
+        for s in range(n_s - 1):
+            x0, y0 = seg[s, 0], seg[s, 1]
+            x1, y1 = seg[s + 1, 0], seg[s + 1, 1]
+            turn = abs(math.atan2(x0 * y1 - y0 * x1, x0 * x1 + y0 * y1))
+            g0 = math.atan2(seg[s, 2], math.hypot(x0, y0))
+            g1 = math.atan2(seg[s + 1, 2], math.hypot(x1, y1))
+            over = max(turn - max_turn, 0.0)
+            j4 += turn + abs(g1 - g0) + over**2
+            if over > 0.0:
+                viol[p, 3] += 1
+                penalty += pen_c + per_rad * over
+        for s in range(n_s):
+            depth = _peak_curvature(seg_len[s], cos_t[s], peak_table) * r_min - 1.0
+            if depth > 0.0:
+                viol[p, 3] += 1
+                penalty += pen_c + per_rad * depth
+        for s in range(n_s):
+            depth = _peak_climb(u[s, 0], u[s, 1], u[s, 2], v[s, 0], v[s, 1], v[s, 2]) - max_climb
+            if depth > 0.0:
+                viol[p, 4] += 1
+                penalty += pen_c + per_rad * depth
+        if has_heading:
+            hx, hy = heading[0], heading[1]
+            turn0 = abs(math.atan2(hx * seg[0, 1] - hy * seg[0, 0], hx * seg[0, 0] + hy * seg[0, 1]))
+            over0 = max(turn0 - max_turn, 0.0)
+            j4 += turn0 + over0**2
+            if over0 > 0.0:
+                viol[p, 3] += 1
+                penalty += pen_c + per_rad * over0
+            c0 = u[0, 0] * heading[0] + u[0, 1] * heading[1] + u[0, 2] * heading[2]
+            depth = _peak_curvature(seg_len[0], c0, peak_table) * r_min - 1.0
+            if depth > 0.0:
+                viol[p, 3] += 1
+                penalty += pen_c + per_rad * depth
+        j5 = seg_len[n_s - 1] / max(direct, _EPS)
+        terms[p, 0], terms[p, 1], terms[p, 2], terms[p, 3], terms[p, 4] = j1, j2, j3, j4, j5
+        pen[p] = penalty
+    return terms, pen, viol
+
+
+def _threat_rows(thr) -> np.ndarray:  # noqa: ANN001
+    """Threats (K, 12): kind, radius, radius growth, t_ref, p0, then per kind the law's constants, computed as
+    Threats.positions computes them (so the kernel's centres match the reference's to the last bit)."""
+    rows = np.zeros((len(thr), 12))
+    rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3] = thr.kind, thr.radius, thr.radius_growth, thr.t_ref
+    rows[:, 4:7] = thr.p0
+    for k in range(len(thr)):  # a handful of threats, once per problem
+        if thr.kind[k] == _LOITER:
+            r = thr.circle_radius[k]
+            rows[k, 7:10] = r, thr.direction[k] * thr.speed[k] / (r if r > 0 else 1.0), thr.phase[k]
+        elif thr.kind[k] == _PATROL:
+            ab = thr.p1[k] - thr.p0[k]
+            length = float(np.linalg.norm(ab))
+            safe = length if length > 0 else 1.0
+            rows[k, 7:12] = *(ab / safe), safe, thr.speed[k]
+        else:
+            rows[k, 7:10] = thr.p1[k]
+    return rows
+
+
+def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray) -> tuple:  # noqa: ANN001
+    """Everything the kernel reads from a problem, as contiguous float arrays (made once per problem)."""
+    from planner.trajectory.smoothing import _PEAK_FACTOR  # the same G(cos θ) table as the reference
+    from planner.world.geometry import GOLDEN_ITERS
+
+    env, veh, hz, pen = problem.env, problem.vehicle, problem.hazard, problem.penalty
+    ter, thr = env.terrain, env.threats
+    timed = problem.timed_threats
+    heading = problem.start_heading
+    scalars = np.array([
+        veh.acceptance_radius, hz.d_safe, hz.d_coll, pen.constant, pen.per_metre, pen.per_radian, veh.max_turn,
+        veh.min_turn_radius, veh.max_climb, env.z_min, env.z_max, env.size_x, env.size_y,
+        problem.direct_distance, veh.cruise_speed, problem.start_time if timed else 0.0, float(timed),
+        thr.max_speed, float(heading is not None), float(ter is not None),
+        ter.x0 if ter is not None else 0.0, ter.y0 if ter is not None else 0.0,
+        ter.dx if ter is not None else 1.0, ter.dy if ter is not None else 1.0, problem._terrain_slope,
+    ], dtype=float)
+
+    def f(a, shape=(-1,)):  # noqa: ANN001, ANN202 - a writeable copy: one compiled signature for every problem
+        return np.array(a, dtype=np.float64, order="C").reshape(shape)
+
+    cyl, sph, rad = env.cylinders, env.spheres, env.radars
+    return (
+        scalars, f(heading if heading is not None else np.zeros(3)),
+        f(cyl.x), f(cyl.y), f(cyl.radius), f(cyl.top), f(sph.center, (-1, 3)), f(sph.radius),
+        f(rad.center, (-1, 3)), f(rad.r_det), f(rad.soft_weight),
+        f(ter.heights, ter.heights.shape) if ter is not None else np.zeros((2, 2)),
+        _threat_rows(thr),
+        f(_PEAK_FACTOR), f(threat_t), f(terrain_t), np.int64(GOLDEN_ITERS),
+    )
+
+
+def evaluate(
+    problem, paths: np.ndarray, threat_t: np.ndarray, terrain_t: np.ndarray  # noqa: ANN001
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unweighted terms (P, 5) J1…J5, penalty (P,) and violation counts (P, 5) in CATEGORIES order for paths
+    (P, N, 3) metres, from the compiled kernel; ``threat_t``/``terrain_t`` are the reference's sample parameters."""
+    packed = problem.__dict__.get("_kernel_arrays")
+    if packed is None:
+        packed = _arrays(problem, threat_t, terrain_t)
+        object.__setattr__(problem, "_kernel_arrays", packed)
+    paths = np.asarray(paths, dtype=np.float64)
+    if not (paths.flags.c_contiguous and paths.flags.writeable):  # one signature: C-ordered and writeable
+        paths = np.array(paths, dtype=np.float64, order="C")
+    return _cost(paths, *packed)
