@@ -86,8 +86,9 @@ def _parser() -> argparse.ArgumentParser:
                     help="bench replan only: simulator speed-up (1 = the latency target's condition)")
     bn.add_argument("--whole", action="store_true",
                     help="bench replan only: fly every flight to its end and count replans per conflict")
-    bn.add_argument("--replan-roadmap", action="store_true",
-                    help="bench replan only: replans run the roadmap pipeline (the first route as the scenario says)")
+    bn.add_argument("--replan-paper", action="store_true",
+                    help="bench replan only: replans run the scenario's own planner (the paper's fusion) instead of "
+                         "the roadmap pipeline, for comparison")
     sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated autopilot "
                    "at 20x, replanning around an intruder")
     return p
@@ -111,7 +112,7 @@ def cmd_bench_replan(args: argparse.Namespace) -> int:
     say(f"bench replan: {len(plans)} scenarios × {runs} flights at {args.speedup:g}× "
         + ("to the end" if whole else "until the first replan"))
     try:
-        cfg = ReplanConfig(roadmap=getattr(args, "replan_roadmap", False))
+        cfg = ReplanConfig(roadmap=not getattr(args, "replan_paper", False))
         if whole:
             run_flight_bench(plans, runs, args.speedup, args.output, cfg, progress=say)
         else:

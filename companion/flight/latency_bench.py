@@ -135,7 +135,8 @@ def _pct(values: np.ndarray, q: float) -> float:
 
 def _pipeline(cfg: ReplanConfig) -> str:
     """What the report says of the replans' planner beyond the budget and swarm."""
-    return "; replans by the roadmap pipeline" if cfg.roadmap else ""
+    return ("; replans by the roadmap pipeline" if cfg.roadmap
+            else "; replans by the scenario's planner (--replan-paper)")
 
 
 def write_report(results: list[LatencyRun], cfg: ReplanConfig, output: Path) -> list[Path]:

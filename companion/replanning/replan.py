@@ -33,8 +33,8 @@ class ReplanConfig:
     budget_s: float = 0.15  # wall seconds the planner may use for one replan
     population: int = 100  # swarm size for a replan (the scenario's other planner settings are kept)
     # replans run the roadmap pipeline (docs/method.md §15) whatever [planner.roadmap] says of the first route;
-    # the worker builds the roadmap once, at its warm-up (opt-in until it meets its targets: docs/design.md)
-    roadmap: bool = False
+    # the worker builds the roadmap once, at its warm-up. False: the scenario's own planner (the paper's fusion)
+    roadmap: bool = True
     detour_offsets_m: tuple[float, ...] = (-400.0, -250.0, -120.0, 120.0, 250.0, 400.0)  # warm-start bulges
     horizon_s: float = 90.0  # how far ahead conflicts are predicted
     margin_m: float = 15.0  # a conflict is a predicted separation below d_coll + margin
@@ -184,11 +184,15 @@ def warm_starts(tail: np.ndarray, offsets_m: Sequence[float], n_points: int = 10
 
 def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, threats: Threats,
                    start_time: float, speed: float | None = None,
-                   heading: np.ndarray | None = None) -> PlanningProblem:
+                   heading: np.ndarray | None = None, threat_margin: float = 0.0) -> PlanningProblem:
     """The scenario's static world with the current threat picture, from ``start`` to ``goal``, flown from
     mission time ``start_time`` (time-aware threats, docs/method.md §4.6) at ``speed`` (default: the scenario's cruise
     speed; the replanner passes the vehicle's measured pace), arriving at ``start`` flying along ``heading`` (the
-    turn onto the new route is held to the vehicle's limits: an autopilot overshoots a sharper one)."""
+    turn onto the new route is held to the vehicle's limits: an autopilot overshoots a sharper one). Each threat's
+    radius grows by ``threat_margin`` m: the replanner calls a route clear at d_coll + its margin, so a replan
+    that kept only d_coll would be a new conflict at once."""
+    if threat_margin:
+        threats = Threats(tuple(dataclasses.replace(t, radius=t.radius + threat_margin) for t in threats.items))
     env = dataclasses.replace(scenario.environment, threats=threats)
     s = scenario.planner
     vehicle = scenario.vehicle if speed is None else dataclasses.replace(scenario.vehicle, cruise_speed=speed)
@@ -197,7 +201,8 @@ def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, thre
 
 
 def replan_settings(settings: PlannerSettings, cfg: ReplanConfig) -> PlannerSettings:
-    """The scenario's planner settings with the replanning swarm size, and the roadmap on if ``cfg.roadmap``."""
+    """The scenario's planner settings with the replanning swarm size, and the roadmap on if ``cfg.roadmap`` (else
+    as the scenario says)."""
     out = dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=cfg.population))
     if cfg.roadmap:
         out = dataclasses.replace(out, roadmap=dataclasses.replace(out.roadmap, enabled=True))

@@ -462,7 +462,8 @@ class LiveReplanner:
         # cp.heading (the way the vehicle flies through the commit point) is not passed yet: with it the first
         # replans failed more often, and the guard's LOITER hold that followed took the simulated plane into a
         # cylinder (docs/design.md, "The start heading"); a hold that keeps clear of obstacles comes first
-        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed)
+        problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed,
+                                 threat_margin=cfg.margin_m)
         settings = replan_settings(self.scenario.planner, cfg)
         t0 = time.monotonic()
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)

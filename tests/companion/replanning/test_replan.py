@@ -123,6 +123,18 @@ def test_replan_problem_uses_the_threat_picture_and_the_commit_time() -> None:
     assert len(p.env.cylinders) == len(SC.environment.cylinders)
 
 
+def test_replan_problem_plans_for_the_replanners_margin_around_threats() -> None:
+    """A route the replanner would call a conflict (separation below d_coll + margin) costs a violation."""
+    tr = Threat(id="adsb-1", kind="track", radius=40.0, p0=(900.0, 150, 150), p1=(0.0, 0, 0), t_ref=0.0)
+    y = 150.0 - 40 - SC.hazard.d_coll - 8  # passes the threat 8 m outside d_coll: inside a margin of 15 m
+    route = np.stack([np.linspace(800.0, 1000.0, 51), np.full(51, y), np.full(51, 150.0)], axis=1)
+    bare = replan_problem(SC, route[0], route[-1], Threats(items=(tr,)), 0.0)
+    with_margin = replan_problem(SC, route[0], route[-1], Threats(items=(tr,)), 0.0, threat_margin=15.0)
+    assert with_margin.env.threats.items[0].radius == 55.0 and bare.env.threats.items[0].radius == 40.0
+    assert bare.evaluate(route).n_violations[0] == 0
+    assert with_margin.evaluate(route).violations["collision"][0] > 0
+
+
 def test_time_to_start_is_the_climb_and_the_leg_to_the_start() -> None:
     v = SC.vehicle
     climb = v.takeoff_alt / (v.cruise_speed * np.sin(v.max_climb))
@@ -157,22 +169,23 @@ def test_separation_to_scripted_threats_runs_on_mission_time() -> None:
     assert set(both) == {"i", "l"} and both["i"].separation == pytest.approx(25.0)
 
 
-def test_replan_settings_take_the_swarm_size_and_the_roadmap_when_asked() -> None:
-    """A replan plans with the replanning swarm; the roadmap pipeline only with ``[replan] roadmap`` (or when the
-    scenario's planner has it on already), every other setting as the scenario says."""
+def test_replan_settings_take_the_swarm_size_and_the_roadmap_unless_told_not_to() -> None:
+    """A replan plans with the replanning swarm and the roadmap pipeline (``ReplanConfig.roadmap``, the default;
+    off, the scenario's planner as it says), every other setting as the scenario says."""
     assert not SC.planner.roadmap.enabled
-    plain = replan_settings(SC.planner, ReplanConfig(population=37))
+    plain = replan_settings(SC.planner, ReplanConfig(population=37, roadmap=False))
     assert plain.pso.n_pop == 37 and not plain.roadmap.enabled and plain.aco == SC.planner.aco
-    on = replan_settings(SC.planner, ReplanConfig(roadmap=True))
+    on = replan_settings(SC.planner, ReplanConfig())  # the default: replans by the roadmap
     assert on.roadmap.enabled and on.roadmap.spacing == SC.planner.roadmap.spacing and on.pso.n_pop == 100
 
 
 def test_the_latency_report_says_which_planner_made_the_replans(tmp_path: Path) -> None:
-    """`bench replan --replan-roadmap`: the report says the replans ran the roadmap pipeline (and only then)."""
+    """`bench replan [--replan-paper]`: the report says which planner made the replans."""
     from companion.flight.latency_bench import LatencyRun, write_report
 
     run = [LatencyRun("crossing_traffic", 1, 1.0, "approximate", False, 0.16, 0.14, 0.02, 40.0)]
-    write_report(run, ReplanConfig(roadmap=True), tmp_path / "on")
-    write_report(run, ReplanConfig(), tmp_path / "off")
+    write_report(run, ReplanConfig(), tmp_path / "on")
+    write_report(run, ReplanConfig(roadmap=False), tmp_path / "off")
     assert "replans by the roadmap pipeline" in (tmp_path / "on" / "replan.md").read_text()
-    assert "roadmap" not in (tmp_path / "off" / "replan.md").read_text()
+    off = (tmp_path / "off" / "replan.md").read_text()
+    assert "roadmap" not in off and "replans by the scenario's planner" in off
