@@ -26,6 +26,7 @@ from companion.mission.events import EventLog
 from companion.replanning.replan import ReplanConfig
 from companion.replanning.replanner import LiveReplanner
 from companion.sim import SimAutopilot
+from planner import kernel
 from planner.bench.runner import write_csv
 from planner.world.scenario import Scenario
 
@@ -135,8 +136,8 @@ def _pct(values: np.ndarray, q: float) -> float:
 
 def _pipeline(cfg: ReplanConfig) -> str:
     """What the report says of the replans' planner beyond the budget and swarm."""
-    return ("; replans by the roadmap pipeline" if cfg.roadmap
-            else "; replans by the scenario's planner (--replan-paper)")
+    return (("; replans by the roadmap pipeline" if cfg.roadmap
+             else "; replans by the scenario's planner (--replan-paper)") + f"; cost kernel: {kernel.chosen()}")
 
 
 def write_report(results: list[LatencyRun], cfg: ReplanConfig, output: Path) -> list[Path]:

@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from planner import kernel
 from planner.errors import FuseplanError
 
 log = logging.getLogger(__name__)
@@ -275,9 +276,11 @@ def summarise(records: Sequence[dict[str, Any]], variants: Sequence[Variant], co
 
 # --- report pieces every bench uses ----------------------------------------------------------------------
 def command_line(settings: BenchSettings) -> str:
-    """The command that reproduces these results, in Markdown code quotes."""
+    """The command that reproduces these results, in Markdown code quotes, and the cost kernel they ran on (the
+    numpy one when numba is missing or FUSEPLAN_KERNEL=numpy; times differ, docs/design.md)."""
     sets = "".join(f" --set '{o}'" for o in settings.user_overrides)
-    return f"`fuseplan bench {settings.bench.name} --runs {settings.runs} --seed-base {settings.seed_base}{sets}`"
+    return (f"`fuseplan bench {settings.bench.name} --runs {settings.runs} --seed-base {settings.seed_base}{sets}` "
+            f"(cost kernel: {kernel.chosen()})")
 
 
 def settings_list(settings: BenchSettings) -> str:

@@ -189,3 +189,5 @@ def test_the_latency_report_says_which_planner_made_the_replans(tmp_path: Path) 
     assert "replans by the roadmap pipeline" in (tmp_path / "on" / "replan.md").read_text()
     off = (tmp_path / "off" / "replan.md").read_text()
     assert "roadmap" not in off and "replans by the scenario's planner" in off
+    from planner import kernel
+    assert f"cost kernel: {kernel.chosen()}" in off

@@ -103,3 +103,17 @@ def test_same_seeds_same_tables_whatever_the_workers(bench, tmp_path) -> None:
     assert main(["bench", name, "-o", str(tmp_path), *TINY, "--workers", "2"]) == 0
     for f in (f"{name}.csv", f"{name}_runs.csv"):
         assert _without_times(_rows(tmp_path / f)) == _without_times(_rows(out / f)), f
+
+
+@pytest.mark.parametrize("chosen", ["compiled", "numpy"])
+def test_every_report_says_which_cost_kernel_its_runs_used(monkeypatch: pytest.MonkeyPatch, chosen: str) -> None:
+    """Times differ several-fold between the kernels, so a report's command line names the one that ran."""
+    from planner import kernel
+    from planner.bench import BENCHES
+    from planner.bench.runner import BenchSettings, command_line
+
+    monkeypatch.setenv("FUSEPLAN_KERNEL", chosen)
+    line = command_line(BenchSettings(BENCHES["ablation"], 3, 2000))
+    assert line.startswith("`fuseplan bench ablation --runs 3 --seed-base 2000`")
+    assert line.endswith(f"(cost kernel: {kernel.chosen()})")
+    assert kernel.chosen() == chosen or kernel.njit is None
