@@ -142,7 +142,9 @@ def run_swarm(
         st.observe(x, problem.evaluate(space.decode(x)))
         it += 1
         history.append(st.gbest_f)
-        prog = Progress(it, st.gbest_f, st.stagnant, diversity(st.x, space.lo, space.hi), stop.elapsed())
+        # σ² costs a pass over the swarm; only the diversity criterion reads it
+        div = diversity(st.x, space.lo, space.hi) if budget.diversity_min > 0 else math.nan
+        prog = Progress(it, st.gbest_f, st.stagnant, div, stop.elapsed())
         if progress is not None:
             progress(it, budget.max_iter, st.gbest_f)
         if stop.done(prog):
