@@ -19,11 +19,23 @@ except ImportError:  # pragma: no cover - numba is a dependency; the reference p
     njit = None
 
 ENV_VAR = "FUSEPLAN_KERNEL"
+BROAD_ENV_VAR = "FUSEPLAN_BROAD_PHASE"
+GRID_MIN_OBSTACLES = 16  # fewer obstacles: one cell (visiting a few obstacles costs less than finding them)
+GRID_CELLS = 64  # broad-phase grid: at most this many cells along the map's longer side
 KERNELS = ("compiled", "numpy")
 _EPS = 1e-9  # as planner.problem: unit directions
 _EPS_CURV = 1e-12  # as planner.trajectory.smoothing: curvature's segment-length floor
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 _LOITER, _PATROL, _TRACK = 0, 1, 2  # planner.world.environment's threat kinds
+
+
+def broad_phase() -> bool:
+    """Whether the kernel visits only obstacles near each segment (a uniform grid, the default) or every obstacle
+    (``FUSEPLAN_BROAD_PHASE=off``, for benches); the two give the same costs bit for bit."""
+    want = os.environ.get(BROAD_ENV_VAR, "on").strip().lower() or "on"
+    if want not in ("on", "off"):
+        raise ValueError(f"{BROAD_ENV_VAR}={want!r}: expected on or off")
+    return want == "on"
 
 
 def chosen() -> str:
@@ -173,7 +185,7 @@ def _sin_or_one(cos_turn):  # noqa: ANN001, ANN202
 
 @_inline
 def _peak_climb(ux, uy, uz, vx, vy, vz):  # noqa: ANN001, ANN202
-    """Largest |flight-path angle| on a segment's Bézier (smoothing.peak_climb)."""
+    """tan² of the largest |flight-path angle| on a segment's Bézier (smoothing.peak_climb)."""
     dx, dy, dz = vx - ux, vy - uy, vz - uz
     hu_dh = ux * dx + uy * dy
     hu2 = ux * ux + uy * uy
@@ -188,12 +200,62 @@ def _peak_climb(ux, uy, uz, vx, vy, vz):  # noqa: ANN001, ANN202
         wx = ux + bb * dx
         wy = uy + bb * dy
         best = max(best, wz * wz / max(wx * wx + wy * wy, 1e-300))
-    return math.atan(math.sqrt(best))
+    return best  # tan² of the angle: the caller takes atan only when it may exceed the limit
+
+
+@_inline
+def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad, stamp, token, out):  # noqa: ANN001, ANN202
+    """Indices (ascending, into ``out``; returns how many) of the obstacles whose plan-view discs come within
+    ``reach`` (per axis) of the segment a→b. Visits the cells under the segment swept by a ±reach square, row by
+    row (a diagonal segment's bounding box would be mostly empty cells); ``stamp`` marks obstacles seen for
+    ``token``. A disc within reach has a point of its box within reach of the segment, in a cell visited here."""
+    if nx == 1 and ny == 1:  # one cell (broad phase off, or few obstacles): every obstacle, in order
+        for k in range(start[1]):
+            out[k] = items[k]
+        return start[1]
+    x_lo, x_hi = min(ax, bx) - reach, max(ax, bx) + reach
+    y_lo, y_hi = min(ay, by) - reach, max(ay, by) + reach
+    j0 = min(max(int(math.floor((y_lo - oy) / cell)), 0), ny - 1)
+    j1 = min(max(int(math.floor((y_hi - oy) / cell)), 0), ny - 1)
+    dy = by - ay
+    n = 0
+    for j in range(j0, j1 + 1):
+        # the part of the segment whose y is within reach of row j (edge rows reach to infinity, as clamped)
+        r_lo = oy + j * cell - reach if j > 0 else -math.inf
+        r_hi = oy + (j + 1) * cell + reach if j < ny - 1 else math.inf
+        if dy != 0.0:
+            t0, t1 = (r_lo - ay) / dy, (r_hi - ay) / dy
+            t0, t1 = max(min(t0, t1), 0.0), min(max(t0, t1), 1.0)
+            if t0 > t1:
+                continue
+        else:
+            t0, t1 = 0.0, 1.0
+        xa, xb = ax + t0 * (bx - ax), ax + t1 * (bx - ax)
+        i0 = min(max(int(math.floor((min(xa, xb) - reach - ox) / cell)), 0), nx - 1)
+        i1 = min(max(int(math.floor((max(xa, xb) + reach - ox) / cell)), 0), nx - 1)
+        for i in range(i0, i1 + 1):
+            c = j * nx + i
+            for q in range(start[c], start[c + 1]):
+                k = items[q]
+                if stamp[k] == token:
+                    continue
+                stamp[k] = token
+                r = rad[k]
+                if cx[k] + r < x_lo or cx[k] - r > x_hi or cy[k] + r < y_lo or cy[k] - r > y_hi:
+                    continue
+                m = n  # insertion sort: the obstacles are summed in index order, as without the broad phase
+                while m > 0 and out[m - 1] > k:
+                    out[m] = out[m - 1]
+                    m -= 1
+                out[m] = k
+                n += 1
+    return n
 
 
 @_jit
 def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w,
-          terrain_h, thr, peak_table, threat_t, terrain_t, golden_iters):  # noqa: ANN001, ANN202
+          terrain_h, thr, peak_table, threat_t, terrain_t, golden_iters, grid, cyl_start, cyl_items, sph_start,
+          sph_items):  # noqa: ANN001, ANN202
     """terms (P, 5), penalty (P,), violations (P, 5) for paths (P, N, 3); ``sc`` holds the scalars and ``thr`` the
     threats' laws, a row each (see _arrays)."""
     (acc_r, d_safe, d_coll, pen_c, per_m, per_rad, max_turn, r_min, max_climb, z_min, z_max, size_x, size_y,
@@ -213,6 +275,12 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
     dev = np.empty(n_s)
     q2 = np.empty((n_s, 3))
     s0 = np.empty(n_s)
+    gam = np.empty(n_s)
+    near = np.empty(max(cyl_x.shape[0], sph_r.shape[0]), dtype=np.int64)
+    stamp_c = np.full(cyl_x.shape[0], -1, dtype=np.int64)
+    stamp_s = np.full(sph_r.shape[0], -1, dtype=np.int64)
+    gox, goy, gcell, gnx, gny = grid[0], grid[1], grid[2], int(grid[3]), int(grid[4])
+    climb_tan2 = math.tan(max_climb) ** 2 * (1.0 - 1e-9) if max_climb < 0.5 * math.pi else math.inf
     gap_cap = d_safe - d_coll
     n_thr_t = threat_t.shape[0]
     n_ter_t = terrain_t.shape[0]
@@ -256,7 +324,14 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
         for s in range(n_s):
             ax, ay, az = pp[s, 0], pp[s, 1], pp[s, 2]
             bx, by, bz = pp[s + 1, 0], pp[s + 1, 1], pp[s + 1, 2]
-            for k in range(cyl_x.shape[0]):
+            # an obstacle adds to J2 only within d_safe + dev of the chord (in plan view): the others add exact
+            # zeros, so the broad phase skips them and keeps the sums bit for bit (docs/method.md §4.3)
+            reach = (d_safe + dev[s]) * (1.0 + 1e-9) + 1e-6
+            token = p * n_s + s
+            n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, cyl_start, cyl_items, cyl_x, cyl_y,
+                           cyl_r, stamp_c, token, near)
+            for q in range(n_near):
+                k = near[q]
                 c = _seg_point_2d(ax, ay, bx, by, cyl_x[k], cyl_y[k]) - cyl_r[k]
                 if math.isfinite(cyl_top[k]) and c < d_safe + dev[s]:
                     c = _seg_cyl_finite(ax, ay, az, bx, by, bz, cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k],
@@ -269,7 +344,10 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
                     penalty += pen_c + per_m * depth
                 g = min(max(g, 0.0), gap_cap)
                 soft_cyl += g * g
-            for k in range(sph_r.shape[0]):
+            n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, sph_start, sph_items, sph_c[:, 0],
+                           sph_c[:, 1], sph_r, stamp_s, token, near)
+            for q in range(n_near):
+                k = near[q]
                 c = _seg_point(ax, ay, az, bx, by, bz, sph_c[k, 0], sph_c[k, 1], sph_c[k, 2]) - sph_r[k] - dev[s]
                 g = d_safe - c
                 depth = g - gap_cap
@@ -371,14 +449,14 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
                 penalty += pen_c + per_m * depth
         # -- J4 smoothness: turns and climb changes; turn, curvature and climb limits (§4.4, §11) -------
         j4 = 0.0
+        for s in range(n_s):
+            gam[s] = math.atan2(seg[s, 2], math.hypot(seg[s, 0], seg[s, 1]))
         for s in range(n_s - 1):
             x0, y0 = seg[s, 0], seg[s, 1]
             x1, y1 = seg[s + 1, 0], seg[s + 1, 1]
             turn = abs(math.atan2(x0 * y1 - y0 * x1, x0 * x1 + y0 * y1))
-            g0 = math.atan2(seg[s, 2], math.hypot(x0, y0))
-            g1 = math.atan2(seg[s + 1, 2], math.hypot(x1, y1))
             over = max(turn - max_turn, 0.0)
-            j4 += turn + abs(g1 - g0) + over**2
+            j4 += turn + abs(gam[s + 1] - gam[s]) + over**2
             if over > 0.0:
                 viol[p, 3] += 1
                 penalty += pen_c + per_rad * over
@@ -388,7 +466,10 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
                 viol[p, 3] += 1
                 penalty += pen_c + per_rad * depth
         for s in range(n_s):
-            depth = _peak_climb(u[s, 0], u[s, 1], u[s, 2], v[s, 0], v[s, 1], v[s, 2]) - max_climb
+            tan2 = _peak_climb(u[s, 0], u[s, 1], u[s, 2], v[s, 0], v[s, 1], v[s, 2])
+            if tan2 < climb_tan2:  # well inside the limit (atan is monotone): skip the arctangent
+                continue
+            depth = math.atan(math.sqrt(tan2)) - max_climb
             if depth > 0.0:
                 viol[p, 4] += 1
                 penalty += pen_c + per_rad * depth
@@ -431,7 +512,34 @@ def _threat_rows(thr) -> np.ndarray:  # noqa: ANN001
     return rows
 
 
-def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray) -> tuple:  # noqa: ANN001
+def _grid(size_x: float, size_y: float, obstacles: int, on: bool) -> np.ndarray:
+    """Broad-phase grid (origin x, origin y, cell, nx, ny) over the map; one cell holding everything when off.
+    About one obstacle per cell (cells of √(area / obstacles)), at most GRID_CELLS along the longer side: finer
+    cells cost more cell visits per segment than the distances they save."""
+    if not on or obstacles < GRID_MIN_OBSTACLES:
+        return np.array([0.0, 0.0, 1e300, 1.0, 1.0])
+    cell = max(max(size_x, size_y, 1.0) / GRID_CELLS, math.sqrt(max(size_x * size_y, 1.0) / obstacles))
+    return np.array([0.0, 0.0, cell, max(math.ceil(size_x / cell), 1), max(math.ceil(size_y / cell), 1)], dtype=float)
+
+
+def _cells(grid: np.ndarray, x: np.ndarray, y: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Compressed rows (start (cells + 1,), items) of the obstacles whose plan-view discs (centre x, y, radius r)
+    reach each cell, ascending within a cell; off-map parts go to the edge cells, as the query clamps too."""
+    ox, oy, cell, nx, ny = grid[0], grid[1], grid[2], int(grid[3]), int(grid[4])
+    lists: list[list[int]] = [[] for _ in range(nx * ny)]
+    for k in range(len(x)):  # once per problem, over the obstacles
+        i0, i1 = (min(max(int(math.floor((v - ox) / cell)), 0), nx - 1) for v in (x[k] - r[k], x[k] + r[k]))
+        j0, j1 = (min(max(int(math.floor((v - oy) / cell)), 0), ny - 1) for v in (y[k] - r[k], y[k] + r[k]))
+        for j in range(j0, j1 + 1):
+            for i in range(i0, i1 + 1):
+                lists[j * nx + i].append(k)
+    start = np.zeros(nx * ny + 1, dtype=np.int64)
+    start[1:] = np.cumsum([len(c) for c in lists])
+    items = np.array([k for c in lists for k in c], dtype=np.int64)
+    return start, items
+
+
+def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -> tuple:  # noqa: ANN001
     """Everything the kernel reads from a problem, as contiguous float arrays (made once per problem)."""
     from planner.trajectory.smoothing import _PEAK_FACTOR  # the same G(cos θ) table as the reference
     from planner.world.geometry import GOLDEN_ITERS
@@ -453,6 +561,7 @@ def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray) -> tuple:  # n
         return np.array(a, dtype=np.float64, order="C").reshape(shape)
 
     cyl, sph, rad = env.cylinders, env.spheres, env.radars
+    grid = _grid(env.size_x, env.size_y, len(cyl.x) + len(sph.radius), broad)
     return (
         scalars, f(heading if heading is not None else np.zeros(3)),
         f(cyl.x), f(cyl.y), f(cyl.radius), f(cyl.top), f(sph.center, (-1, 3)), f(sph.radius),
@@ -460,6 +569,7 @@ def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray) -> tuple:  # n
         f(ter.heights, ter.heights.shape) if ter is not None else np.zeros((2, 2)),
         _threat_rows(thr),
         f(_PEAK_FACTOR), f(threat_t), f(terrain_t), np.int64(GOLDEN_ITERS),
+        grid, *_cells(grid, cyl.x, cyl.y, cyl.radius), *_cells(grid, sph.center[:, 0], sph.center[:, 1], sph.radius),
     )
 
 
@@ -468,11 +578,77 @@ def evaluate(
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Unweighted terms (P, 5) J1…J5, penalty (P,) and violation counts (P, 5) in CATEGORIES order for paths
     (P, N, 3) metres, from the compiled kernel; ``threat_t``/``terrain_t`` are the reference's sample parameters."""
-    packed = problem.__dict__.get("_kernel_arrays")
-    if packed is None:
-        packed = _arrays(problem, threat_t, terrain_t)
-        object.__setattr__(problem, "_kernel_arrays", packed)
+    broad = broad_phase()
+    cache = problem.__dict__.get("_kernel_arrays")
+    if cache is None or cache[0] != broad:
+        cache = (broad, _arrays(problem, threat_t, terrain_t, broad))
+        object.__setattr__(problem, "_kernel_arrays", cache)
+    packed = cache[1]
     paths = np.asarray(paths, dtype=np.float64)
     if not (paths.flags.c_contiguous and paths.flags.writeable):  # one signature: C-ordered and writeable
         paths = np.array(paths, dtype=np.float64, order="C")
     return _cost(paths, *packed)
+
+
+# -- the swarm's own per-iteration work: decoding spherical particles and the PSO update -------------------------
+@_jit
+def _decode_spherical(x, start, goal):  # noqa: ANN001, ANN202
+    """Paths (P, n + 2, 3) from spherical particles (P, n, 3), as geometry.spherical_to_cartesian + start/goal:
+    the steps summed in order from the start (the reference's cumsum, then start + sum)."""
+    n_p, n = x.shape[0], x.shape[1]
+    out = np.empty((n_p, n + 2, 3))
+    for p in range(n_p):
+        for i in range(3):
+            out[p, 0, i] = start[i]
+            out[p, n + 1, i] = goal[i]
+        sx = sy = sz = 0.0
+        for k in range(n):
+            r, psi, phi = x[p, k, 0], x[p, k, 1], x[p, k, 2]
+            cpsi = math.cos(psi)
+            sx += r * cpsi * math.cos(phi)
+            sy += r * cpsi * math.sin(phi)
+            sz += r * math.sin(psi)
+            out[p, k + 1, 0] = start[0] + sx
+            out[p, k + 1, 1] = start[1] + sy
+            out[p, k + 1, 2] = start[2] + sz
+    return out
+
+
+def decode_spherical(x: np.ndarray, start: np.ndarray, goal: np.ndarray) -> np.ndarray:
+    """Compiled :meth:`planner.search.encoding.Encoding.decode` for the spherical encoding (docs/method.md §3.1)."""
+    return _decode_spherical(np.ascontiguousarray(x, dtype=np.float64), np.asarray(start, dtype=np.float64),
+                             np.asarray(goal, dtype=np.float64))
+
+
+@_jit
+def _pso_step(x, v, pbest, gbest, w, c1, c2, lo, hi, vmax, reflection, r1, r2):  # noqa: ANN001, ANN202
+    """planner.search.spso.pso_step element by element, the same operations in the same order (so bit for bit)."""
+    n_p, n, d = x.shape
+    x_new = np.empty_like(x)
+    v_new = np.empty_like(v)
+    for p in range(n_p):
+        wp = w[p]
+        for k in range(n):
+            for i in range(d):
+                xi = x[p, k, i]
+                vi = (wp * v[p, k, i] + c1 * r1[p, k, i] * (pbest[p, k, i] - xi)
+                      + c2 * r2[p, k, i] * (gbest[k, i] - xi))
+                vi = min(max(vi, -vmax[k, i]), vmax[k, i])
+                xi = xi + vi
+                if xi < lo[k, i] or xi > hi[k, i]:
+                    xi = min(max(xi, lo[k, i]), hi[k, i])
+                    if reflection:
+                        vi = -vi
+                x_new[p, k, i] = xi
+                v_new[p, k, i] = vi
+    return x_new, v_new
+
+
+def pso_step(x: np.ndarray, v: np.ndarray, pbest: np.ndarray, gbest: np.ndarray, w: float | np.ndarray, c1: float,
+             c2: float, lo: np.ndarray, hi: np.ndarray, vmax: np.ndarray, reflection: bool, r1: np.ndarray,
+             r2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Compiled :func:`planner.search.spso.pso_step` for swarms (P, n, 3); ``w`` a scalar or (P, 1, 1)."""
+    c = np.ascontiguousarray
+    ww = np.broadcast_to(np.asarray(w, dtype=np.float64).reshape(-1), (len(x),)).copy()
+    return _pso_step(c(x), c(v), c(pbest), c(gbest), ww, float(c1), float(c2), c(lo), c(hi),
+                     c(np.broadcast_to(vmax, lo.shape)), bool(reflection), c(r1), c(r2))

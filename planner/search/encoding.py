@@ -11,6 +11,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from planner import kernel
 from planner.problem import PlanningProblem
 from planner.trajectory.smoothing import segment_samples
 from planner.world.config import SPSOConfig
@@ -34,6 +35,8 @@ class Encoding:
 
     def decode(self, x: np.ndarray) -> np.ndarray:
         """Swarm (P, n, 3) → paths (P, n + 2, 3) including start and goal."""
+        if self.kind == "spherical" and kernel.chosen() == "compiled":
+            return kernel.decode_spherical(x, self.start, self.goal)
         if self.kind == "spherical":
             pts = spherical_to_cartesian(self.start, x[..., 0], x[..., 1], x[..., 2])
         else:

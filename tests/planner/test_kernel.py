@@ -12,12 +12,22 @@ import pytest
 from planner import kernel
 from planner.plan import problem_from_scenario
 from planner.problem import CATEGORIES, TERMS, PlanningProblem
-from planner.world.config import HazardConfig, VehicleLimits
-from planner.world.environment import Cylinders, Environment, Radars, Spheres, Threat, Threats
+from planner.search import spso
+from planner.world.config import HazardConfig, SPSOConfig, VehicleLimits
+from planner.world.environment import (
+    Cylinders,
+    Environment,
+    Radars,
+    Spheres,
+    Threat,
+    Threats,
+)
+from planner.world.geometry import spherical_to_cartesian
 from planner.world.scenario import load_scenario
 from planner.world.terrain import Terrain
 
 SCENARIOS = sorted((Path(__file__).resolve().parents[2] / "sitl_scenarios").glob("*.toml"))
+SCENARIOS_BY_NAME = {p.stem: p for p in SCENARIOS}
 RTOL = 1e-9
 
 pytestmark = pytest.mark.skipif(kernel.njit is None, reason="numba is not installed: only the reference runs")
@@ -50,7 +60,8 @@ def assert_same(problem: PlanningProblem, paths: np.ndarray) -> None:
 @pytest.fixture(autouse=True)
 def compiled(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.delenv(kernel.ENV_VAR, raising=False)
-    assert kernel.chosen() == "compiled"
+    monkeypatch.delenv(kernel.BROAD_ENV_VAR, raising=False)
+    assert kernel.chosen() == "compiled" and kernel.broad_phase()
 
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.stem)
@@ -126,3 +137,92 @@ def test_the_environment_variable_picks_the_reference(monkeypatch: pytest.Monkey
     monkeypatch.setenv(kernel.ENV_VAR, "fortran")
     with pytest.raises(ValueError, match="FUSEPLAN_KERNEL='fortran'"):
         problem.evaluate(paths)
+
+
+def field(rng: np.random.Generator, count: int = 120) -> Environment:
+    """A dense field for the broad phase: cylinders (unlimited and finite) and spheres of mixed sizes, some
+    reaching past the map's edges, on a 3000 × 2000 m map (a grid of many cells)."""
+    n_c = count // 2
+    return Environment(
+        3000.0, 2000.0, 50.0, 300.0,
+        cylinders=Cylinders(rng.uniform(-100, 3100, n_c), rng.uniform(-100, 2100, n_c), rng.uniform(5, 150, n_c),
+                            np.where(rng.random(n_c) < 0.5, np.inf, rng.uniform(80, 250, n_c)), np.zeros(n_c)),
+        spheres=Spheres(np.column_stack([rng.uniform(0, 3000, count - n_c), rng.uniform(0, 2000, count - n_c),
+                                         rng.uniform(0, 250, count - n_c)]), rng.uniform(10, 200, count - n_c)),
+    )
+
+
+def test_the_broad_phase_gives_the_same_costs_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Skipping obstacles out of reach of a segment only skips exact zeros, and the rest are summed in the
+    same order: on (a grid of many cells) and off (every obstacle) agree to the last bit, and both match the
+    reference; segments of every length, off the map too, over a dense field."""
+    problem = PlanningProblem(field(np.random.default_rng(4)), np.array([50.0, 60.0, 120.0]),
+                              np.array([2950.0, 1900.0, 200.0]), VehicleLimits(),
+                              HazardConfig(d_safe=60.0, d_coll=15.0))
+    packed = kernel._arrays(problem, np.zeros(2), np.zeros(2), True)
+    assert packed[-5][3] * packed[-5][4] > 16  # the grid really has cells
+    rng = np.random.default_rng(9)
+    for n_wp, spread in ((2, 0.3), (16, 0.02), (16, 0.1), (40, 0.05)):
+        paths = swarm(problem, rng, n_pop=128, n_wp=n_wp, spread=spread)
+        on = problem.evaluate(paths)
+        monkeypatch.setenv(kernel.BROAD_ENV_VAR, "off")
+        off = problem.evaluate(paths)
+        monkeypatch.delenv(kernel.BROAD_ENV_VAR)
+        assert np.array_equal(on.total, off.total) and np.array_equal(on.penalty, off.penalty)
+        assert all(np.array_equal(on.terms[t], off.terms[t]) for t in TERMS)
+        assert all(np.array_equal(on.violations[c], off.violations[c]) for c in CATEGORIES)
+        assert_same(problem, paths)
+    assert on.violations["collision"].max() > 0 and on.terms[TERMS[1]].max() > 0
+    monkeypatch.setenv(kernel.BROAD_ENV_VAR, "sometimes")
+    with pytest.raises(ValueError, match="FUSEPLAN_BROAD_PHASE='sometimes'"):
+        problem.evaluate(paths)
+
+
+@pytest.mark.parametrize("reflection", [True, False])
+@pytest.mark.parametrize("per_particle_w", [False, True])
+def test_the_compiled_swarm_step_and_decoding_equal_numpys_bit_for_bit(
+    monkeypatch: pytest.MonkeyPatch, reflection: bool, per_particle_w: bool
+) -> None:
+    rng = np.random.default_rng(6)
+    p, n = 300, 8
+    lo, hi = np.tile([0.0, -0.3, -1.0], (n, 1)), np.tile([200.0, 0.3, 1.0], (n, 1))
+    vmax = 0.2 * (hi - lo)
+    x, pbest = (lo + rng.random((2, p, n, 3)) * (hi - lo))
+    v = rng.normal(0.0, 1.0, (p, n, 3)) * vmax  # fast enough that many particles leave the box
+    r1, r2 = rng.random((2, p, n, 3))
+    w = rng.random((p, 1, 1)) if per_particle_w else 0.7
+    got = spso.pso_step(x, v, pbest, pbest[3], w, 1.5, 1.5, lo, hi, vmax, reflection, r1, r2)
+    monkeypatch.setenv(kernel.ENV_VAR, "numpy")
+    ref = spso.pso_step(x, v, pbest, pbest[3], w, 1.5, 1.5, lo, hi, vmax, reflection, r1, r2)
+    assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
+    start, goal = np.array([200.0, 200.0, 50.0]), np.array([800.0, 800.0, 50.0])
+    paths = kernel.decode_spherical(x, start, goal)
+    assert np.array_equal(paths[:, 1:-1], spherical_to_cartesian(start, x[..., 0], x[..., 1], x[..., 2]))
+    assert np.array_equal(paths[:, 0], np.broadcast_to(start, (p, 3)))
+    assert np.array_equal(paths[:, -1], np.broadcast_to(goal, (p, 3)))
+
+
+def _spso_runs(problem: PlanningProblem, cfg: SPSOConfig, seeds: range) -> list:
+    return [spso.SphericalPSO(cfg).run(problem, np.random.default_rng(s)) for s in seeds]
+
+
+def test_whole_searches_agree_statistically_and_each_kernel_is_deterministic(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    """A search is chaotic, so whole plans are compared over 20 seeds: the same number of feasible results and
+    mean costs within one standard error; and each kernel gives the same plan for the same seed, bit for bit."""
+    problem = problem_from_scenario(load_scenario(SCENARIOS_BY_NAME["rescue_static"]))
+    cfg = SPSOConfig(n_waypoints=8, n_pop=60, max_iter=40)
+    seeds = range(20)
+    runs = {}
+    for name in kernel.KERNELS:
+        monkeypatch.setenv(kernel.ENV_VAR, name)
+        runs[name] = _spso_runs(problem, cfg, seeds)
+        again = _spso_runs(problem, cfg, range(3))
+        for a, b in zip(runs[name], again):
+            assert np.array_equal(a.path, b.path) and a.cost == b.cost and a.history == b.history
+    feasible = {k: sum(r.evaluation.penalty[0] == 0.0 for r in rr) for k, rr in runs.items()}
+    assert feasible["compiled"] == feasible["numpy"] and feasible["compiled"] > 0
+    costs = {k: np.array([r.cost for r in rr]) for k, rr in runs.items()}
+    se = max(costs[k].std(ddof=1) / np.sqrt(len(seeds)) for k in costs)
+    assert abs(costs["compiled"].mean() - costs["numpy"].mean()) <= se
