@@ -573,17 +573,23 @@ def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -
     )
 
 
-def evaluate(
-    problem, paths: np.ndarray, threat_t: np.ndarray, terrain_t: np.ndarray  # noqa: ANN001
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unweighted terms (P, 5) J1…J5, penalty (P,) and violation counts (P, 5) in CATEGORIES order for paths
-    (P, N, 3) metres, from the compiled kernel; ``threat_t``/``terrain_t`` are the reference's sample parameters."""
+def _packed(problem, threat_t: np.ndarray, terrain_t: np.ndarray) -> tuple:  # noqa: ANN001
+    """(broad phase on, the kernel's arrays) for ``problem``, made once per problem and broad-phase setting; the
+    sample parameters are the reference's constants, so the first caller's are everyone's."""
     broad = broad_phase()
     cache = problem.__dict__.get("_kernel_arrays")
     if cache is None or cache[0] != broad:
         cache = (broad, _arrays(problem, threat_t, terrain_t, broad))
         object.__setattr__(problem, "_kernel_arrays", cache)
-    packed = cache[1]
+    return cache
+
+
+def evaluate(
+    problem, paths: np.ndarray, threat_t: np.ndarray, terrain_t: np.ndarray  # noqa: ANN001
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Unweighted terms (P, 5) J1…J5, penalty (P,) and violation counts (P, 5) in CATEGORIES order for paths
+    (P, N, 3) metres, from the compiled kernel; ``threat_t``/``terrain_t`` are the reference's sample parameters."""
+    packed = _packed(problem, threat_t, terrain_t)[1]
     paths = np.asarray(paths, dtype=np.float64)
     if not (paths.flags.c_contiguous and paths.flags.writeable):  # one signature: C-ordered and writeable
         paths = np.array(paths, dtype=np.float64, order="C")
@@ -652,3 +658,60 @@ def pso_step(x: np.ndarray, v: np.ndarray, pbest: np.ndarray, gbest: np.ndarray,
     ww = np.broadcast_to(np.asarray(w, dtype=np.float64).reshape(-1), (len(x),)).copy()
     return _pso_step(c(x), c(v), c(pbest), c(gbest), ww, float(c1), float(c2), c(lo), c(hi),
                      c(np.broadcast_to(vmax, lo.shape)), bool(reflection), c(r1), c(r2))
+
+
+# -- which lattice edges are hopeless (the ant colonies' segment_blocked) ------------------------------------------
+@_jit
+def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, golden_iters, grid,
+             cyl_start, cyl_items, sph_start, sph_items):  # noqa: ANN001, ANN202
+    """For segments a→b (E, 3): within d_coll of a cylinder or sphere, or inside a radar's range (as
+    PlanningProblem.segment_blocked), visiting only the obstacles the broad phase finds within d_coll."""
+    n_e = a.shape[0]
+    out = np.zeros(n_e, dtype=np.bool_)
+    near = np.empty(max(cyl_x.shape[0], sph_r.shape[0]), dtype=np.int64)
+    stamp_c = np.full(cyl_x.shape[0], -1, dtype=np.int64)
+    stamp_s = np.full(sph_r.shape[0], -1, dtype=np.int64)
+    gox, goy, gcell, gnx, gny = grid[0], grid[1], grid[2], int(grid[3]), int(grid[4])
+    reach = d_coll * (1.0 + 1e-9) + 1e-6
+    for e in range(n_e):
+        ax, ay, az, bx, by, bz = a[e, 0], a[e, 1], a[e, 2], b[e, 0], b[e, 1], b[e, 2]
+        hit = False
+        n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, cyl_start, cyl_items, cyl_x, cyl_y, cyl_r,
+                       stamp_c, e, near)
+        for q in range(n_near):
+            k = near[q]
+            c = _seg_point_2d(ax, ay, bx, by, cyl_x[k], cyl_y[k]) - cyl_r[k]
+            if math.isfinite(cyl_top[k]) and c < d_coll:
+                c = _seg_cyl_finite(ax, ay, az, bx, by, bz, cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k], golden_iters)
+            if c < d_coll:
+                hit = True
+                break
+        if not hit:
+            n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, sph_start, sph_items, sph_c[:, 0],
+                           sph_c[:, 1], sph_r, stamp_s, e, near)
+            for q in range(n_near):
+                k = near[q]
+                if _seg_point(ax, ay, az, bx, by, bz, sph_c[k, 0], sph_c[k, 1], sph_c[k, 2]) - sph_r[k] < d_coll:
+                    hit = True
+                    break
+        if not hit:
+            for k in range(rad_det.shape[0]):
+                if _seg_point(ax, ay, az, bx, by, bz, rad_c[k, 0], rad_c[k, 1], rad_c[k, 2]) < rad_det[k]:
+                    hit = True
+                    break
+        out[e] = hit
+    return out
+
+
+def segment_blocked(problem, a: np.ndarray, b: np.ndarray, threat_t: np.ndarray,  # noqa: ANN001
+                    terrain_t: np.ndarray) -> np.ndarray:
+    """Compiled :meth:`planner.problem.PlanningProblem.segment_blocked` for segments a→b (..., 3); the sample
+    parameters as for :func:`evaluate` (the problem's packed arrays are shared)."""
+    _, packed = _packed(problem, threat_t, terrain_t)
+    (_, _, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, _, _, _, _, _, _, golden, grid, *csr) = packed
+    shape = np.broadcast_shapes(np.shape(a), np.shape(b))
+    flat_a = np.ascontiguousarray(np.broadcast_to(a, shape), dtype=np.float64).reshape(-1, 3)
+    flat_b = np.ascontiguousarray(np.broadcast_to(b, shape), dtype=np.float64).reshape(-1, 3)
+    got = _blocked(flat_a, flat_b, float(problem.hazard.d_coll), cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
+                   rad_det, golden, grid, *csr)
+    return got.reshape(shape[:-1])

@@ -243,6 +243,12 @@ class PlanningProblem:
     def segment_blocked(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
         """True where segment a→b (..., 3) passes within d_coll of a static obstacle or inside a radar's
         detection range (used to steer ant colonies away from hopeless edges)."""
+        if kernel.chosen() == "compiled":
+            return kernel.segment_blocked(self, a, b, _THREAT_T, _TERRAIN_T)
+        return self.segment_blocked_reference(a, b)
+
+    def segment_blocked_reference(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """The numpy implementation of :meth:`segment_blocked`, the reference the kernel is held to."""
         blocked = np.zeros(a.shape[:-1], dtype=bool)
         cyl_c, sph_c, radar_d = self.static_clearances(a, b, refine_below=self.hazard.d_coll)
         for c in (cyl_c, sph_c):

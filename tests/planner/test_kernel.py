@@ -226,3 +226,20 @@ def test_whole_searches_agree_statistically_and_each_kernel_is_deterministic(
     costs = {k: np.array([r.cost for r in rr]) for k, rr in runs.items()}
     se = max(costs[k].std(ddof=1) / np.sqrt(len(seeds)) for k in costs)
     assert abs(costs["compiled"].mean() - costs["numpy"].mean()) <= se
+
+
+@pytest.mark.parametrize("broad", ["on", "off"])
+def test_blocked_edges_match_the_reference(monkeypatch: pytest.MonkeyPatch, broad: str) -> None:
+    """The ant colonies' hopeless-edge test, compiled, against numpy: a dense field (the grid) and every family
+    (finite tops, radars); edges of every length, in a lattice-like (…, 3) shape."""
+    monkeypatch.setenv(kernel.BROAD_ENV_VAR, broad)
+    rng = np.random.default_rng(12)
+    for env in (field(np.random.default_rng(5)), every_family()):
+        problem = PlanningProblem(env, np.array([50.0, 60.0, 120.0]), np.array([1950.0, 1900.0, 200.0]),
+                                  VehicleLimits(), HazardConfig(d_safe=60.0, d_coll=15.0))
+        a = rng.uniform([-100, -100, 0], [env.size_x + 100, env.size_y + 100, 320], (40, 30, 3))
+        b = a + rng.normal(0.0, 1.0, a.shape) * rng.choice([5.0, 80.0, 600.0], a.shape[:-1])[..., None]
+        got = problem.segment_blocked(a, b)
+        ref = problem.segment_blocked_reference(a, b)
+        assert got.shape == (40, 30) and np.array_equal(got, ref)
+        assert 0.05 < got.mean() < 0.95  # both kinds of edge occur
