@@ -59,24 +59,36 @@ def _inline(fn):  # noqa: ANN001, ANN202
 @_inline
 def _seg_point(ax, ay, az, bx, by, bz, px, py, pz):  # noqa: ANN001, ANN202
     """Distance from point p to segment a→b (geometry.segment_point_distance)."""
+    return math.sqrt(_seg_point_sq(ax, ay, az, bx, by, bz, px, py, pz))
+
+
+@_inline
+def _seg_point_sq(ax, ay, az, bx, by, bz, px, py, pz):  # noqa: ANN001, ANN202
+    """Squared distance from point p to segment a→b."""
     dx, dy, dz = bx - ax, by - ay, bz - az
     wx, wy, wz = px - ax, py - ay, pz - az
     dd = dx * dx + dy * dy + dz * dz
     t = (wx * dx + wy * dy + wz * dz) / (dd if dd > 0.0 else 1.0)
     t = min(max(t, 0.0), 1.0)
     ex, ey, ez = wx - t * dx, wy - t * dy, wz - t * dz
-    return math.sqrt(ex * ex + ey * ey + ez * ez)
+    return ex * ex + ey * ey + ez * ez
 
 
 @_inline
 def _seg_point_2d(ax, ay, bx, by, px, py):  # noqa: ANN001, ANN202
+    return math.sqrt(_seg_point_2d_sq(ax, ay, bx, by, px, py))
+
+
+@_inline
+def _seg_point_2d_sq(ax, ay, bx, by, px, py):  # noqa: ANN001, ANN202
+    """Squared plan-view distance from p to segment a→b (its square root is geometry.segment_point_distance_2d)."""
     dx, dy = bx - ax, by - ay
     dd = dx * dx + dy * dy
     wx, wy = px - ax, py - ay
     t = (wx * dx + wy * dy) / (dd if dd > 0.0 else 1.0)
     t = min(max(t, 0.0), 1.0)
     ex, ey = wx - t * dx, wy - t * dy
-    return math.sqrt(ex * ex + ey * ey)
+    return ex * ex + ey * ey
 
 
 @_inline
@@ -332,7 +344,10 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
                            cyl_r, stamp_c, token, near)
             for q in range(n_near):
                 k = near[q]
-                c = _seg_point_2d(ax, ay, bx, by, cyl_x[k], cyl_y[k]) - cyl_r[k]
+                d2 = _seg_point_2d_sq(ax, ay, bx, by, cyl_x[k], cyl_y[k])
+                if d2 > (cyl_r[k] + reach) * (cyl_r[k] + reach):  # beyond reach: an exact zero, no root needed
+                    continue
+                c = math.sqrt(d2) - cyl_r[k]
                 if math.isfinite(cyl_top[k]) and c < d_safe + dev[s]:
                     c = _seg_cyl_finite(ax, ay, az, bx, by, bz, cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k],
                                         golden_iters)
@@ -348,7 +363,10 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
                            sph_c[:, 1], sph_r, stamp_s, token, near)
             for q in range(n_near):
                 k = near[q]
-                c = _seg_point(ax, ay, az, bx, by, bz, sph_c[k, 0], sph_c[k, 1], sph_c[k, 2]) - sph_r[k] - dev[s]
+                d2 = _seg_point_sq(ax, ay, az, bx, by, bz, sph_c[k, 0], sph_c[k, 1], sph_c[k, 2])
+                if d2 > (sph_r[k] + reach) * (sph_r[k] + reach):
+                    continue
+                c = math.sqrt(d2) - sph_r[k] - dev[s]
                 g = d_safe - c
                 depth = g - gap_cap
                 if depth > 0.0:
