@@ -266,8 +266,8 @@ def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad
 
 @_jit
 def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w,
-          terrain_h, thr, peak_table, threat_t, terrain_t, golden_iters, grid, cyl_start, cyl_items, sph_start,
-          sph_items):  # noqa: ANN001, ANN202
+          terrain_h, thr, peak_table, threat_t, terrain_t, golden_iters, grid, ob_x, ob_y, ob_r, ob_start,
+          ob_items):  # noqa: ANN001, ANN202
     """terms (P, 5), penalty (P,), violations (P, 5) for paths (P, N, 3); ``sc`` holds the scalars and ``thr`` the
     threats' laws, a row each (see _arrays)."""
     (acc_r, d_safe, d_coll, pen_c, per_m, per_rad, max_turn, r_min, max_climb, z_min, z_max, size_x, size_y,
@@ -288,9 +288,9 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
     q2 = np.empty((n_s, 3))
     s0 = np.empty(n_s)
     gam = np.empty(n_s)
-    near = np.empty(max(cyl_x.shape[0], sph_r.shape[0]), dtype=np.int64)
-    stamp_c = np.full(cyl_x.shape[0], -1, dtype=np.int64)
-    stamp_s = np.full(sph_r.shape[0], -1, dtype=np.int64)
+    n_cyl = cyl_x.shape[0]
+    near = np.empty(ob_x.shape[0], dtype=np.int64)
+    stamp = np.full(ob_x.shape[0], -1, dtype=np.int64)
     gox, goy, gcell, gnx, gny = grid[0], grid[1], grid[2], int(grid[3]), int(grid[4])
     climb_tan2 = math.tan(max_climb) ** 2 * (1.0 - 1e-9) if max_climb < 0.5 * math.pi else math.inf
     gap_cap = d_safe - d_coll
@@ -340,10 +340,14 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
             # zeros, so the broad phase skips them and keeps the sums bit for bit (docs/method.md §4.3)
             reach = (d_safe + dev[s]) * (1.0 + 1e-9) + 1e-6
             token = p * n_s + s
-            n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, cyl_start, cyl_items, cyl_x, cyl_y,
-                           cyl_r, stamp_c, token, near)
+            # cylinders and spheres share the grid: indices below n_cyl are cylinders, the rest spheres, each family
+            # in its own index order
+            n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r,
+                           stamp, token, near)
             for q in range(n_near):
                 k = near[q]
+                if k >= n_cyl:
+                    break
                 d2 = _seg_point_2d_sq(ax, ay, bx, by, cyl_x[k], cyl_y[k])
                 if d2 > (cyl_r[k] + reach) * (cyl_r[k] + reach):  # beyond reach: an exact zero, no root needed
                     continue
@@ -359,10 +363,10 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
                     penalty += pen_c + per_m * depth
                 g = min(max(g, 0.0), gap_cap)
                 soft_cyl += g * g
-            n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, sph_start, sph_items, sph_c[:, 0],
-                           sph_c[:, 1], sph_r, stamp_s, token, near)
             for q in range(n_near):
-                k = near[q]
+                k = near[q] - n_cyl
+                if k < 0:
+                    continue
                 d2 = _seg_point_sq(ax, ay, az, bx, by, bz, sph_c[k, 0], sph_c[k, 1], sph_c[k, 2])
                 if d2 > (sph_r[k] + reach) * (sph_r[k] + reach):
                     continue
@@ -580,6 +584,9 @@ def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -
 
     cyl, sph, rad = env.cylinders, env.spheres, env.radars
     grid = _grid(env.size_x, env.size_y, len(cyl.x) + len(sph.radius), broad)
+    ob_x = f(np.concatenate([cyl.x, sph.center[:, 0]]))  # cylinders then spheres: one grid for both
+    ob_y = f(np.concatenate([cyl.y, sph.center[:, 1]]))
+    ob_r = f(np.concatenate([cyl.radius, sph.radius]))
     return (
         scalars, f(heading if heading is not None else np.zeros(3)),
         f(cyl.x), f(cyl.y), f(cyl.radius), f(cyl.top), f(sph.center, (-1, 3)), f(sph.radius),
@@ -587,7 +594,7 @@ def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -
         f(ter.heights, ter.heights.shape) if ter is not None else np.zeros((2, 2)),
         _threat_rows(thr),
         f(_PEAK_FACTOR), f(threat_t), f(terrain_t), np.int64(GOLDEN_ITERS),
-        grid, *_cells(grid, cyl.x, cyl.y, cyl.radius), *_cells(grid, sph.center[:, 0], sph.center[:, 1], sph.radius),
+        grid, ob_x, ob_y, ob_r, *_cells(grid, ob_x, ob_y, ob_r),
     )
 
 
@@ -681,23 +688,25 @@ def pso_step(x: np.ndarray, v: np.ndarray, pbest: np.ndarray, gbest: np.ndarray,
 # -- which lattice edges are hopeless (the ant colonies' segment_blocked) ------------------------------------------
 @_jit
 def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, golden_iters, grid,
-             cyl_start, cyl_items, sph_start, sph_items):  # noqa: ANN001, ANN202
+             ob_x, ob_y, ob_r, ob_start, ob_items):  # noqa: ANN001, ANN202
     """For segments a→b (E, 3): within d_coll of a cylinder or sphere, or inside a radar's range (as
     PlanningProblem.segment_blocked), visiting only the obstacles the broad phase finds within d_coll."""
     n_e = a.shape[0]
     out = np.zeros(n_e, dtype=np.bool_)
-    near = np.empty(max(cyl_x.shape[0], sph_r.shape[0]), dtype=np.int64)
-    stamp_c = np.full(cyl_x.shape[0], -1, dtype=np.int64)
-    stamp_s = np.full(sph_r.shape[0], -1, dtype=np.int64)
+    n_cyl = cyl_x.shape[0]
+    near = np.empty(ob_x.shape[0], dtype=np.int64)
+    stamp = np.full(ob_x.shape[0], -1, dtype=np.int64)
     gox, goy, gcell, gnx, gny = grid[0], grid[1], grid[2], int(grid[3]), int(grid[4])
     reach = d_coll * (1.0 + 1e-9) + 1e-6
     for e in range(n_e):
         ax, ay, az, bx, by, bz = a[e, 0], a[e, 1], a[e, 2], b[e, 0], b[e, 1], b[e, 2]
         hit = False
-        n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, cyl_start, cyl_items, cyl_x, cyl_y, cyl_r,
-                       stamp_c, e, near)
+        n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r, stamp,
+                       e, near)
         for q in range(n_near):
             k = near[q]
+            if k >= n_cyl:
+                break
             c = _seg_point_2d(ax, ay, bx, by, cyl_x[k], cyl_y[k]) - cyl_r[k]
             if math.isfinite(cyl_top[k]) and c < d_coll:
                 c = _seg_cyl_finite(ax, ay, az, bx, by, bz, cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k], golden_iters)
@@ -705,10 +714,10 @@ def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, ra
                 hit = True
                 break
         if not hit:
-            n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, sph_start, sph_items, sph_c[:, 0],
-                           sph_c[:, 1], sph_r, stamp_s, e, near)
             for q in range(n_near):
-                k = near[q]
+                k = near[q] - n_cyl
+                if k < 0:
+                    continue
                 if _seg_point(ax, ay, az, bx, by, bz, sph_c[k, 0], sph_c[k, 1], sph_c[k, 2]) - sph_r[k] < d_coll:
                     hit = True
                     break
@@ -726,10 +735,10 @@ def segment_blocked(problem, a: np.ndarray, b: np.ndarray, threat_t: np.ndarray,
     """Compiled :meth:`planner.problem.PlanningProblem.segment_blocked` for segments a→b (..., 3); the sample
     parameters as for :func:`evaluate` (the problem's packed arrays are shared)."""
     _, packed = _packed(problem, threat_t, terrain_t)
-    (_, _, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, _, _, _, _, _, _, golden, grid, *csr) = packed
+    (_, _, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, _, _, _, _, _, _, golden, grid, *obs) = packed
     shape = np.broadcast_shapes(np.shape(a), np.shape(b))
     flat_a = np.ascontiguousarray(np.broadcast_to(a, shape), dtype=np.float64).reshape(-1, 3)
     flat_b = np.ascontiguousarray(np.broadcast_to(b, shape), dtype=np.float64).reshape(-1, 3)
     got = _blocked(flat_a, flat_b, float(problem.hazard.d_coll), cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
-                   rad_det, golden, grid, *csr)
+                   rad_det, golden, grid, *obs)
     return got.reshape(shape[:-1])
