@@ -742,3 +742,19 @@ def segment_blocked(problem, a: np.ndarray, b: np.ndarray, threat_t: np.ndarray,
     got = _blocked(flat_a, flat_b, float(problem.hazard.d_coll), cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
                    rad_det, golden, grid, *obs)
     return got.reshape(shape[:-1])
+
+
+def warm_up(problem) -> None:  # noqa: ANN001
+    """Compile (first run on a machine) or load from the disk cache every compiled function, on ``problem``'s
+    arrays: the replan worker calls it before the flight so that no replan pays for it."""
+    if chosen() != "compiled":
+        return
+    from planner.problem import _TERRAIN_T, _THREAT_T  # the reference's sample parameters (no import cycle)
+
+    line = np.linspace(problem.start, problem.goal, 4)[None]
+    evaluate(problem, line, _THREAT_T, _TERRAIN_T)
+    segment_blocked(problem, line[:, :-1], line[:, 1:], _THREAT_T, _TERRAIN_T)
+    x = np.zeros((1, 2, 3))
+    decode_spherical(x, problem.start, problem.goal)
+    box = np.ones((2, 3))
+    pso_step(x, x, x, x[0], 0.5, 1.0, 1.0, -box, box, box, True, x, x)

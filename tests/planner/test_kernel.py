@@ -243,3 +243,11 @@ def test_blocked_edges_match_the_reference(monkeypatch: pytest.MonkeyPatch, broa
         ref = problem.segment_blocked_reference(a, b)
         assert got.shape == (40, 30) and np.array_equal(got, ref)
         assert 0.05 < got.mean() < 0.95  # both kinds of edge occur
+
+
+def test_warm_up_readies_every_compiled_function() -> None:
+    """After warm_up a replan finds every kernel compiled (or loaded from the disk cache): no JIT pause mid-flight."""
+    problem = problem_from_scenario(load_scenario(SCENARIOS_BY_NAME["rescue_static"]))
+    kernel.warm_up(problem)
+    for fn in (kernel._cost, kernel._blocked, kernel._decode_spherical, kernel._pso_step):
+        assert fn.signatures, fn.__name__
