@@ -749,11 +749,9 @@ def warm_up(problem) -> None:  # noqa: ANN001
     arrays: the replan worker calls it before the flight so that no replan pays for it."""
     if chosen() != "compiled":
         return
-    from planner.problem import _TERRAIN_T, _THREAT_T  # the reference's sample parameters (no import cycle)
-
     line = np.linspace(problem.start, problem.goal, 4)[None]
-    evaluate(problem, line, _THREAT_T, _TERRAIN_T)
-    segment_blocked(problem, line[:, :-1], line[:, 1:], _THREAT_T, _TERRAIN_T)
+    problem.evaluate(line)  # through the problem, which holds the sample parameters
+    problem.segment_blocked(line[:, :-1], line[:, 1:])
     x = np.zeros((1, 2, 3))
     decode_spherical(x, problem.start, problem.goal)
     box = np.ones((2, 3))
