@@ -50,8 +50,10 @@ def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.Argument
     cp.add_argument("-q", "--quiet", action="store_true")
     bn = sub.add_parser("bench", help="reproduce one of the paper's experiments (e.g. ablation) and report it")
     bn.add_argument("name", help="which bench (e.g. ablation)")
-    bn.add_argument("--runs", type=int, default=None, help="runs per variant (default: the bench's, 30)")
-    bn.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
+    bn.add_argument("--runs", type=int, default=None,
+                    help="runs per variant (default: the bench's, 30; speed: repeats of each headline row, 5)")
+    bn.add_argument("--workers", type=int, default=None,
+                    help="worker processes (default: CPU count; speed: 1, one plan at a time)")
     bn.add_argument("--seed-base", type=int, default=2000, help="run r uses seed SEED_BASE + r (default 2000)")
     bn.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a scenario value for every variant (repeatable)")
@@ -59,6 +61,13 @@ def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.Argument
                     help="directory for NAME.jsonl (records, resumable), NAME.md, NAME.csv, PNGs "
                     "(default ./bench-results)")
     bn.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    bn.add_argument("--quick", action="store_true",
+                    help="bench speed only: reduced budgets, levels and seeds (a smoke test, about a minute)")
+    bn.add_argument("--parts", default=None, metavar="LIST",
+                    help="bench speed only: comma-separated subset of headline,reference,scaling,latency "
+                    "(default: all)")
+    bn.add_argument("--latency-seeds", type=int, default=None, metavar="N",
+                    help="bench speed only: seeds per scenario and load in the latency part (default 20)")
     return {"plan": pl, "compare": cp, "bench": bn}
 
 
@@ -172,10 +181,12 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
     from planner.bench.compare import default_workers
     from planner.bench.runner import BenchSettings, run_bench
 
+    if args.name == "speed":
+        return cmd_bench_speed(args)
     bench = BENCHES.get(args.name)
     if bench is None:
         raise FuseplanError(f"unknown bench {args.name!r}; choose from "
-                            f"{', '.join(sorted([*BENCHES, *other_benches]))}")
+                            f"{', '.join(sorted([*BENCHES, 'speed', *other_benches]))}")
     runs = bench.default_runs if args.runs is None else args.runs
     if runs < 1 or (args.workers is not None and args.workers < 1) or args.seed_base < 0:
         raise FuseplanError("--runs and --workers must be >= 1 and --seed-base >= 0")
@@ -205,6 +216,43 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
     console.show_markdown((args.output / f"{bench.name}.md").read_text())
+    print("wrote " + ", ".join(str(f) for f in files))
+    return EXIT_OK
+
+
+def cmd_bench_speed(args: argparse.Namespace) -> int:
+    """``fuseplan bench speed``: both cost kernels, the plain-numpy reference, scaling, replan latency under load
+    (:mod:`planner.bench.speed`). --runs: repeats of each headline row (default 5); --workers: plans at a time
+    (default 1, the times of one core)."""
+    import time
+
+    from planner.bench import speed
+
+    s = speed.settings_from(getattr(args, "quick", False), args.runs, args.seed_base, args.workers, args.overrides,
+                            getattr(args, "parts", None), getattr(args, "latency_seeds", None))
+    speed.check(s)  # bad input fails here, once, not in every worker
+    try:
+        args.output.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise FuseplanError(f"{args.output}: cannot create the output directory: {e.strerror or e}") from e
+    if not args.quiet:
+        print(f"bench speed: {', '.join(s.parts)}; {speed.n_jobs(s)} plans, headline × {s.runs} (median), "
+              f"{s.workers} at a time{' (quick)' if s.quick else ''}", file=sys.stderr)
+    t0 = time.perf_counter()
+    try:
+        with console.run_progress("plans", args.quiet) as progress:
+            records, reused = speed.run(s, args.output, progress)
+    except KeyboardInterrupt:
+        print(f"fuseplan: interrupted; finished plans are in {args.output / 'speed.jsonl'}; "
+              "run the same command again to resume", file=sys.stderr)
+        return 130
+    print(f"{len(records) - reused} plans computed, {reused} reused from {args.output / 'speed.jsonl'}; "
+          f"{time.perf_counter() - t0:.1f} s")
+    try:
+        files = speed.report(args.output, records, s)
+    except OSError as e:
+        raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
+    console.show_markdown((args.output / "speed.md").read_text())
     print("wrote " + ", ".join(str(f) for f in files))
     return EXIT_OK
 

@@ -1,5 +1,6 @@
-"""`fuseplan bench gkdm | large-scale | speed` at tiny budgets: files and columns, table statistics computed from
-the runs CSV, and the same tables (times aside) whatever the number of workers. Also the `aco` algorithm."""
+"""`fuseplan bench gkdm | large-scale` at tiny budgets: files and columns, table statistics computed from
+the runs CSV, and the same tables (times aside) whatever the number of workers. Also the `aco` algorithm.
+(`bench speed` has its own parts and tests: tests/planner/bench/test_speed.py.)"""
 
 from __future__ import annotations
 
@@ -18,13 +19,11 @@ FILES = {
     "gkdm": ("gkdm.md", "gkdm.csv", "gkdm_runs.csv", "gkdm.png", "gkdm_convergence.png"),
     "large-scale": ("large-scale.md", "large-scale.csv", "large-scale_runs.csv", "large-scale.png",
                     "large-scale_convergence.png"),
-    "speed": ("speed.md", "speed.csv", "speed_runs.csv", "speed.png"),
 }
 MEAN_COLUMNS = {  # columns whose table mean must equal the runs CSV mean (NaN runs excluded)
     "gkdm": ("cost", "length_m", "evaluations", "pso_cost", "aco_gain_pct", "evals_to_target",
              "time_to_target_s"),
     "large-scale": ("cost", "length_m", "smoothness", "convergence_iteration", "violations"),
-    "speed": ("time_s", "evaluations", "cost", "time_per_eval_us"),
 }
 TIME_COLUMNS = ("time_s", "time_s_mean", "time_s_std", "time_per_eval_us", "time_per_eval_us_mean",
                 "time_per_eval_us_std", "time_to_target_s", "time_to_target_s_mean", "time_to_target_s_std")
@@ -53,8 +52,7 @@ def test_files_exist(bench) -> None:
             assert (out / f).read_bytes()[:4] == b"\x89PNG"
     md = (out / f"{name}.md").read_text()
     assert "|---|" in md
-    if name != "speed":
-        assert "reproduced" in md
+    assert "reproduced" in md
 
 
 def test_table_means_come_from_the_runs(bench) -> None:
