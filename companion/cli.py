@@ -89,6 +89,9 @@ def _parser() -> argparse.ArgumentParser:
     bn.add_argument("--replan-paper", action="store_true",
                     help="bench replan only: replans run the scenario's own planner (the paper's fusion) instead of "
                          "the roadmap pipeline, for comparison")
+    bn.add_argument("--cpu-hog", type=int, default=0, metavar="N",
+                    help="bench replan only: N busy processes beside the flights (deadlines under load, issue 16; "
+                         "default 0)")
     sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated autopilot "
                    "at 20x, replanning around an intruder")
     return p
@@ -103,20 +106,21 @@ def cmd_bench_replan(args: argparse.Namespace) -> int:
     from companion.replanning.replan import ReplanConfig
 
     runs = 5 if args.runs is None else args.runs
-    if runs < 1 or not (math.isfinite(args.speedup) and args.speedup > 0):
-        raise FuseplanError("--runs must be >= 1 and --speedup a finite number > 0")
+    hog = getattr(args, "cpu_hog", 0)
+    if runs < 1 or not (math.isfinite(args.speedup) and args.speedup > 0) or hog < 0:
+        raise FuseplanError("--runs must be >= 1, --speedup a finite number > 0 and --cpu-hog >= 0")
     plans = [_plan_doc_for(SCENARIOS / name, None, list(args.overrides), None, for_flight=True)
              for name in REPLAN_BENCH_SCENARIOS]
     say = (lambda _t: None) if args.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
     whole = getattr(args, "whole", False)
     say(f"bench replan: {len(plans)} scenarios × {runs} flights at {args.speedup:g}× "
-        + ("to the end" if whole else "until the first replan"))
+        + ("to the end" if whole else "until the first replan") + (f", {hog} busy processes beside" if hog else ""))
     try:
         cfg = ReplanConfig(roadmap=not getattr(args, "replan_paper", False))
         if whole:
-            run_flight_bench(plans, runs, args.speedup, args.output, cfg, progress=say)
+            run_flight_bench(plans, runs, args.speedup, args.output, cfg, progress=say, hog=hog)
         else:
-            run_latency_bench(plans, runs, args.speedup, args.output, cfg, progress=say)
+            run_latency_bench(plans, runs, args.speedup, args.output, cfg, progress=say, hog=hog)
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
     console.show_markdown((args.output / ("replan_flights.md" if whole else "replan.md")).read_text())

@@ -13,7 +13,7 @@ import numpy as np
 
 from planner.problem import PlanningProblem
 from planner.search import roadmap
-from planner.search.aco import AntColony
+from planner.search.aco import AntColony, lattice_setup_s
 from planner.search.encoding import Encoding, guided_encoding, resample_keeping_vertices, resample_paths
 from planner.search.repair import repair
 from planner.search.roadmap_colony import RoadmapColony
@@ -42,9 +42,9 @@ class FusionResult(OptimiserResult):
 
 
 MIN_ACO_BUDGET_S = 0.005  # below this a colony cannot even build its lattice
-LATTICE_PAIR_S = 3e-8  # measured cost of one edge–obstacle distance while a lattice colony builds its graph
 MIN_COLONY_BUDGET_S = 0.05  # below this the roadmap colony is skipped (a walk of 30 ants takes milliseconds)
 REPAIR_SHARE = 0.8  # of the time left that the guide's repair may use (docs/method.md §15.5)
+ROUTES_SHARE = 0.5  # of a budget that the roadmap's extra routes and fallbacks may use (the first route always runs)
 
 
 class Fusion:
@@ -65,12 +65,13 @@ class Fusion:
         s = self.settings
         if s.roadmap.enabled:
             return self._run_roadmap(problem, rng, initial_paths, budget_s, progress, t0)
-        pso_budget = None if budget_s is None else budget_s * (1.0 - s.aco.budget_share)
+        pso_budget = None if budget_s is None else budget_s * _swarm_share(
+            budget_s, problem, s.aco, s.pso.n_waypoints + 2)
         pso = SphericalPSO(s.pso).run(problem, rng, initial_paths=initial_paths, budget_s=pso_budget,
                                       progress=progress)
         left = None if budget_s is None else budget_s - (time.perf_counter() - t0)
-        if left is not None and left < MIN_ACO_BUDGET_S:  # no time for a colony: SPSO's answer stands
-            return self._finish([("pso", pso)], t0)
+        if left is not None and not _affords_lattice(left, problem, s.aco, len(pso.path), _iteration_s(pso)):
+            return self._finish([("pso", pso)], t0)  # no time for a colony: SPSO's answer stands
         aco = AntColony(s.aco).run(problem, rng, pso.path, pso.cost, budget_s=left, progress=progress)
         return self._finish([("pso", pso), ("aco", aco)], t0)
 
@@ -83,7 +84,8 @@ class Fusion:
         around it → the corridor-lattice colony refines the winner. Without a roadmap route: the paper's
         fusion, and the record says at which resolution none was found."""
         s = self.settings
-        rm, q, weights, routes, cfg = roadmap.routes(problem, s.roadmap)
+        rm, q, weights, routes, cfg = roadmap.routes(problem, s.roadmap,
+                                                     None if budget_s is None else ROUTES_SHARE * budget_s)
         trace: dict[str, list[np.ndarray]] = {"guides": list(routes)}
         extra = {"roadmap": PhaseRecord(math.nan, len(routes), time.perf_counter() - t0, 0,
                                         f"{len(routes)} routes at {rm.spacing:.0f} m resolution" if routes
@@ -108,16 +110,22 @@ class Fusion:
         budget = left()
         share = 1.0 - s.aco.budget_share
         guided = replace(s.pso, stagnation_tol=cfg.stagnation_tol)
+        # the swarm's share of what is left: all of it when nothing follows (swarm only) or nothing could (neither
+        # colony affordable in the rest), else 1 − budget_share
+        first = None if budget is None else max(budget, 0.0) * (
+            1.0 if self.swarm_only else share if budget * (1.0 - share) > MIN_COLONY_BUDGET_S
+            else _swarm_share(budget, problem, s.aco, enc.n + 2))
         pso = SphericalPSO(guided).run(problem, rng, initial_paths=seeds, encoding=enc, progress=progress,
-                                      budget_s=None if budget is None else max(budget, 0.0) * share)
+                                      budget_s=first)
         done: list[tuple[str, OptimiserResult]] = [("pso", pso)]
         if self.swarm_only:
             return self._finish(done, t0, extra, lattice=False, trace=trace)
         budget = left()
+        step_s = _iteration_s(pso)  # what one swarm iteration took: the guess at any later phase's first step
         if budget is None or budget > MIN_COLONY_BUDGET_S:
             colony = RoadmapColony(s.aco, enc.n + 2, cfg.colony_iter).run(
                 q, weights, problem, self._elites(pso, enc, rm.spacing), rng,
-                None if budget is None else 0.5 * budget)
+                None if budget is None else 0.5 * budget, first_s=step_s)
             trace["ants"] = colony.ant_paths
             if colony.route is not None:
                 done.append(("colony", OptimiserResult(
@@ -126,7 +134,10 @@ class Fusion:
                 guide = roadmap.guide(colony.path, rm, problem, cfg)
                 # the ants found a cheaper route (on a hard map: a way SPSO could not make flyable) or another
                 # corridor: the swarm makes it flyable around the ants' corridor
-                if colony.cost < pso.cost or roadmap.mean_distance(guide, pso.path) > rm.spacing:
+                budget = left()
+                # (with a budget, only when a repair step, the swarm's first evaluation and an iteration fit)
+                if (colony.cost < pso.cost or roadmap.mean_distance(guide, pso.path) > rm.spacing) and (
+                        budget is None or budget >= 3.0 * step_s):
                     enc2, seeds2 = self._guided(problem, guide, [colony.route, pso.path], None, rng, left())
                     budget = left()
                     pso2 = SphericalPSO(replace(guided, max_iter=max(1, s.pso.max_iter // 2))).run(
@@ -135,7 +146,7 @@ class Fusion:
                     done.append(("pso2", pso2))
         best = min(done, key=lambda d: d[1].cost)[1]
         budget = left()
-        if budget is None or budget >= max(MIN_ACO_BUDGET_S, 2.0 * _lattice_setup_s(problem, s.aco, len(best.path))):
+        if budget is None or _affords_lattice(budget, problem, s.aco, len(best.path), step_s):
             done.append(("aco", AntColony(s.aco).run(problem, rng, best.path, best.cost, budget_s=budget,
                                                      progress=progress)))
         return self._finish(done, t0, extra, trace=trace)
@@ -208,10 +219,20 @@ def _fit(route: np.ndarray, count: int) -> np.ndarray:
     return resample_paths(route[None], count)[0]
 
 
-def _lattice_setup_s(problem: PlanningProblem, cfg: ACOConfig, n_points: int) -> float:
-    """Estimated seconds a corridor-lattice colony spends checking its edges against the obstacles before its
-    first ant moves (the check is not interruptible, so a budgeted plan skips a colony it cannot afford)."""
-    m = (2 * cfg.cross_half + 1) * (2 * cfg.vert_half + 1)
-    env = problem.env
-    k = len(env.cylinders) + len(env.spheres) + len(env.radars)
-    return (n_points - 1) * m * m * k * LATTICE_PAIR_S
+def _affords_lattice(budget_s: float, problem: PlanningProblem, cfg: ACOConfig, n_points: int,
+                     step_s: float) -> bool:
+    """True when a corridor-lattice colony fits in ``budget_s``: its set-up (the estimate with a quarter more),
+    the seed's evaluation and an iteration (each guessed as ``step_s``, a swarm iteration's time)."""
+    return budget_s >= max(MIN_ACO_BUDGET_S, 1.25 * lattice_setup_s(problem, cfg, n_points) + 2.0 * step_s)
+
+
+def _swarm_share(budget_s: float, problem: PlanningProblem, cfg: ACOConfig, n_points: int) -> float:
+    """The share of ``budget_s`` a swarm phase gets before the colonies: ``1 − budget_share``, or all of it when
+    what it would leave could not pay for a lattice colony's set-up (the colony would be skipped anyway)."""
+    rest = budget_s * cfg.budget_share
+    return 1.0 - cfg.budget_share if _affords_lattice(rest, problem, cfg, n_points, 0.0) else 1.0
+
+
+def _iteration_s(r: OptimiserResult) -> float:
+    """Mean seconds per iteration of a swarm phase, its initial evaluation counted as one."""
+    return r.time_s / (r.iterations + 1)

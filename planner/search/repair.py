@@ -12,6 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from planner.problem import PlanningProblem
+from planner.search.termination import WallClock
 
 WINDOW = 4  # points per locating window: the middle segment sees its neighbours' turns on both sides
 
@@ -44,13 +45,16 @@ def fault_windows(problem: PlanningProblem, path: np.ndarray) -> np.ndarray:
 def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator, deadline: float | None = None,
            rounds: int = 8, candidates: int = 48) -> RepairResult:
     """Move the waypoints of each faulty window of ``path`` (N, 3; the ends stay) until the route has no
-    violation, ``rounds`` rounds pass or ``deadline`` (time.perf_counter()) is reached. Per window and round,
+    violation, ``rounds`` rounds pass or ``deadline`` (time.perf_counter()) is reached: each step (locating the
+    faults, or one window's candidates) starts only if it is predicted to end by then, as long as the longest
+    recent step (:class:`planner.search.termination.WallClock`). Per window and round,
     ``candidates`` routes with that window's interior points displaced (Gaussian, a third of the shorter
     neighbouring leg horizontally, a quarter of that vertically; the scale halves after a round without
     gain) are scored by the cost of the stretch they change (every other term of the route's cost is the same
     for all of them; with moving threats, the whole route), and the cheapest replaces the route when it is
     cheaper. Without a located fault (a moving threat) every interior point may move."""
     best = np.array(path, dtype=float)
+    t = time.perf_counter()
     ev = problem.evaluate(best)
     cost, viol = float(ev.total[0]), int(ev.n_violations[0])
     n = len(best)
@@ -58,12 +62,16 @@ def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator,
     scale = np.full(n, 1.0 / 3.0)
     timed = problem.timed_threats
     evaluations = used = 1
-    while used <= rounds and viol and n > 2 and (deadline is None or time.perf_counter() < deadline):
+    # the first step is predicted from the route's own evaluation
+    wall = None if deadline is None else WallClock(deadline - time.perf_counter(), first_s=time.perf_counter() - t)
+    while used <= rounds and viol and n > 2 and (wall is None or not wall.done()):
         starts = fault_windows(problem, best)
         evaluations += max(n - WINDOW + 1, 0)  # the windows scored
+        if wall is not None:
+            wall.lap()
         for idx in [np.arange(j, j + WINDOW) for j in starts] or [np.arange(n)]:  # a route's few faults
             idx = idx[(idx > 0) & (idx < n - 1)]
-            if not len(idx) or (deadline is not None and time.perf_counter() >= deadline):
+            if not len(idx) or (wall is not None and wall.done()):
                 continue
             reach = np.minimum(legs[idx - 1], legs[idx]) * scale[idx]  # interior: both legs exist
             step = rng.standard_normal((candidates, len(idx), 3)) * reach[None, :, None]
@@ -84,6 +92,8 @@ def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator,
                 legs = np.linalg.norm(np.diff(best[:, :2], axis=0), axis=1)
             else:
                 scale[idx] *= 0.5
+            if wall is not None:
+                wall.lap()
             if not viol:
                 break
         used += 1

@@ -27,6 +27,7 @@ from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
 from planner.problem import PlanningProblem
+from planner.search.termination import WallClock, deadline
 from planner.trajectory.checks import obstacle_clearance, radar_clearance
 from planner.trajectory.smoothing import deviation_bound, peak_curvature, peak_factor, segment_samples
 from planner.world.config import RoadmapConfig
@@ -245,10 +246,7 @@ def _fingerprint(*parts: object) -> str:
 def cached(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
     """:func:`build`, reused while the static world, the clearance and the vehicle's limits are the same (a
     replan's problem keeps the scenario's obstacles and swaps only its threats and start)."""
-    env = problem.env
-    key = _fingerprint(env.cylinders, env.spheres, env.radars, env.terrain, env.size_x, env.size_y, env.z_min,
-                       env.z_max, problem.hazard, problem.vehicle.acceptance_radius, problem.vehicle.max_climb,
-                       problem.vehicle.max_turn, cfg)
+    key = _cache_key(problem, cfg)
     for k, rm in _CACHE:
         if k == key:
             return rm
@@ -256,6 +254,22 @@ def cached(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
     _CACHE.append((key, rm))
     del _CACHE[:-_CACHE_SIZE]
     return rm
+
+
+def _cache_key(problem: PlanningProblem, cfg: RoadmapConfig) -> str:
+    env = problem.env
+    return _fingerprint(env.cylinders, env.spheres, env.radars, env.terrain, env.size_x, env.size_y, env.z_min,
+                        env.z_max, problem.hazard, problem.vehicle.acceptance_radius, problem.vehicle.max_climb,
+                        problem.vehicle.max_turn, cfg)
+
+
+def _build_estimate_s(problem: PlanningProblem, cfg: RoadmapConfig, known: Roadmap) -> float:
+    """Seconds :func:`cached` will take to have the roadmap for ``cfg``: 0 when it is cached, else ``known``'s
+    build time scaled by the number of grid columns (a budgeted plan skips a build it cannot afford)."""
+    key = _cache_key(problem, cfg)
+    if any(k == key for k, _ in _CACHE):
+        return 0.0
+    return known.build_s * (known.spacing / auto_spacing(problem, cfg)) ** 2
 
 
 # --- queries ------------------------------------------------------------------------------------------------
@@ -492,12 +506,14 @@ def guide(points: np.ndarray, rm: Roadmap, problem: PlanningProblem, cfg: Roadma
 
 
 def diverse_routes(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, q: Query | None = None,
-                   weights: np.ndarray | None = None) -> list[np.ndarray]:
+                   weights: np.ndarray | None = None, wall: WallClock | None = None) -> list[np.ndarray]:
     """Up to ``cfg.n_routes`` start→goal routes (M_k, 3) in different corridors, best first, shortcut: after
     each, edges within three spacings of it weigh ``reuse_penalty`` times more and the search repeats; a roadmap
     path within one spacing (mean distance) of an earlier one is dropped before it is made a guide.
     ``q``/``weights``: the attached query and its
-    edge weights (default: :func:`attach`, clearance and threat weights). Empty: no route at this resolution."""
+    edge weights (default: :func:`attach`, clearance and threat weights). Empty: no route at this resolution.
+    ``wall``: a time budget; a route after the first is searched only when one more (as long as the longest so
+    far) fits in it."""
     if q is None:
         q = attach(rm, problem, cfg)
     if weights is None:
@@ -505,7 +521,11 @@ def diverse_routes(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, q:
     base = weights
     routes: list[np.ndarray] = []
     found: list[np.ndarray] = []  # the roadmap paths of the routes kept
-    for _ in range(cfg.n_routes):
+    for k in range(cfg.n_routes):
+        if wall is not None and k:
+            wall.lap()  # the route before this one
+            if wall.done():
+                break
         path = shortest(q, weights)
         if path is None:
             break
@@ -521,17 +541,26 @@ def diverse_routes(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, q:
     return routes
 
 
-def routes(problem: PlanningProblem, cfg: RoadmapConfig) -> tuple[Roadmap, Query, np.ndarray, list[np.ndarray],
-                                                                   RoadmapConfig]:
+def routes(problem: PlanningProblem, cfg: RoadmapConfig, budget_s: float | None = None,
+           ) -> tuple[Roadmap, Query, np.ndarray, list[np.ndarray], RoadmapConfig]:
     """:func:`diverse_routes` on the cached roadmap; when it finds none, again without the extra margin, then at
     half the spacing (a finer roadmap, built once and cached too). Returns the roadmap, query, edge weights and
-    routes of the last attempt and the settings it used; no routes: none at the finest resolution tried."""
+    routes of the last attempt and the settings it used; no routes: none at the finest resolution tried.
+    ``budget_s``: a fallback is tried only when it (as long as the longest attempt so far, plus a roadmap build
+    if it needs one) fits in what is left, and further routes only while one more fits (:func:`diverse_routes`)."""
     h = auto_spacing(problem, cfg)
+    wall = deadline(budget_s)
+    first: Roadmap | None = None
     for c in (cfg, replace(cfg, margin=0.0), replace(cfg, margin=0.0, spacing=0.5 * h)):
+        if wall is not None and first is not None:
+            wall.lap()
+            if not wall.affords(wall.predicted_s() + _build_estimate_s(problem, c, first)):
+                break
         rm = cached(problem, c)
+        first = first or rm
         q = attach(rm, problem, c)
         weights = timed_weights(q, problem, clearance_weights(q, problem))
-        found = diverse_routes(rm, problem, c, q, weights)
+        found = diverse_routes(rm, problem, c, q, weights, None if wall is None else deadline(wall.left()))
         if found:
             break
     return rm, q, weights, found, c

@@ -5,7 +5,8 @@ An optimiser supplies a decision space (an object with ``sample``, ``encode``, `
 ``hi``, like :class:`planner.search.encoding.Encoding`) and a *step*: a function ``(it, state) → new positions``
 that moves the swarm once (it may keep velocities in ``state.v``). :func:`run_swarm` evaluates, updates
 the bests, records the history and stops on ``max_iterations``, ``stagnation``, ``diversity`` or
-``timeout`` (:mod:`planner.search.termination`). Used by SPSO and all four baselines, so they stop and report alike.
+``timeout`` (:mod:`planner.search.termination`; the time budget is checked before each iteration, against its
+predicted duration). Used by SPSO and all four baselines, so they stop and report alike.
 """
 
 from __future__ import annotations
@@ -20,7 +21,7 @@ from typing import Protocol
 import numpy as np
 
 from planner.problem import Evaluation, PlanningProblem
-from planner.search.termination import AnyOf, Diversity, MaxIterations, Progress, Stagnation, WallClock
+from planner.search.termination import AnyOf, Clock, Diversity, MaxIterations, Progress, Stagnation, deadline
 from planner.world.config import SPSOConfig
 
 log = logging.getLogger(__name__)
@@ -119,40 +120,51 @@ def diversity(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
 def run_swarm(
     name: str, problem: PlanningProblem, budget: SPSOConfig, space: DecisionSpace, x0: np.ndarray,
     step: Step, budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
-    v0: np.ndarray | None = None,
+    v0: np.ndarray | None = None, clock: Clock = time.perf_counter,
 ) -> OptimiserResult:
     """Evaluate ``x0``, then apply ``step`` until a stop criterion fires.
 
     ``budget`` gives max_iter, stagnation_iters and diversity_min (the shared Table 6 budget);
-    ``budget_s`` adds a wall-clock limit that counts the initial evaluation too. ``progress(it, max_iter,
-    best)`` is called after every iteration. Evaluations = n_pop × (iterations + 1).
+    ``budget_s`` adds a wall-clock limit that counts the initial evaluation too and is kept *before* each
+    iteration: the search stops when the next iteration, predicted from the ones measured so far (the initial
+    evaluation standing in for the first), would end after it (:class:`WallClock`), so a budgeted search ends
+    within it unless its initial evaluation alone does not fit. Without ``budget_s`` nothing is timed and the
+    search is exactly the unbudgeted one. ``progress(it, max_iter, best)`` is called after every iteration.
+    ``clock``: the time source (tests inject a fake). Evaluations = n_pop × (iterations + 1).
     """
-    t0 = time.perf_counter()
+    t0 = clock()
+    wall = deadline(budget_s, clock=clock)  # its clock starts now: the budget counts init too
     stop = AnyOf([MaxIterations(budget.max_iter), Stagnation(budget.stagnation_iters),
-                  Diversity(budget.diversity_min)])  # its clock starts now: the budget counts init too
+                  Diversity(budget.diversity_min)])
     st = SwarmState.start(x0, problem.evaluate(space.decode(x0)))
     st.v = v0
     st.tol = budget.stagnation_tol
     history = [st.gbest_f]
-    if budget_s is not None:
-        stop.criteria.append(WallClock(budget_s))
     it = 0
-    while True:
-        x = step(it, st)
-        st.observe(x, problem.evaluate(space.decode(x)))
-        it += 1
-        history.append(st.gbest_f)
-        # σ² costs a pass over the swarm; only the diversity criterion reads it
-        div = diversity(st.x, space.lo, space.hi) if budget.diversity_min > 0 else math.nan
-        prog = Progress(it, st.gbest_f, st.stagnant, div, stop.elapsed())
-        if progress is not None:
-            progress(it, budget.max_iter, st.gbest_f)
-        if stop.done(prog):
-            break
+    if wall is not None:
+        wall.lap()  # the initial evaluation: the first guess at what an iteration costs
+        stop.criteria.append(wall)
+    if wall is not None and wall.done():  # not even one iteration fits
+        stop.fired = wall.name
+    else:
+        while True:
+            x = step(it, st)
+            st.observe(x, problem.evaluate(space.decode(x)))
+            it += 1
+            history.append(st.gbest_f)
+            # σ² costs a pass over the swarm; only the diversity criterion reads it
+            div = diversity(st.x, space.lo, space.hi) if budget.diversity_min > 0 else math.nan
+            prog = Progress(it, st.gbest_f, st.stagnant, div, stop.elapsed())
+            if progress is not None:
+                progress(it, budget.max_iter, st.gbest_f)
+            if wall is not None:
+                wall.lap()
+            if stop.done(prog):
+                break
     log.debug("%s stopped after %d iterations (%s), cost %.3f", name, it, stop.fired, st.gbest_f)
     path = space.decode(st.gbest_x[None])[0]
     return OptimiserResult(path, st.gbest_f, st.gbest_eval, history, it, stop.fired or "",
-                           time.perf_counter() - t0, len(x0) * (it + 1), st)
+                           clock() - t0, len(x0) * (it + 1), st)
 
 
 def take(ev: Evaluation, i: int) -> Evaluation:

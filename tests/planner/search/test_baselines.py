@@ -51,7 +51,8 @@ def test_same_seed_same_path_and_the_search_improves(rescue, name) -> None:
 def test_budget_and_stagnation_stop(rescue, name) -> None:
     prob, pso = rescue
     timed = OPTIMISERS[name](pso).run(prob, np.random.default_rng(0), budget_s=0.0)
-    assert timed.stop_reason == "timeout" and timed.iterations == 1
+    # a spent budget stops before the first iteration (issue 16: no iteration starts that would overrun it)
+    assert timed.stop_reason == "timeout" and timed.iterations == 0 and len(timed.history) == 1
     flat = OPTIMISERS[name](dataclasses.replace(pso, stagnation_iters=1)).run(prob, np.random.default_rng(0))
     assert flat.stop_reason == "stagnation" and flat.iterations < pso.max_iter
     assert flat.history[-1] == flat.history[-2]

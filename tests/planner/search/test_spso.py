@@ -115,7 +115,7 @@ def test_stagnation_and_budget_stop_early(rescue_static) -> None:
     res = SphericalPSO(sc.planner.pso).run(problem_from_scenario(sc), np.random.default_rng(0))
     assert res.stop_reason == "stagnation" and res.iterations < sc.planner.pso.max_iter
     timed = SphericalPSO(sc.planner.pso).run(problem_from_scenario(sc), np.random.default_rng(0), budget_s=0.0)
-    assert timed.stop_reason == "timeout" and timed.iterations == 1
+    assert timed.stop_reason == "timeout" and timed.iterations == 0  # issue 16: no iteration past the budget
 
 
 def test_warm_start_seeds_the_swarm(rescue_static) -> None:
