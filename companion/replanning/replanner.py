@@ -53,6 +53,7 @@ from companion.replanning.replan import (
     warm_starts,
 )
 from companion.replanning.threats import Conflict, TrackPicture, predict_conflicts, route_separations
+from planner import kernel
 from planner.plan import PlanStatus, plan
 from planner.world.environment import Threats
 from planner.world.scenario import Scenario
@@ -96,6 +97,7 @@ def _warm_up(problem: Any, settings: Any) -> None:
 
     tune_allocator()
     if problem is not None:
+        kernel.warm_up(problem)  # every compiled function, even those a short plan would not reach
         _plan_job(problem, settings, [0], None, 0.03)
 
 
