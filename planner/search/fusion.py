@@ -17,6 +17,7 @@ from planner.search.aco import AntColony, lattice_setup_s
 from planner.search.encoding import Encoding, guided_encoding, resample_keeping_vertices, resample_paths
 from planner.search.repair import repair
 from planner.search.roadmap_colony import RoadmapColony
+from planner.search.roadmap_colony import setup_s as colony_setup_s
 from planner.search.spso import SphericalPSO
 from planner.search.swarm import OptimiserResult
 from planner.world.config import ACOConfig, PlannerSettings
@@ -113,7 +114,7 @@ class Fusion:
         # the swarm's share of what is left: all of it when nothing follows (swarm only) or nothing could (neither
         # colony affordable in the rest), else 1 − budget_share
         first = None if budget is None else max(budget, 0.0) * (
-            1.0 if self.swarm_only else share if budget * (1.0 - share) > MIN_COLONY_BUDGET_S
+            1.0 if self.swarm_only else share if _affords_colony(budget * (1.0 - share), q, 0.0)
             else _swarm_share(budget, problem, s.aco, enc.n + 2))
         pso = SphericalPSO(guided).run(problem, rng, initial_paths=seeds, encoding=enc, progress=progress,
                                       budget_s=first)
@@ -122,7 +123,7 @@ class Fusion:
             return self._finish(done, t0, extra, lattice=False, trace=trace)
         budget = left()
         step_s = _iteration_s(pso)  # what one swarm iteration took: the guess at any later phase's first step
-        if budget is None or budget > MIN_COLONY_BUDGET_S:
+        if budget is None or _affords_colony(budget, q, step_s):
             colony = RoadmapColony(s.aco, enc.n + 2, cfg.colony_iter).run(
                 q, weights, problem, self._elites(pso, enc, rm.spacing), rng,
                 None if budget is None else 0.5 * budget, first_s=step_s)
@@ -224,6 +225,12 @@ def _affords_lattice(budget_s: float, problem: PlanningProblem, cfg: ACOConfig, 
     """True when a corridor-lattice colony fits in ``budget_s``: its set-up (the estimate with a quarter more),
     the seed's evaluation and an iteration (each guessed as ``step_s``, a swarm iteration's time)."""
     return budget_s >= max(MIN_ACO_BUDGET_S, 1.25 * lattice_setup_s(problem, cfg, n_points) + 2.0 * step_s)
+
+
+def _affords_colony(budget_s: float, q: roadmap.Query, step_s: float) -> bool:
+    """True when the roadmap colony, given half of ``budget_s``, fits its set-up (the estimate with a quarter
+    more, :func:`planner.search.roadmap_colony.setup_s`) and a first walk (guessed as two ``step_s``)."""
+    return budget_s > MIN_COLONY_BUDGET_S and 0.5 * budget_s >= 1.25 * colony_setup_s(q) + 2.0 * step_s
 
 
 def _swarm_share(budget_s: float, problem: PlanningProblem, cfg: ACOConfig, n_points: int) -> float:

@@ -225,3 +225,47 @@ def test_roadmap_fusion_flies_a_gates_map_that_the_papers_fusion_cannot_and_is_r
     assert a.optimiser.winner in phases and np.all(np.diff(a.optimiser.history) <= 0)
     paper = load_scenario(path, [*small, "planner.roadmap.enabled=false"])
     assert not plan(problem_from_scenario(paper), paper.planner, np.random.default_rng(5)).feasible
+
+
+def test_gkdm_pheromone_is_the_largest_weighted_kernel_over_the_elites() -> None:
+    """τ = τ0 (1 + A max_k w_k exp(−d_k² / 2σ²)) per edge midpoint, d_k its distance to elite k's densified route
+    (w = 1 for the best, ELITE_WEIGHT for the others): computed here elite by elite, held equal bit for bit to the
+    colony's two queries (the best, then the others as one point set)."""
+    from scipy.spatial import cKDTree
+
+    from planner.search.roadmap_colony import ELITE_WEIGHT
+
+    pb = _problem(_cylinders((600.0, 500.0, 150.0), (300.0, 300.0, 80.0)))
+    rm = rmap.build(pb, CFG)
+    q = rmap.attach(rm, pb, CFG)
+    routes = rmap.diverse_routes(rm, pb, CFG, q, rmap.clearance_weights(q, pb))
+    rng = np.random.default_rng(3)
+    elites = [routes[0], *(r + rng.normal(0.0, 40.0, r.shape) * [1, 1, 0] for r in (routes[0], routes[1], routes[1]))]
+    aco, sigma = ACOConfig(), rm.spacing
+    mids = 0.5 * (q.points[q.edges[:, 0]] + q.points[q.edges[:, 1]])
+    boost = np.zeros(len(mids))
+    for k, route in enumerate(elites):
+        d = cKDTree(rmap.densify(route, 0.5 * sigma)).query(mids)[0]
+        boost = np.maximum(boost, (1.0 if k == 0 else ELITE_WEIGHT) * np.exp(-(d**2) / (2.0 * sigma**2)))
+    expected = aco.tau0 * (1.0 + aco.amplitude * boost)
+    assert np.array_equal(gkdm_pheromone(q, elites, aco, sigma), expected)
+    assert np.array_equal(gkdm_pheromone(q, elites[:1], aco, sigma),
+                          aco.tau0 * (1.0 + aco.amplitude * np.exp(-(cKDTree(rmap.densify(elites[0], 0.5 * sigma))
+                                                                       .query(mids)[0] ** 2) / (2.0 * sigma**2))))
+    assert expected.max() > aco.tau0 * (1.0 + 0.9 * aco.amplitude)  # edges on the best route get nearly all of it
+
+
+def test_a_budgeted_plan_skips_a_roadmap_colony_whose_set_up_does_not_fit() -> None:
+    """The colony's set-up (adjacency, GKDM over every edge) cannot be interrupted: with half the rest of the
+    budget below its estimate the colony is not started; with room it is."""
+    from planner.search.fusion import _affords_colony
+    from planner.search.roadmap_colony import setup_s
+
+    pb = _problem(_cylinders((600.0, 500.0, 150.0)))
+    rm = rmap.build(pb, CFG)
+    q = rmap.attach(rm, pb, CFG)
+    need = setup_s(q)
+    assert need > 0.0
+    assert not _affords_colony(2.0 * need, q, 0.0)  # half of it is short of the estimate with its margin
+    assert _affords_colony(max(3.0 * need, 0.06), q, 0.0)
+    assert not _affords_colony(0.04, q, 0.0)  # below MIN_COLONY_BUDGET_S whatever the map
