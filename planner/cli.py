@@ -23,6 +23,14 @@ EXIT_OK, EXIT_BAD_INPUT, EXIT_INFEASIBLE = 0, 2, 3
 ACO_INITS: tuple[str, ...] = typing.get_args(typing.get_type_hints(ACOConfig)["init"])
 
 
+def make_output_dir(path: Path) -> None:
+    """Create an output directory (and parents); a user's error message, not a traceback, if it cannot be."""
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        raise FuseplanError(f"{path}: cannot create the output directory: {e.strerror or e}") from e
+
+
 def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.ArgumentParser]:
     """Register plan, compare and bench on ``sub``; returns their parsers by name (the companion adds options)."""
     pl = sub.add_parser("plan", help="plan a route for a scenario and write PLAN.json")
@@ -152,10 +160,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     except ValueError as e:
         raise FuseplanError(str(e)) from e
     load_scenario(args.scenario, args.overrides)  # bad input fails here, once, not in every worker
-    try:  # and an unusable output directory before the runs, not after them
-        args.output.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise FuseplanError(f"{args.output}: cannot create the output directory: {e.strerror or e}") from e
+    make_output_dir(args.output)  # and an unusable output directory before the runs, not after them
     workers = args.workers or compare.default_workers()
     if not args.quiet:
         print(f"comparing {', '.join(algorithms)} on {args.scenario.name}: {args.runs} runs each, "
@@ -193,10 +198,7 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
     settings = BenchSettings(bench, runs, args.seed_base, tuple(args.overrides))
     for v in bench.variants:  # bad input fails here, once, not in every worker
         settings.check(v)
-    try:
-        args.output.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise FuseplanError(f"{args.output}: cannot create the output directory: {e.strerror or e}") from e
+    make_output_dir(args.output)
     workers = args.workers or default_workers()
     if not args.quiet:
         print(f"bench {bench.name}: {bench.description}; {len(bench.variants)} variants × {runs} runs, seeds "
@@ -231,10 +233,7 @@ def cmd_bench_speed(args: argparse.Namespace) -> int:
     s = speed.settings_from(getattr(args, "quick", False), args.runs, args.seed_base, args.workers, args.overrides,
                             getattr(args, "parts", None), getattr(args, "latency_seeds", None))
     speed.check(s)  # bad input fails here, once, not in every worker
-    try:
-        args.output.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        raise FuseplanError(f"{args.output}: cannot create the output directory: {e.strerror or e}") from e
+    make_output_dir(args.output)
     if not args.quiet:
         print(f"bench speed: {', '.join(s.parts)}; {speed.n_jobs(s)} plans, headline × {s.runs} (median), "
               f"{s.workers} at a time{' (quick)' if s.quick else ''}", file=sys.stderr)
