@@ -192,7 +192,7 @@ def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, thre
     radius grows by ``threat_margin`` m: the replanner calls a route clear at d_coll + its margin, so a replan
     that kept only d_coll would be a new conflict at once."""
     if threat_margin:
-        threats = Threats(tuple(dataclasses.replace(t, radius=t.radius + threat_margin) for t in threats.items))
+        threats = threats.grown(threat_margin)
     env = dataclasses.replace(scenario.environment, threats=threats)
     s = scenario.planner
     vehicle = scenario.vehicle if speed is None else dataclasses.replace(scenario.vehicle, cruise_speed=speed)

@@ -8,17 +8,18 @@ bit for bit, whatever the number of workers or the order in which runs finished.
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import functools
 import hashlib
 import json
 import logging
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TextIO
 
 import numpy as np
 
@@ -189,22 +190,40 @@ def _run_peer(spec: RunSpec, problem: Any) -> dict[str, Any]:
             "violations": sum(r.violations.values()) if r.violations else None}
 
 
-def load_records(path: Path) -> dict[tuple[str, int], dict[str, Any]]:
-    """Records already in ``path`` by (variant, run); a line cut short by an interruption is skipped."""
+def _variant_run(rec: dict[str, Any]) -> tuple[str, int]:
+    return str(rec["variant"]), int(rec["run"])
+
+
+def load_records(path: Path, key: Callable[[dict[str, Any]], Any] = _variant_run) -> dict[Any, dict[str, Any]]:
+    """Records already in ``path`` by ``key`` (default (variant, run)); a line cut short by an interruption is
+    skipped."""
     if not path.exists():
         return {}
-    out: dict[tuple[str, int], dict[str, Any]] = {}
+    out: dict[Any, dict[str, Any]] = {}
     for n, line in enumerate(path.read_text().splitlines(), 1):
         if not line.strip():
             continue
         try:
             rec = json.loads(line)
-            key = (str(rec["variant"]), int(rec["run"]))
+            k = key(rec)
         except (ValueError, KeyError, TypeError):
             log.warning("%s:%d: not a bench record, skipped (an interrupted write?)", path, n)
             continue
-        out[key] = rec
+        out[k] = rec
     return out
+
+
+@contextlib.contextmanager
+def appending(jsonl: Path) -> Iterator[TextIO]:
+    """``jsonl`` open for appending records, a line cut short by an interruption first ended (so it does not
+    swallow the next record)."""
+    with jsonl.open("a+") as f:
+        f.seek(0, 2)
+        if f.tell() > 0:
+            f.seek(f.tell() - 1)
+            if f.read(1) != "\n":
+                f.write("\n")
+        yield f
 
 
 def run_bench(settings: BenchSettings, out_dir: Path, workers: int,
@@ -229,12 +248,7 @@ def run_bench(settings: BenchSettings, out_dir: Path, workers: int,
 def _run_pool(todo: Sequence[RunSpec], jsonl: Path, workers: int, new: dict[tuple[str, int], dict[str, Any]],
               progress: Callable[[int, int], None] | None) -> None:
     """Submit ``todo`` to a pool; the parent alone writes the file, one flushed line per finished run."""
-    with jsonl.open("a+") as f:
-        f.seek(0, 2)
-        if f.tell() > 0:  # a line cut short by an interruption must not swallow the next record
-            f.seek(f.tell() - 1)
-            if f.read(1) != "\n":
-                f.write("\n")
+    with appending(jsonl) as f:
         pool = ProcessPoolExecutor(max_workers=max(1, min(workers, len(todo))))
         try:
             pending = {pool.submit(run_one, s): s for s in todo}

@@ -41,13 +41,13 @@ import numpy as np
 from planner import kernel
 from planner.bench.load import cpu_hog
 from planner.bench.robustness import REPLAN_BUDGET_S, REPLAN_POP
-from planner.bench.runner import PAPER_MODE, ROADMAP_MODE, SCENARIO_DIR, write_csv
+from planner.bench.runner import PAPER_MODE, ROADMAP_MODE, SCENARIO_DIR, appending, load_records, write_csv
 from planner.errors import FuseplanError
 
 log = logging.getLogger(__name__)
 
 KERNEL_ENV = kernel.ENV_VAR  # FUSEPLAN_KERNEL: compiled | numpy
-BROAD_ENV = "FUSEPLAN_BROAD_PHASE"  # on | off (default on): the compiled kernel's obstacle broad phase
+BROAD_ENV = kernel.BROAD_ENV_VAR  # FUSEPLAN_BROAD_PHASE: on | off (default on), the compiled kernel's broad phase
 PARTS = ("headline", "reference", "scaling", "latency")
 TABLE6 = (PAPER_MODE, 'planner.algorithm="spso"', "planner.pso.stagnation_iters=100000")  # n_pop/max_iter: defaults
 THREAT_MARGIN_M = 15.0  # each threat grows by this for a replan (as the companion's ReplanConfig.margin_m)
@@ -226,7 +226,7 @@ def replan_problem(scenario: Any) -> Any:
         p0, p1 = np.array(intr.waypoints[0], dtype=float), np.array(intr.waypoints[1], dtype=float)
         vel = intr.speed * (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
         items.append(Threat(intr.id, "track", intr.radius, tuple(p0), tuple(vel), radius_growth=TRACK_GROWTH_M_S))
-    threats = Threats(tuple(dataclasses.replace(t, radius=t.radius + THREAT_MARGIN_M) for t in items))
+    threats = Threats(tuple(items)).grown(THREAT_MARGIN_M)
     env = dataclasses.replace(scenario.environment, threats=threats)
     p = scenario.planner
     return PlanningProblem(env, scenario.start, scenario.goal, scenario.vehicle, scenario.hazard, p.weights,
@@ -244,7 +244,6 @@ def run_job(job: Job) -> dict[str, Any]:
     common = {
         "id": job.id, "part": job.part, "key": job.key, "repeat": job.repeat, "seed": job.seed, "load": job.load,
         "fingerprint": job.fingerprint, "scenario": Path(job.scenario).name, "broad_phase": os.environ[BROAD_ENV],
-        "broad_phase_switch": callable(getattr(kernel, "broad_phase", None)),
         "source": source_hash(), "loadavg_1m": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
         "n_pop": sc.planner.pso.n_pop, "max_iter": sc.planner.pso.max_iter,
         "obstacles": len(env.cylinders) + len(env.spheres) + len(env.radars),
@@ -259,8 +258,7 @@ def run_job(job: Job) -> dict[str, Any]:
         roadmap.routes(problem, settings.roadmap)
     warm = (job.scenario, job.overrides, job.kernel, job.broad_phase)
     if warm not in _WARM:  # the first plan in a process loads the compiled code: not what is measured
-        if callable(getattr(kernel, "warm_up", None)):  # every compiled function, as the replan worker loads them
-            kernel.warm_up(problem)
+        kernel.warm_up(problem)  # every compiled function, as the replan worker loads them
         small = dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=10, max_iter=2),
                                     aco=dataclasses.replace(settings.aco, max_iter=2))
         plan(problem, small, np.random.default_rng(0))
@@ -293,7 +291,7 @@ def run(s: SpeedSettings, out_dir: Path, progress: Callable[[int, int], None] | 
     """Run what ``DIR/speed.jsonl`` does not hold yet; returns (records in job order, how many were reused)."""
     groups = jobs(s)
     jsonl = out_dir / "speed.jsonl"
-    have = load_speed_records(jsonl)
+    have = load_records(jsonl, key=lambda rec: str(rec["id"]))
     every = [j for _, _, js in groups for j in js]
     for j in every:
         if j.id in have and have[j.id].get("fingerprint") != j.fingerprint:
@@ -302,12 +300,7 @@ def run(s: SpeedSettings, out_dir: Path, progress: Callable[[int, int], None] | 
     total = sum(j.id not in have for j in every)
     done = 0
     new: dict[str, dict[str, Any]] = {}
-    with jsonl.open("a+") as f, ProcessPoolExecutor(max_workers=max(1, s.workers)) as pool:
-        f.seek(0, 2)
-        if f.tell() > 0:  # a line cut short by an interruption must not swallow the next record
-            f.seek(f.tell() - 1)
-            if f.read(1) != "\n":
-                f.write("\n")
+    with appending(jsonl) as f, ProcessPoolExecutor(max_workers=max(1, s.workers)) as pool:
         for part, load, js in groups:
             todo = [j for j in js if j.id not in have]
             if not todo:
@@ -323,21 +316,6 @@ def run(s: SpeedSettings, out_dir: Path, progress: Callable[[int, int], None] | 
                         progress(done, total)
     return [have.get(j.id) or new[j.id] for j in every], len(every) - total
 
-
-def load_speed_records(jsonl: Path) -> dict[str, dict[str, Any]]:
-    """Records already in ``jsonl`` by id; a line cut short by an interruption is skipped."""
-    if not jsonl.exists():
-        return {}
-    out = {}
-    for n, line in enumerate(jsonl.read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            rec = json.loads(line)
-            out[str(rec["id"])] = rec
-        except (ValueError, KeyError, TypeError):
-            log.warning("%s:%d: not a speed record, skipped (an interrupted write?)", jsonl, n)
-    return out
 
 
 def _execute(pool: ProcessPoolExecutor, todo: Sequence[Job], width: int) -> Iterator[dict[str, Any]]:
@@ -472,11 +450,6 @@ def reproducible(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
             "across_kernels": max(rel, default=0.0)}
 
 
-def broad_phase_honoured() -> bool:
-    """Whether planner.kernel has the broad-phase switch (``FUSEPLAN_BROAD_PHASE``); without it on and off are the
-    same computation."""
-    return callable(getattr(kernel, "broad_phase", None))
-
 
 # --- report --------------------------------------------------------------------------------------------------------
 def report(out_dir: Path, records: list[dict[str, Any]], s: SpeedSettings) -> list[Path]:
@@ -608,15 +581,11 @@ def _headline_md(head: Sequence[dict[str, Any]], s: SpeedSettings) -> list[str]:
 def _scaling_md(scal: Sequence[dict[str, Any]], s: SpeedSettings) -> list[str]:
     arms = [_arm(k, bp) for k, bp in s.scaling_arms]
     base = ", ".join(f"{k} {v}" for k, v in s.scaling_base.items())
-    honoured = broad_phase_honoured()
     lines = ["## Scaling with particles, iterations, waypoints and obstacles", "",
              f"SPSO on `{SCALING_SCENARIO}`, stagnation stop off (evaluations = nPop × (MaxIt + 1)), one factor at a "
              f"time around {base}; median of {s.scaling_runs} seeds ({s.seed_base}…). Broad phase: "
              f"`{BROAD_ENV}=on|off`, set in the worker; it only concerns the compiled kernel (the numpy arm ran "
-             "with it on). "
-             + ("planner/kernel.py reads the variable." if honoured else
-                "**planner/kernel.py does not read the variable yet**: on and off are the same computation and "
-                "their times differ only by noise."), "",
+             "with it on); the two give the same costs bit for bit.", "",
              "| factor | level | evaluations | " + " | ".join(f"{a} (s)" for a in arms)
              + " | broad off ÷ on | numpy ÷ compiled (on) |", "|---|---|---|" + "---|" * (len(arms) + 2)]
     by = {(r["key"], r["arm"]): r for r in scal}

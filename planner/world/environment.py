@@ -5,6 +5,7 @@ Every obstacle family is stored column-wise so the cost can broadcast over all o
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -169,6 +170,10 @@ class Threats:
             return 0.0
         track = np.linalg.norm(self.p1, axis=-1)
         return float(np.max(np.where(self.kind == TRACK, track, self.speed)))
+
+    def grown(self, margin_m: float) -> Threats:
+        """The same threats with every radius larger by ``margin_m`` (a replan keeps its own margin from them)."""
+        return Threats(tuple(dataclasses.replace(t, radius=t.radius + margin_m) for t in self.items))
 
     def positions(self, t: np.ndarray) -> np.ndarray:
         """Threat centres at times ``t`` (any shape S, seconds) → (k, *S, 3) metres ENU.
