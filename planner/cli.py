@@ -208,18 +208,10 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
         with console.run_progress("runs", args.quiet) as progress:
             outcome = run_bench(settings, args.output, workers, progress)
     except KeyboardInterrupt:
-        print(f"fuseplan: interrupted; finished runs are in {args.output / (bench.name + '.jsonl')}; "
-              "run the same command again to resume", file=sys.stderr)
-        return 130
+        return _interrupted(args.output / f"{bench.name}.jsonl", "runs")
     wall = time.perf_counter() - t0
     print(f"{outcome.computed} runs computed, {outcome.reused} reused from {outcome.jsonl}; {wall:.1f} s")
-    try:
-        files = bench.report(args.output, outcome.records, settings)
-    except OSError as e:
-        raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
-    console.show_markdown((args.output / f"{bench.name}.md").read_text())
-    print("wrote " + ", ".join(str(f) for f in files))
-    return EXIT_OK
+    return _report(args.output, bench.name, lambda: bench.report(args.output, outcome.records, settings))
 
 
 def cmd_bench_speed(args: argparse.Namespace) -> int:
@@ -242,16 +234,26 @@ def cmd_bench_speed(args: argparse.Namespace) -> int:
         with console.run_progress("plans", args.quiet) as progress:
             records, reused = speed.run(s, args.output, progress)
     except KeyboardInterrupt:
-        print(f"fuseplan: interrupted; finished plans are in {args.output / 'speed.jsonl'}; "
-              "run the same command again to resume", file=sys.stderr)
-        return 130
+        return _interrupted(args.output / "speed.jsonl", "plans")
     print(f"{len(records) - reused} plans computed, {reused} reused from {args.output / 'speed.jsonl'}; "
           f"{time.perf_counter() - t0:.1f} s")
+    return _report(args.output, "speed", lambda: speed.report(args.output, records, s))
+
+
+def _interrupted(jsonl: Path, what: str) -> int:
+    """Ctrl-C during a bench: say where the finished work is and that the same command resumes it."""
+    print(f"fuseplan: interrupted; finished {what} are in {jsonl}; run the same command again to resume",
+          file=sys.stderr)
+    return 130
+
+
+def _report(output: Path, name: str, write: typing.Callable[[], list[Path]]) -> int:
+    """Write a bench's report files, show ``NAME.md`` and list what was written."""
     try:
-        files = speed.report(args.output, records, s)
+        files = write()
     except OSError as e:
-        raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
-    console.show_markdown((args.output / "speed.md").read_text())
+        raise FuseplanError(f"{output}: cannot write results: {e.strerror or e}") from e
+    console.show_markdown((output / f"{name}.md").read_text())
     print("wrote " + ", ".join(str(f) for f in files))
     return EXIT_OK
 
