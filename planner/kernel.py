@@ -1,9 +1,15 @@
-"""The cost J of docs/method.md §4–§5 as one compiled loop over particle × segment × obstacle (numba).
+"""The cost J of docs/method.md §4–§5 as compiled loops over segment × obstacle × particle (numba).
 
 The numpy implementation in :mod:`planner.problem` is the reference; this kernel computes the same terms,
 penalties and violation counts without the numpy temporaries that dominate small swarms (a replan's swarm of
 100 × 9 segments spends most of its time in array set-up, not arithmetic). ``FUSEPLAN_KERNEL=numpy`` picks the
 reference; without numba installed the reference is used. tests/planner/test_kernel.py holds the two to 1e-9.
+
+Particles are the innermost loop and each such loop writes one array, so the compiler runs it in SIMD lanes;
+arctangents, sines and cosines there are branch-free polynomials (:func:`_atan2`, :func:`_sincos`, within a
+rounding or two of libm's), because a libm call cannot be vectorised. Each particle still adds its own sums in
+the order of one particle at a time, and obstacles skipped by the broad phase or by the swarm's box add exact
+zeros, so the settings give the same costs bit for bit (docs/design.md, "Compiled kernels").
 """
 
 from __future__ import annotations
@@ -56,6 +62,17 @@ def _inline(fn):  # noqa: ANN001, ANN202
     return fn if njit is None else njit(inline="always", error_model="numpy")(fn)
 
 
+def _linked(fn):  # noqa: ANN001, ANN202
+    """A helper left to LLVM to inline where it pays (scalar paths): faster to compile than ``_inline``."""
+    return fn if njit is None else njit(error_model="numpy")(fn)
+
+
+def _called(fn):  # noqa: ANN001, ANN202
+    """A helper on a rare or long path, compiled once and called: inlining it into each caller would cost more
+    compile time (the first run on a machine) than the call costs at run time."""
+    return fn if njit is None else njit(cache=True, nogil=True, error_model="numpy")(fn)
+
+
 @_inline
 def _seg_point(ax, ay, az, bx, by, bz, px, py, pz):  # noqa: ANN001, ANN202
     """Distance from point p to segment a→b (geometry.segment_point_distance)."""
@@ -101,7 +118,7 @@ def _cyl_signed(ax, ay, az, dx, dy, dz, t, cx, cy, r, top):  # noqa: ANN001, ANN
     return math.sqrt(uo * uo + wo * wo) + min(max(u, w), 0.0)
 
 
-@_inline
+@_called
 def _seg_cyl_finite(ax, ay, az, bx, by, bz, cx, cy, r, top, iters):  # noqa: ANN001, ANN202
     """Golden-section minimum over the segment, step for step as geometry.segment_cylinder_clearance."""
     dx, dy, dz = bx - ax, by - ay, bz - az
@@ -150,7 +167,7 @@ def _bezier(q0, q1, q2, q3, t):  # noqa: ANN001, ANN202
     return s**3 * q0 + 3 * s**2 * t * q1 + 3 * s * t**2 * q2 + t**3 * q3
 
 
-@_inline
+@_linked
 def _cubic_range(q0, q1, q2, q3):  # noqa: ANN001, ANN202
     """Exact min and max of a scalar cubic Bézier on [0, 1] (smoothing.cubic_range)."""
     a, b, c = q1 - q0, q2 - q1, q3 - q2
@@ -206,13 +223,17 @@ def _peak_climb(ux, uy, uz, vx, vy, vz):  # noqa: ANN001, ANN202
     den = dz * hu_dh - uz * dh2
     beta = num / den if abs(den) > 1e-15 else 0.0
     beta = min(max(beta, -1.0 / 3.0), 1.0)
-    best = 0.0
-    for bb in (-1.0 / 3.0, 1.0, beta):
-        wz = uz + bb * dz
-        wx = ux + bb * dx
-        wy = uy + bb * dy
-        best = max(best, wz * wz / max(wx * wx + wy * wy, 1e-300))
-    return best  # tan² of the angle: the caller takes atan only when it may exceed the limit
+    best = max(0.0, _tan2_at(ux, uy, uz, dx, dy, dz, -1.0 / 3.0))  # the ends of the range, then the stationary point
+    best = max(best, _tan2_at(ux, uy, uz, dx, dy, dz, 1.0))
+    return max(best, _tan2_at(ux, uy, uz, dx, dy, dz, beta))  # tan²: the caller takes atan only near the limit
+
+
+@_inline
+def _tan2_at(ux, uy, uz, dx, dy, dz, bb):  # noqa: ANN001, ANN202
+    wz = uz + bb * dz
+    wx = ux + bb * dx
+    wy = uy + bb * dy
+    return wz * wz / max(wx * wx + wy * wy, 1e-300)
 
 
 @_inline
@@ -264,254 +285,491 @@ def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad
     return n
 
 
+# atan(z) = z·A(z²) for |z| ≤ tan(π/8): A interpolates atan(√w)/√w at 12 Chebyshev nodes of [0, tan²(π/8)] (its
+# relative error there is 2.2e-16, one rounding; tests/planner/test_kernel.py holds _atan2 to math.atan2)
+_ATAN = (1.0, -0.3333333333333312, 0.19999999999940893, -0.14285714279250245, 0.11111110744919658,
+         -0.09090896809064027, 0.07692045330902225, -0.06662951813629191, 0.05846878297330872, -0.05035102456601552,
+         0.03796525745386593, -0.017805397205419446)
+_TAN_PI_8 = math.tan(math.pi / 8.0)
+_NEAR_LIMIT = 1e-12  # rad: a turn this close to its limit is measured with libm's atan2 (see _cost)
+
+
+@_inline
+def _atan2(y, x):  # noqa: ANN001, ANN202
+    """math.atan2 (to a rounding or two) without a libm call and without branches, so that a loop over particles
+    runs in SIMD lanes: the ratio of the smaller to the larger coordinate, reduced below tan(π/8) by
+    atan t = π/4 + atan((t − 1)/(t + 1)), then the polynomial, then the octant."""
+    ax, ay = abs(x), abs(y)
+    mx, mn = max(ax, ay), min(ax, ay)
+    big = mn > _TAN_PI_8 * mx
+    num = mn - mx if big else mn
+    den = mn + mx if big else mx
+    z = num / (den if den > 0.0 else 1.0)
+    w = z * z
+    a = _ATAN[11]
+    a = a * w + _ATAN[10]
+    a = a * w + _ATAN[9]
+    a = a * w + _ATAN[8]
+    a = a * w + _ATAN[7]
+    a = a * w + _ATAN[6]
+    a = a * w + _ATAN[5]
+    a = a * w + _ATAN[4]
+    a = a * w + _ATAN[3]
+    a = a * w + _ATAN[2]
+    a = a * w + _ATAN[1]
+    r = z * (a * w + _ATAN[0])
+    r = r + 0.25 * math.pi if big else r
+    r = 0.5 * math.pi - r if ay > ax else r
+    r = math.pi - r if x < 0.0 else r
+    return -r if y < 0.0 else r
+
+
+# sin r = r·S(r²) and cos r = C(r²) for |r| ≤ π/4, interpolated at 8 Chebyshev nodes of [0, π²/16] as _ATAN (each
+# within 2.2e-16 there); angles come to that range by whole quarter turns, π/2 in three parts (Cody and Waite)
+_SIN = (1.0, -0.16666666666666666, 0.008333333333333321, -0.00019841269841253478, 2.7557319213562225e-06,
+        -2.5052104779095043e-08, 1.6058352428871255e-10, -7.578090160922686e-13)
+_COS = (1.0, -0.5, 0.04166666666666645, -0.0013888888888861095, 2.4801587283881152e-05, -2.7557313097790086e-07,
+        2.0875582380663952e-09, -1.1353379638297575e-11)
+_PIO2_HI = math.ldexp(round(math.ldexp(math.pi / 2.0, 29)), -29)  # 30 bits: n·_PIO2_HI is exact for small n
+_PIO2_MID = math.pi / 2.0 - _PIO2_HI  # exact: the rest of the double nearest π/2
+_PIO2_LO = 6.123233995736766e-17  # π/2 minus that double
+
+
+@_inline
+def _sincos(a):  # noqa: ANN001, ANN202
+    """(sin a, cos a) to a rounding or two for |a| up to a few turns, branch-free (see _atan2): a = n·π/2 + r,
+    |r| ≤ π/4, then the quadrant n mod 4 swaps and signs the two polynomials (in floats: no vector int64)."""
+    n = np.floor(a * (2.0 / math.pi) + 0.5)
+    r = ((a - n * _PIO2_HI) - n * _PIO2_MID) - n * _PIO2_LO
+    w = r * r
+    sn = _SIN[7]
+    sn = sn * w + _SIN[6]
+    sn = sn * w + _SIN[5]
+    sn = sn * w + _SIN[4]
+    sn = sn * w + _SIN[3]
+    sn = sn * w + _SIN[2]
+    sn = sn * w + _SIN[1]
+    sn = r * (sn * w + _SIN[0])
+    cs = _COS[7]
+    cs = cs * w + _COS[6]
+    cs = cs * w + _COS[5]
+    cs = cs * w + _COS[4]
+    cs = cs * w + _COS[3]
+    cs = cs * w + _COS[2]
+    cs = cs * w + _COS[1]
+    cs = cs * w + _COS[0]
+    odd = n - 2.0 * np.floor(0.5 * n)  # 1 in quadrants 1 and 3: sine and cosine swap
+    m = np.floor(0.5 * n)
+    flip_s = m - 2.0 * np.floor(0.5 * m)  # 1 in quadrants 2 and 3: the sine changes sign
+    m = np.floor(0.5 * (n + 1.0))
+    flip_c = m - 2.0 * np.floor(0.5 * m)  # 1 in quadrants 1 and 2: the cosine changes sign
+    s = cs if odd > 0.5 else sn
+    c = sn if odd > 0.5 else cs
+    return (-s if flip_s > 0.5 else s), (-c if flip_c > 0.5 else c)
+
+
+@_inline
+def _add_violations(excess, s, limit, pen_c, rate, pen, viol, category):  # noqa: ANN001, ANN202
+    """Each particle whose ``excess[s] − limit`` is positive adds a violation of that depth: the penalty and the
+    count in two loops (a loop writing one array runs in SIMD lanes; adding a zero leaves a sum as it was)."""
+    n_p = excess.shape[1]
+    for p in range(n_p):
+        depth = excess[s, p] - limit
+        pen[p] += pen_c + rate * depth if depth > 0.0 else 0.0
+    for p in range(n_p):
+        viol[category, p] += 1 if excess[s, p] - limit > 0.0 else 0
+
+
+@_inline
+def _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, dist):  # noqa: ANN001, ANN202
+    """Whether the point (cx, cy) is farther than ``dist`` from the box."""
+    ex = max(max(x_lo - cx, cx - x_hi), 0.0)
+    ey = max(max(y_lo - cy, cy - y_hi), 0.0)
+    return ex * ex + ey * ey > dist * dist
+
+
+@_inline
+def _cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev, gap_cap, pen_c, per_m, iters, soft, pen, viol):  # noqa: ANN001, ANN202
+    """Particle p's segment s against one cylinder, one particle at a time: J2's soft term into ``soft[p]``, a
+    collision into ``pen[p]``/``viol[0, p]``; a roof (finite ``top``) by golden section near it."""
+    ax, ay, az = pt[s, 0, p], pt[s, 1, p], pt[s, 2, p]
+    bx, by, bz = pt[s + 1, 0, p], pt[s + 1, 1, p], pt[s + 1, 2, p]
+    reach = (d_safe + dev) * (1.0 + 1e-9) + 1e-6
+    d2 = _seg_point_2d_sq(ax, ay, bx, by, cx, cy)
+    if d2 > (r + reach) * (r + reach):  # beyond reach: an exact zero, no root needed
+        return
+    c = math.sqrt(d2) - r
+    if math.isfinite(top) and c < d_safe + dev:
+        c = _seg_cyl_finite(ax, ay, az, bx, by, bz, cx, cy, r, top, iters)
+    c -= dev
+    g = d_safe - c
+    depth = g - gap_cap
+    if depth > 0.0:
+        viol[0, p] += 1
+        pen[p] += pen_c + per_m * depth
+    g = min(max(g, 0.0), gap_cap)
+    soft[p] += g * g
+
+
+@_called
+def _threat_terms(pt, s, p, seg_len, s0, dev, thr, threat_t, start_time, cruise, max_speed, d_safe, gap_cap,
+                  pen_c, per_m, soft, pen, viol):  # noqa: ANN001, ANN202
+    """Particle p's segment s against every moving threat at the times it flies its samples (§4.6)."""
+    ax, ay, az = pt[s, 0, p], pt[s, 1, p], pt[s, 2, p]
+    bx, by, bz = pt[s + 1, 0, p], pt[s + 1, 1, p], pt[s + 1, 2, p]
+    n_t = threat_t.shape[0]
+    gap = seg_len / (n_t - 1)
+    margin = dev + 0.5 * gap * (1.0 + max_speed / cruise)
+    for m in range(n_t):
+        tt = threat_t[m]
+        px, py, pz = ax + tt * (bx - ax), ay + tt * (by - ay), az + tt * (bz - az)
+        time = start_time + (s0 + tt * seg_len) / cruise
+        for k in range(thr.shape[0]):  # centre and radius at this time (Threats.positions, .radii)
+            kind, rad, t_ref = thr[k, 0], thr[k, 1], thr[k, 3]
+            if kind == _LOITER:  # a1 circle radius, a2 angular rate, a3 phase
+                ang = thr[k, 9] + thr[k, 8] * time
+                cx = thr[k, 4] + thr[k, 7] * math.cos(ang)
+                cy = thr[k, 5] + thr[k, 7] * math.sin(ang)
+                cz = thr[k, 6]
+            elif kind == _PATROL:  # a1..a3 unit direction A→B, a4 length, a5 speed
+                along = (thr[k, 11] * time) % (2 * thr[k, 10])
+                if along > thr[k, 10]:
+                    along = 2 * thr[k, 10] - along
+                cx = thr[k, 4] + thr[k, 7] * along
+                cy = thr[k, 5] + thr[k, 8] * along
+                cz = thr[k, 6] + thr[k, 9] * along
+            else:  # track: a1..a3 velocity from t_ref; the radius grows with prediction time
+                dt = time - t_ref
+                cx = thr[k, 4] + thr[k, 7] * dt
+                cy = thr[k, 5] + thr[k, 8] * dt
+                cz = thr[k, 6] + thr[k, 9] * dt
+                rad = rad + thr[k, 2] * max(dt, 0.0)
+            ex, ey, ez = px - cx, py - cy, pz - cz
+            c = math.sqrt(ex * ex + ey * ey + ez * ez) - rad - margin
+            g = d_safe - c
+            depth = g - gap_cap
+            if depth > 0.0:
+                viol[0, p] += 1
+                pen[p] += pen_c + per_m * depth
+            g = min(max(g, 0.0), gap_cap)
+            soft[p] += g * g
+
+
+@_called
+def _terrain_terms(pt, seg, q2, s, p, terrain_t, slope, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m,
+                   pen, viol):  # noqa: ANN001, ANN202
+    """Particle p's curve on segment s against the band above the terrain, at its samples (§4.7)."""
+    q1x = pt[s, 0, p] + seg[s, 0, p] / 3.0
+    q1y = pt[s, 1, p] + seg[s, 1, p] / 3.0
+    q1z = pt[s, 2, p] + seg[s, 2, p] / 3.0
+    ddx, ddy, ddz = q1x - pt[s, 0, p], q1y - pt[s, 1, p], q1z - pt[s, 2, p]
+    gap = math.sqrt(ddx * ddx + ddy * ddy + ddz * ddz) * (3.0 / (terrain_t.shape[0] - 1))
+    margin = 0.5 * slope * gap
+    for m in range(terrain_t.shape[0]):
+        tt = terrain_t[m]
+        x = _bezier(pt[s, 0, p], q1x, q2[s, 0, p], pt[s + 1, 0, p], tt)
+        y = _bezier(pt[s, 1, p], q1y, q2[s, 1, p], pt[s + 1, 1, p], tt)
+        z = _bezier(pt[s, 2, p], q1z, q2[s, 2, p], pt[s + 1, 2, p], tt)
+        z = z - _ground(x, y, True, tx0, ty0, tdx, tdy, terrain_h)
+        depth = max(z_min + margin - z, z - z_max)
+        if depth > 0.0:
+            viol[1, p] += 1
+            pen[p] += pen_c + per_m * depth
+
+
 @_jit
 def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w,
           terrain_h, thr, peak_table, threat_t, terrain_t, golden_iters, grid, ob_x, ob_y, ob_r, ob_start,
           ob_items):  # noqa: ANN001, ANN202
-    """terms (P, 5), penalty (P,), violations (P, 5) for paths (P, N, 3); ``sc`` holds the scalars and ``thr`` the
-    threats' laws, a row each (see _arrays)."""
+    """terms (P, 5), penalty (P,), violations (P, 5) and the weighted total (P,) for paths (P, N, 3); ``sc`` holds
+    the scalars and ``thr`` the threats' laws, a row each (see _arrays).
+
+    Particles are the innermost loop (the swarm is transposed to waypoint × axis × particle first), so the common
+    passes run in SIMD lanes; each particle's own sums are still added term by term in the order of one particle
+    at a time: segment, then obstacle, then category."""
     (acc_r, d_safe, d_coll, pen_c, per_m, per_rad, max_turn, r_min, max_climb, z_min, z_max, size_x, size_y,
      direct, cruise, start_time, timed, max_speed, has_heading, has_terrain, tx0, ty0, tdx, tdy, slope) = (
         sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7], sc[8], sc[9], sc[10], sc[11], sc[12], sc[13], sc[14],
         sc[15], sc[16] > 0, sc[17], sc[18] > 0, sc[19] > 0, sc[20], sc[21], sc[22], sc[23], sc[24])
     n_p, n_pts = paths.shape[0], paths.shape[1]
     n_s = n_pts - 1
-    terms = np.zeros((n_p, 5))
+    pt = np.empty((n_pts, 3, n_p))  # the swarm, particles innermost
+    for p in range(n_p):
+        for w in range(n_pts):
+            for i in range(3):
+                pt[w, i, p] = paths[p, w, i]
+    seg = np.empty((n_s, 3, n_p))
+    u = np.empty((n_s, 3, n_p))
+    seg_len = np.empty((n_s, n_p))
+    cos_t = np.empty((n_s, n_p))
+    dev = np.empty((n_s, n_p))
+    q2 = np.empty((n_s, 3, n_p))
+    s0 = np.empty((n_s, n_p))
+    gam = np.empty((n_s, n_p))
+    work = np.empty((n_s, n_p))
+    j1 = np.zeros(n_p)
+    j3 = np.zeros(n_p)
+    j4 = np.zeros(n_p)
+    soft_cyl = np.zeros(n_p)
+    soft_sph = np.zeros(n_p)
+    soft_rad = np.zeros(n_p)
+    soft_thr = np.zeros(n_p)
+    cum = np.zeros(n_p)
     pen = np.zeros(n_p)
-    viol = np.zeros((n_p, 5), dtype=np.int64)  # collision, altitude, bounds, turn, climb
-    seg = np.empty((n_s, 3))
-    u = np.empty((n_s, 3))
-    v = np.empty((n_s, 3))
-    seg_len = np.empty(n_s)
-    cos_t = np.empty(n_s)
-    dev = np.empty(n_s)
-    q2 = np.empty((n_s, 3))
-    s0 = np.empty(n_s)
-    gam = np.empty(n_s)
+    viol = np.zeros((5, n_p), dtype=np.int64)  # collision, altitude, bounds, turn, climb
     n_cyl = cyl_x.shape[0]
+    n_sph = sph_r.shape[0]
     near = np.empty(ob_x.shape[0], dtype=np.int64)
     stamp = np.full(ob_x.shape[0], -1, dtype=np.int64)
     gox, goy, gcell, gnx, gny = grid[0], grid[1], grid[2], int(grid[3]), int(grid[4])
+    one_cell = gnx == 1 and gny == 1  # every obstacle is near every segment: whole-swarm passes per obstacle
     climb_tan2 = math.tan(max_climb) ** 2 * (1.0 - 1e-9) if max_climb < 0.5 * math.pi else math.inf
+    peak_max = peak_table.max()
     gap_cap = d_safe - d_coll
-    n_thr_t = threat_t.shape[0]
-    n_ter_t = terrain_t.shape[0]
-    for p in range(n_p):
-        pp = paths[p]
-        penalty = 0.0
-        # -- segments, unit directions, turn cosines, the flown curve's deviation (§4.4) ---------------
-        j1 = 0.0
+    # -- segments, unit directions, turn cosines, the flown curve's deviation (§4.4) -------------------------
+    # (each loop over particles writes one array: a loop writing several is left unvectorised by the compiler)
+    for s in range(n_s):
+        for i in range(3):
+            for p in range(n_p):
+                seg[s, i, p] = pt[s + 1, i, p] - pt[s, i, p]
+        for p in range(n_p):
+            seg_len[s, p] = math.sqrt(seg[s, 0, p] * seg[s, 0, p] + seg[s, 1, p] * seg[s, 1, p]
+                                      + seg[s, 2, p] * seg[s, 2, p])
+        for p in range(n_p):
+            j1[p] += seg_len[s, p]
+        for i in range(3):
+            for p in range(n_p):
+                u[s, i, p] = seg[s, i, p] / max(seg_len[s, p], _EPS)
+    for s in range(n_s):
+        nxt = s + 1 if s + 1 < n_s else n_s - 1  # v: the next direction; the last segment stays straight
+        for p in range(n_p):
+            cos_t[s, p] = u[s, 0, p] * u[nxt, 0, p] + u[s, 1, p] * u[nxt, 1, p] + u[s, 2, p] * u[nxt, 2, p]
+        for p in range(n_p):  # the chord's deviation: the curve's bulge or either corner's cut, the larger
+            so = _sin_or_one(cos_t[s, p])
+            cut_prev = 0.5 * acc_r * _sin_or_one(cos_t[s - 1, p]) if s > 0 else 0.0
+            dev[s, p] = max((4.0 / 27.0) * seg_len[s, p] * so, max(0.5 * acc_r * so, cut_prev))
+        for i in range(3):
+            for p in range(n_p):
+                q2[s, i, p] = pt[s + 1, i, p] - (seg_len[s, p] / 3.0) * u[nxt, i, p]
+    if timed:  # the distance flown before each segment, for the threats' times
         for s in range(n_s):
-            for i in range(3):
-                seg[s, i] = pp[s + 1, i] - pp[s, i]
-            seg_len[s] = math.sqrt(seg[s, 0] * seg[s, 0] + seg[s, 1] * seg[s, 1] + seg[s, 2] * seg[s, 2])
-            j1 += seg_len[s]
-            inv = max(seg_len[s], _EPS)
-            for i in range(3):
-                u[s, i] = seg[s, i] / inv
-        cum = 0.0
-        for s in range(n_s):
-            nxt = s + 1 if s + 1 < n_s else n_s - 1
-            for i in range(3):
-                v[s, i] = u[nxt, i]
-            cos_t[s] = u[s, 0] * v[s, 0] + u[s, 1] * v[s, 1] + u[s, 2] * v[s, 2]
-            cum += seg_len[s]
-            s0[s] = cum - seg_len[s]
-        prev_cut = 0.0
-        for s in range(n_s):
-            so = _sin_or_one(cos_t[s])
-            cut = 0.5 * acc_r * so
-            dev[s] = max((4.0 / 27.0) * seg_len[s] * so, max(cut, prev_cut))
-            prev_cut = cut
-            for i in range(3):
-                q2[s, i] = pp[s + 1, i] - (seg_len[s] / 3.0) * v[s, i]
-        if has_heading:
-            c0 = u[0, 0] * heading[0] + u[0, 1] * heading[1] + u[0, 2] * heading[2]
-            dev[0] = max(dev[0], 0.5 * acc_r * _sin_or_one(c0))
-        # -- J2 hazard (§4.3, §4.5, §4.6) ---------------------------------------------------------------
-        soft_cyl = 0.0
-        soft_sph = 0.0
-        soft_rad = 0.0
-        soft_thr = 0.0
-        for s in range(n_s):
-            ax, ay, az = pp[s, 0], pp[s, 1], pp[s, 2]
-            bx, by, bz = pp[s + 1, 0], pp[s + 1, 1], pp[s + 1, 2]
-            # an obstacle adds to J2 only within d_safe + dev of the chord (in plan view): the others add exact
-            # zeros, so the broad phase skips them and keeps the sums bit for bit (docs/method.md §4.3)
-            reach = (d_safe + dev[s]) * (1.0 + 1e-9) + 1e-6
-            token = p * n_s + s
-            # cylinders and spheres share the grid: indices below n_cyl are cylinders, the rest spheres, each family
-            # in its own index order
-            n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r,
-                           stamp, token, near)
-            for q in range(n_near):
-                k = near[q]
-                if k >= n_cyl:
-                    break
-                d2 = _seg_point_2d_sq(ax, ay, bx, by, cyl_x[k], cyl_y[k])
-                if d2 > (cyl_r[k] + reach) * (cyl_r[k] + reach):  # beyond reach: an exact zero, no root needed
+            for p in range(n_p):
+                cum[p] += seg_len[s, p]
+            for p in range(n_p):
+                s0[s, p] = cum[p] - seg_len[s, p]
+    if has_heading:
+        for p in range(n_p):
+            c0 = u[0, 0, p] * heading[0] + u[0, 1, p] * heading[1] + u[0, 2, p] * heading[2]
+            dev[0, p] = max(dev[0, p], 0.5 * acc_r * _sin_or_one(c0))
+    # -- J2 hazard (§4.3, §4.5, §4.6) -------------------------------------------------------------------------
+    box = np.empty((n_pts, 4))  # plan-view box of each waypoint over the swarm: x_lo, x_hi, y_lo, y_hi
+    if one_cell:
+        for w in range(n_pts):
+            for i in range(2):
+                lo, hi = math.inf, -math.inf
+                for p in range(n_p):
+                    lo = min(lo, pt[w, i, p])
+                    hi = max(hi, pt[w, i, p])
+                box[w, 2 * i], box[w, 2 * i + 1] = lo, hi
+    for s in range(n_s):
+        if one_cell:
+            # a converging swarm's segments s share a small box: obstacles beyond every particle's reach from it add
+            # exact zeros for all of them, and are skipped (as the broad phase skips them one segment at a time)
+            dev_hi = 0.0
+            for p in range(n_p):
+                dev_hi = max(dev_hi, dev[s, p])
+            reach = (d_safe + dev_hi) * (1.0 + 1e-9) + 1e-6
+            x_lo, x_hi = min(box[s, 0], box[s + 1, 0]), max(box[s, 1], box[s + 1, 1])
+            y_lo, y_hi = min(box[s, 2], box[s + 1, 2]), max(box[s, 3], box[s + 1, 3])
+            for k in range(n_cyl):
+                cx, cy, r, top = cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k]
+                if _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, r + reach):
                     continue
-                c = math.sqrt(d2) - cyl_r[k]
-                if math.isfinite(cyl_top[k]) and c < d_safe + dev[s]:
-                    c = _seg_cyl_finite(ax, ay, az, bx, by, bz, cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k],
-                                        golden_iters)
-                c -= dev[s]
-                g = d_safe - c
-                depth = g - gap_cap
-                if depth > 0.0:
-                    viol[p, 0] += 1
-                    penalty += pen_c + per_m * depth
-                g = min(max(g, 0.0), gap_cap)
-                soft_cyl += g * g
-            for q in range(n_near):
-                k = near[q] - n_cyl
-                if k < 0:
+                if math.isfinite(top):  # a roof: the golden-section clearance near it, one particle at a time
+                    for p in range(n_p):
+                        _cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev[s, p], gap_cap, pen_c, per_m,
+                                       golden_iters, soft_cyl, pen, viol)
                     continue
-                d2 = _seg_point_sq(ax, ay, az, bx, by, bz, sph_c[k, 0], sph_c[k, 1], sph_c[k, 2])
-                if d2 > (sph_r[k] + reach) * (sph_r[k] + reach):
+                for p in range(n_p):  # beyond reach g is clipped to an exact zero: adding it changes no sum
+                    c = math.sqrt(_seg_point_2d_sq(pt[s, 0, p], pt[s, 1, p], pt[s + 1, 0, p], pt[s + 1, 1, p], cx,
+                                                   cy)) - r - dev[s, p]
+                    g = d_safe - c
+                    depth = g - gap_cap
+                    hit = depth > 0.0
+                    viol[0, p] += 1 if hit else 0
+                    pen[p] += pen_c + per_m * depth if hit else 0.0
+                    g = min(max(g, 0.0), gap_cap)
+                    soft_cyl[p] += g * g
+            for k in range(n_sph):
+                cx, cy, cz, r = sph_c[k, 0], sph_c[k, 1], sph_c[k, 2], sph_r[k]
+                if _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, r + reach):  # plan view: nearer than in 3-D
                     continue
-                c = math.sqrt(d2) - sph_r[k] - dev[s]
-                g = d_safe - c
-                depth = g - gap_cap
-                if depth > 0.0:
-                    viol[p, 0] += 1
-                    penalty += pen_c + per_m * depth
-                g = min(max(g, 0.0), gap_cap)
-                soft_sph += g * g
-            for k in range(rad_det.shape[0]):
-                d = _seg_point(ax, ay, az, bx, by, bz, rad_c[k, 0], rad_c[k, 1], rad_c[k, 2])
-                depth = rad_det[k] - (d - dev[s])
-                if depth > 0.0:
-                    viol[p, 0] += 1
-                    penalty += pen_c + per_m * depth
-                soft_rad += rad_w[k] * (rad_det[k] / max(d, rad_det[k])) ** 4
-            if timed:
-                gap = seg_len[s] / (n_thr_t - 1)
-                margin = dev[s] + 0.5 * gap * (1.0 + max_speed / cruise)
-                for m in range(n_thr_t):
-                    tt = threat_t[m]
-                    px, py, pz = ax + tt * (bx - ax), ay + tt * (by - ay), az + tt * (bz - az)
-                    time = start_time + (s0[s] + tt * seg_len[s]) / cruise
-                    for k in range(thr.shape[0]):  # centre and radius at this time (Threats.positions, .radii)
-                        kind, rad, t_ref = thr[k, 0], thr[k, 1], thr[k, 3]
-                        if kind == _LOITER:  # a1 circle radius, a2 angular rate, a3 phase
-                            ang = thr[k, 9] + thr[k, 8] * time
-                            cx = thr[k, 4] + thr[k, 7] * math.cos(ang)
-                            cy = thr[k, 5] + thr[k, 7] * math.sin(ang)
-                            cz = thr[k, 6]
-                        elif kind == _PATROL:  # a1..a3 unit direction A→B, a4 length, a5 speed
-                            along = (thr[k, 11] * time) % (2 * thr[k, 10])
-                            if along > thr[k, 10]:
-                                along = 2 * thr[k, 10] - along
-                            cx = thr[k, 4] + thr[k, 7] * along
-                            cy = thr[k, 5] + thr[k, 8] * along
-                            cz = thr[k, 6] + thr[k, 9] * along
-                        else:  # track: a1..a3 velocity from t_ref; the radius grows with prediction time
-                            dt = time - t_ref
-                            cx = thr[k, 4] + thr[k, 7] * dt
-                            cy = thr[k, 5] + thr[k, 8] * dt
-                            cz = thr[k, 6] + thr[k, 9] * dt
-                            rad = rad + thr[k, 2] * max(dt, 0.0)
-                        ex, ey, ez = px - cx, py - cy, pz - cz
-                        c = math.sqrt(ex * ex + ey * ey + ez * ez) - rad - margin
-                        g = d_safe - c
-                        depth = g - gap_cap
-                        if depth > 0.0:
-                            viol[p, 0] += 1
-                            penalty += pen_c + per_m * depth
-                        g = min(max(g, 0.0), gap_cap)
-                        soft_thr += g * g
-        j2 = soft_cyl / d_safe + soft_sph / d_safe + soft_rad + soft_thr / d_safe
-        # -- J3 altitude: mid-band distance of interior waypoints; band violations of the curve (§4.7) ---
-        mid, half = 0.5 * (z_min + z_max), 0.5 * (z_max - z_min)
-        j3 = 0.0
-        for w in range(1, n_pts - 1):
-            h = pp[w, 2] - _ground(pp[w, 0], pp[w, 1], has_terrain, tx0, ty0, tdx, tdy, terrain_h)
-            j3 += abs(h - mid) / half
+                for p in range(n_p):
+                    c = math.sqrt(_seg_point_sq(pt[s, 0, p], pt[s, 1, p], pt[s, 2, p], pt[s + 1, 0, p],
+                                                pt[s + 1, 1, p], pt[s + 1, 2, p], cx, cy, cz)) - r - dev[s, p]
+                    g = d_safe - c
+                    depth = g - gap_cap
+                    hit = depth > 0.0
+                    viol[0, p] += 1 if hit else 0
+                    pen[p] += pen_c + per_m * depth if hit else 0.0
+                    g = min(max(g, 0.0), gap_cap)
+                    soft_sph[p] += g * g
+        else:
+            for p in range(n_p):
+                ax, ay, bx, by = pt[s, 0, p], pt[s, 1, p], pt[s + 1, 0, p], pt[s + 1, 1, p]
+                # an obstacle adds to J2 only within d_safe + dev of the chord (in plan view): the others add exact
+                # zeros, so the broad phase skips them and keeps the sums bit for bit (docs/method.md §4.3)
+                reach = (d_safe + dev[s, p]) * (1.0 + 1e-9) + 1e-6
+                n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, ob_start, ob_items, ob_x, ob_y,
+                               ob_r, stamp, p * n_s + s, near)
+                for q in range(n_near):  # cylinders first (indices below n_cyl), then spheres, each in index order
+                    k = near[q]
+                    if k < n_cyl:
+                        _cylinder_term(pt, s, p, cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k], d_safe, dev[s, p], gap_cap,
+                                       pen_c, per_m, golden_iters, soft_cyl, pen, viol)
+                        continue
+                    k -= n_cyl
+                    c = math.sqrt(_seg_point_sq(ax, ay, pt[s, 2, p], bx, by, pt[s + 1, 2, p], sph_c[k, 0],
+                                                sph_c[k, 1], sph_c[k, 2])) - sph_r[k] - dev[s, p]
+                    g = d_safe - c
+                    depth = g - gap_cap
+                    if depth > 0.0:
+                        viol[0, p] += 1
+                        pen[p] += pen_c + per_m * depth
+                    g = min(max(g, 0.0), gap_cap)
+                    soft_sph[p] += g * g
+        for k in range(rad_det.shape[0]):
+            cx, cy, cz, det, wt = rad_c[k, 0], rad_c[k, 1], rad_c[k, 2], rad_det[k], rad_w[k]
+            for p in range(n_p):
+                d = math.sqrt(_seg_point_sq(pt[s, 0, p], pt[s, 1, p], pt[s, 2, p], pt[s + 1, 0, p], pt[s + 1, 1, p],
+                                            pt[s + 1, 2, p], cx, cy, cz))
+                depth = det - (d - dev[s, p])
+                hit = depth > 0.0
+                viol[0, p] += 1 if hit else 0
+                pen[p] += pen_c + per_m * depth if hit else 0.0
+                soft_rad[p] += wt * (det / max(d, det)) ** 4
+        if timed:
+            for p in range(n_p):
+                _threat_terms(pt, s, p, seg_len[s, p], s0[s, p], dev[s, p], thr, threat_t, start_time, cruise,
+                              max_speed, d_safe, gap_cap, pen_c, per_m, soft_thr, pen, viol)
+    # -- J3 altitude: mid-band distance of interior waypoints; band violations of the curve (§4.7) -----------
+    mid, half = 0.5 * (z_min + z_max), 0.5 * (z_max - z_min)
+    for w in range(1, n_pts - 1):
+        if has_terrain:
+            for p in range(n_p):
+                h = pt[w, 2, p] - _ground(pt[w, 0, p], pt[w, 1, p], has_terrain, tx0, ty0, tdx, tdy, terrain_h)
+                j3[p] += abs(h - mid) / half
+        else:
+            for p in range(n_p):
+                j3[p] += abs(pt[w, 2, p] - mid) / half
+    if has_terrain:
         for s in range(n_s):
-            z0 = pp[s, 2]
-            z1 = z0 + seg[s, 2] / 3.0
-            z2 = q2[s, 2]
-            z3 = pp[s + 1, 2]
-            if not has_terrain:
+            for p in range(n_p):
+                _terrain_terms(pt, seg, q2, s, p, terrain_t, slope, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h,
+                               pen_c, per_m, pen, viol)
+    else:  # the curve lies in its control points' range: only where that leaves the band is the exact range needed
+        for s in range(n_s):
+            for p in range(n_p):
+                z0, z3 = pt[s, 2, p], pt[s + 1, 2, p]
+                z1, z2 = z0 + seg[s, 2, p] / 3.0, q2[s, 2, p]
                 lo = min(min(z0, z3), min(z1, z2))
                 hi = max(max(z0, z3), max(z1, z2))
-                if lo < z_min or hi > z_max:
-                    lo, hi = _cubic_range(z0, z1, z2, z3)
+                work[s, p] = 1.0 if (lo < z_min) | (hi > z_max) else 0.0
+        for s in range(n_s):
+            for p in range(n_p):
+                if work[s, p] == 0.0:
+                    continue
+                z0, z3 = pt[s, 2, p], pt[s + 1, 2, p]
+                lo, hi = _cubic_range(z0, z0 + seg[s, 2, p] / 3.0, q2[s, 2, p], z3)
                 depth = max(z_min - lo, hi - z_max)
                 if depth > 0.0:
-                    viol[p, 1] += 1
-                    penalty += pen_c + per_m * depth
-            else:
-                q1x = pp[s, 0] + seg[s, 0] / 3.0
-                q1y = pp[s, 1] + seg[s, 1] / 3.0
-                q1z = pp[s, 2] + seg[s, 2] / 3.0
-                ddx, ddy, ddz = q1x - pp[s, 0], q1y - pp[s, 1], q1z - pp[s, 2]
-                gap = math.sqrt(ddx * ddx + ddy * ddy + ddz * ddz) * (3.0 / (n_ter_t - 1))
-                margin = 0.5 * slope * gap
-                for m in range(n_ter_t):
-                    tt = terrain_t[m]
-                    x = _bezier(pp[s, 0], q1x, q2[s, 0], pp[s + 1, 0], tt)
-                    y = _bezier(pp[s, 1], q1y, q2[s, 1], pp[s + 1, 1], tt)
-                    z = _bezier(pp[s, 2], q1z, q2[s, 2], pp[s + 1, 2], tt)
-                    z = z - _ground(x, y, has_terrain, tx0, ty0, tdx, tdy, terrain_h)
-                    depth = max(z_min + margin - z, z - z_max)
-                    if depth > 0.0:
-                        viol[p, 1] += 1
-                        penalty += pen_c + per_m * depth
-        # -- bounds: the curve lies in the hull of a, Q1 (on the chord), Q2 and b -------------------------
-        for s in range(n_s):
-            lo_x = min(min(pp[s, 0], pp[s + 1, 0]), q2[s, 0])
-            lo_y = min(min(pp[s, 1], pp[s + 1, 1]), q2[s, 1])
-            hi_x = max(max(pp[s, 0], pp[s + 1, 0]), q2[s, 0])
-            hi_y = max(max(pp[s, 1], pp[s + 1, 1]), q2[s, 1])
-            depth = max(max(-lo_x, hi_x - size_x), max(-lo_y, hi_y - size_y))
+                    viol[1, p] += 1
+                    pen[p] += pen_c + per_m * depth
+    # -- bounds: the curve lies in the hull of a, Q1 (on the chord), Q2 and b ----------------------------------
+    for s in range(n_s):
+        for p in range(n_p):
+            lo_x = min(min(pt[s, 0, p], pt[s + 1, 0, p]), q2[s, 0, p])
+            lo_y = min(min(pt[s, 1, p], pt[s + 1, 1, p]), q2[s, 1, p])
+            hi_x = max(max(pt[s, 0, p], pt[s + 1, 0, p]), q2[s, 0, p])
+            hi_y = max(max(pt[s, 1, p], pt[s + 1, 1, p]), q2[s, 1, p])
+            work[s, p] = max(max(-lo_x, hi_x - size_x), max(-lo_y, hi_y - size_y))
+        _add_violations(work, s, 0.0, pen_c, per_m, pen, viol, 2)
+    # -- J4 smoothness: turns and climb changes; turn, curvature and climb limits (§4.4, §11) ----------------
+    for s in range(n_s):
+        for p in range(n_p):
+            x, y = seg[s, 0, p], seg[s, 1, p]
+            gam[s, p] = _atan2(seg[s, 2, p], math.sqrt(x * x + y * y))
+    for s in range(n_s - 1):
+        for p in range(n_p):
+            x0, y0 = seg[s, 0, p], seg[s, 1, p]
+            x1, y1 = seg[s + 1, 0, p], seg[s + 1, 1, p]
+            work[s, p] = abs(_atan2(x0 * y1 - y0 * x1, x0 * x1 + y0 * y1))
+    for s in range(n_s - 1):  # at the limit itself, libm's rounding decides, as in the reference
+        for p in range(n_p):
+            if abs(work[s, p] - max_turn) < _NEAR_LIMIT:
+                x0, y0 = seg[s, 0, p], seg[s, 1, p]
+                x1, y1 = seg[s + 1, 0, p], seg[s + 1, 1, p]
+                work[s, p] = abs(math.atan2(x0 * y1 - y0 * x1, x0 * x1 + y0 * y1))
+    for s in range(n_s - 1):
+        for p in range(n_p):
+            over = max(work[s, p] - max_turn, 0.0)
+            j4[p] += work[s, p] + abs(gam[s + 1, p] - gam[s, p]) + over**2
+        _add_violations(work, s, max_turn, pen_c, per_rad, pen, viol, 3)
+    for s in range(n_s):  # with G at its largest (rounding is monotone): where even that is within the limit, so is G
+        for p in range(n_p):
+            c = min(max(cos_t[s, p], -1.0), 1.0)
+            work[s, p] = peak_max * math.sqrt(1.0 - c * c) / max(seg_len[s, p], _EPS_CURV) * r_min - 1.0
+    for s in range(n_s):
+        for p in range(n_p):
+            if work[s, p] <= 0.0:
+                continue
+            depth = _peak_curvature(seg_len[s, p], cos_t[s, p], peak_table) * r_min - 1.0
             if depth > 0.0:
-                viol[p, 2] += 1
-                penalty += pen_c + per_m * depth
-        # -- J4 smoothness: turns and climb changes; turn, curvature and climb limits (§4.4, §11) -------
-        j4 = 0.0
-        for s in range(n_s):
-            gam[s] = math.atan2(seg[s, 2], math.hypot(seg[s, 0], seg[s, 1]))
-        for s in range(n_s - 1):
-            x0, y0 = seg[s, 0], seg[s, 1]
-            x1, y1 = seg[s + 1, 0], seg[s + 1, 1]
-            turn = abs(math.atan2(x0 * y1 - y0 * x1, x0 * x1 + y0 * y1))
-            over = max(turn - max_turn, 0.0)
-            j4 += turn + abs(gam[s + 1] - gam[s]) + over**2
-            if over > 0.0:
-                viol[p, 3] += 1
-                penalty += pen_c + per_rad * over
-        for s in range(n_s):
-            depth = _peak_curvature(seg_len[s], cos_t[s], peak_table) * r_min - 1.0
-            if depth > 0.0:
-                viol[p, 3] += 1
-                penalty += pen_c + per_rad * depth
-        for s in range(n_s):
-            tan2 = _peak_climb(u[s, 0], u[s, 1], u[s, 2], v[s, 0], v[s, 1], v[s, 2])
+                viol[3, p] += 1
+                pen[p] += pen_c + per_rad * depth
+    for s in range(n_s):
+        nxt = s + 1 if s + 1 < n_s else n_s - 1
+        for p in range(n_p):
+            work[s, p] = _peak_climb(u[s, 0, p], u[s, 1, p], u[s, 2, p], u[nxt, 0, p], u[nxt, 1, p], u[nxt, 2, p])
+    for s in range(n_s):
+        for p in range(n_p):
+            tan2 = work[s, p]  # tan² of the peak climb (the buffer is free again)
             if tan2 < climb_tan2:  # well inside the limit (atan is monotone): skip the arctangent
                 continue
-            depth = math.atan(math.sqrt(tan2)) - max_climb
+            depth = math.atan(math.sqrt(tan2)) - max_climb  # libm's, as the reference: particles sit on this bound
             if depth > 0.0:
-                viol[p, 4] += 1
-                penalty += pen_c + per_rad * depth
-        if has_heading:
-            hx, hy = heading[0], heading[1]
-            turn0 = abs(math.atan2(hx * seg[0, 1] - hy * seg[0, 0], hx * seg[0, 0] + hy * seg[0, 1]))
+                viol[4, p] += 1
+                pen[p] += pen_c + per_rad * depth
+    if has_heading:
+        hx, hy = heading[0], heading[1]
+        for p in range(n_p):
+            turn0 = abs(math.atan2(hx * seg[0, 1, p] - hy * seg[0, 0, p], hx * seg[0, 0, p] + hy * seg[0, 1, p]))
             over0 = max(turn0 - max_turn, 0.0)
-            j4 += turn0 + over0**2
+            j4[p] += turn0 + over0**2
             if over0 > 0.0:
-                viol[p, 3] += 1
-                penalty += pen_c + per_rad * over0
-            c0 = u[0, 0] * heading[0] + u[0, 1] * heading[1] + u[0, 2] * heading[2]
-            depth = _peak_curvature(seg_len[0], c0, peak_table) * r_min - 1.0
+                viol[3, p] += 1
+                pen[p] += pen_c + per_rad * over0
+            c0 = u[0, 0, p] * heading[0] + u[0, 1, p] * heading[1] + u[0, 2, p] * heading[2]
+            depth = _peak_curvature(seg_len[0, p], c0, peak_table) * r_min - 1.0
             if depth > 0.0:
-                viol[p, 3] += 1
-                penalty += pen_c + per_rad * depth
-        j5 = seg_len[n_s - 1] / max(direct, _EPS)
-        terms[p, 0], terms[p, 1], terms[p, 2], terms[p, 3], terms[p, 4] = j1, j2, j3, j4, j5
-        pen[p] = penalty
-    return terms, pen, viol
+                viol[3, p] += 1
+                pen[p] += pen_c + per_rad * depth
+    terms = np.empty((n_p, 5))
+    violations = np.empty((n_p, 5), dtype=np.int64)
+    total = np.empty(n_p)
+    inv_direct = max(direct, _EPS)
+    for p in range(n_p):
+        terms[p, 0] = j1[p]
+        terms[p, 1] = soft_cyl[p] / d_safe + soft_sph[p] / d_safe + soft_rad[p] + soft_thr[p] / d_safe
+        terms[p, 2] = j3[p]
+        terms[p, 3] = j4[p]
+        terms[p, 4] = seg_len[n_s - 1, p] / inv_direct
+        t = pen[p]
+        for i in range(5):
+            violations[p, i] = viol[i, p]
+            t = t + sc[25 + i] * terms[p, i]
+        total[p] = t
+    return terms, pen, violations, total
 
 
 def _threat_rows(thr) -> np.ndarray:  # noqa: ANN001
@@ -577,6 +835,7 @@ def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -
         thr.max_speed, float(heading is not None), float(ter is not None),
         ter.x0 if ter is not None else 0.0, ter.y0 if ter is not None else 0.0,
         ter.dx if ter is not None else 1.0, ter.dy if ter is not None else 1.0, problem._terrain_slope,
+        *problem.weights.by_term().values(),  # J1…J5's weights: the total is summed here, in the reference's order
     ], dtype=float)
 
     def f(a, shape=(-1,)):  # noqa: ANN001, ANN202 - a writeable copy: one compiled signature for every problem
@@ -611,9 +870,10 @@ def _packed(problem, threat_t: np.ndarray, terrain_t: np.ndarray) -> tuple:  # n
 
 def evaluate(
     problem, paths: np.ndarray, threat_t: np.ndarray, terrain_t: np.ndarray  # noqa: ANN001
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Unweighted terms (P, 5) J1…J5, penalty (P,) and violation counts (P, 5) in CATEGORIES order for paths
-    (P, N, 3) metres, from the compiled kernel; ``threat_t``/``terrain_t`` are the reference's sample parameters."""
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Unweighted terms (P, 5) J1…J5, penalty (P,), violation counts (P, 5) in CATEGORIES order and the weighted
+    total (P,) for paths (P, N, 3) metres, from the compiled kernel; ``threat_t``/``terrain_t`` are the reference's
+    sample parameters."""
     packed = _packed(problem, threat_t, terrain_t)[1]
     paths = np.asarray(paths, dtype=np.float64)
     if not (paths.flags.c_contiguous and paths.flags.writeable):  # one signature: C-ordered and writeable
@@ -625,23 +885,32 @@ def evaluate(
 @_jit
 def _decode_spherical(x, start, goal):  # noqa: ANN001, ANN202
     """Paths (P, n + 2, 3) from spherical particles (P, n, 3), as geometry.spherical_to_cartesian + start/goal:
-    the steps summed in order from the start (the reference's cumsum, then start + sum)."""
+    the steps summed in order from the start (the reference's cumsum, then start + sum). Sines and cosines are
+    _sincos's, particles innermost so that they run in SIMD lanes."""
     n_p, n = x.shape[0], x.shape[1]
+    xt = np.empty((3, n, n_p))
+    for p in range(n_p):
+        for k in range(n):
+            for i in range(3):
+                xt[i, k, p] = x[p, k, i]
+    step = np.empty((3, n, n_p))
+    for k in range(n):
+        for p in range(n_p):
+            r = xt[0, k, p]
+            s_psi, c_psi = _sincos(xt[1, k, p])
+            s_phi, c_phi = _sincos(xt[2, k, p])
+            step[0, k, p] = r * c_psi * c_phi
+            step[1, k, p] = r * c_psi * s_phi
+            step[2, k, p] = r * s_psi
     out = np.empty((n_p, n + 2, 3))
     for p in range(n_p):
         for i in range(3):
             out[p, 0, i] = start[i]
             out[p, n + 1, i] = goal[i]
-        sx = sy = sz = 0.0
-        for k in range(n):
-            r, psi, phi = x[p, k, 0], x[p, k, 1], x[p, k, 2]
-            cpsi = math.cos(psi)
-            sx += r * cpsi * math.cos(phi)
-            sy += r * cpsi * math.sin(phi)
-            sz += r * math.sin(psi)
-            out[p, k + 1, 0] = start[0] + sx
-            out[p, k + 1, 1] = start[1] + sy
-            out[p, k + 1, 2] = start[2] + sz
+            acc = 0.0
+            for k in range(n):
+                acc += step[i, k, p]
+                out[p, k + 1, i] = start[i] + acc
     return out
 
 
@@ -653,25 +922,21 @@ def decode_spherical(x: np.ndarray, start: np.ndarray, goal: np.ndarray) -> np.n
 
 @_jit
 def _pso_step(x, v, pbest, gbest, w, c1, c2, lo, hi, vmax, reflection, r1, r2):  # noqa: ANN001, ANN202
-    """planner.search.spso.pso_step element by element, the same operations in the same order (so bit for bit)."""
-    n_p, n, d = x.shape
+    """planner.search.spso.pso_step element by element, the same operations in the same order (so bit for bit), on
+    flattened particles (P, m) and bounds (m,); branch-free, so each particle's coordinates run in SIMD lanes."""
+    n_p, m = x.shape
     x_new = np.empty_like(x)
     v_new = np.empty_like(v)
     for p in range(n_p):
         wp = w[p]
-        for k in range(n):
-            for i in range(d):
-                xi = x[p, k, i]
-                vi = (wp * v[p, k, i] + c1 * r1[p, k, i] * (pbest[p, k, i] - xi)
-                      + c2 * r2[p, k, i] * (gbest[k, i] - xi))
-                vi = min(max(vi, -vmax[k, i]), vmax[k, i])
-                xi = xi + vi
-                if xi < lo[k, i] or xi > hi[k, i]:
-                    xi = min(max(xi, lo[k, i]), hi[k, i])
-                    if reflection:
-                        vi = -vi
-                x_new[p, k, i] = xi
-                v_new[p, k, i] = vi
+        for j in range(m):
+            xi = x[p, j]
+            vi = wp * v[p, j] + c1 * r1[p, j] * (pbest[p, j] - xi) + c2 * r2[p, j] * (gbest[j] - xi)
+            vi = min(max(vi, -vmax[j]), vmax[j])
+            xi = xi + vi
+            out = (xi < lo[j]) | (xi > hi[j])
+            x_new[p, j] = min(max(xi, lo[j]), hi[j])  # inside the box: xi itself
+            v_new[p, j] = -vi if reflection and out else vi
     return x_new, v_new
 
 
@@ -679,10 +944,21 @@ def pso_step(x: np.ndarray, v: np.ndarray, pbest: np.ndarray, gbest: np.ndarray,
              c2: float, lo: np.ndarray, hi: np.ndarray, vmax: np.ndarray, reflection: bool, r1: np.ndarray,
              r2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Compiled :func:`planner.search.spso.pso_step` for swarms (P, n, 3); ``w`` a scalar or (P, 1, 1)."""
-    c = np.ascontiguousarray
-    ww = np.broadcast_to(np.asarray(w, dtype=np.float64).reshape(-1), (len(x),)).copy()
-    return _pso_step(c(x), c(v), c(pbest), c(gbest), ww, float(c1), float(c2), c(lo), c(hi),
-                     c(np.broadcast_to(vmax, lo.shape)), bool(reflection), c(r1), c(r2))
+    n_p = len(x)
+
+    def flat(a: np.ndarray) -> np.ndarray:
+        return np.ascontiguousarray(a, dtype=np.float64).reshape(n_p, -1)
+
+    def box(a: np.ndarray | float) -> np.ndarray:
+        a = np.asarray(a, dtype=np.float64)
+        if a.shape != lo.shape:
+            a = np.broadcast_to(a, lo.shape)
+        return np.ascontiguousarray(a).reshape(-1)
+
+    ww = np.full(n_p, w, dtype=np.float64) if np.ndim(w) == 0 else flat(w).reshape(-1)
+    xn, vn = _pso_step(flat(x), flat(v), flat(pbest), box(gbest), ww, float(c1), float(c2), box(lo), box(hi),
+                       box(vmax), bool(reflection), flat(r1), flat(r2))
+    return xn.reshape(x.shape), vn.reshape(x.shape)
 
 
 # -- which lattice edges are hopeless (the ant colonies' segment_blocked) ------------------------------------------

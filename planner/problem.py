@@ -142,11 +142,8 @@ class PlanningProblem:
         return self.evaluate_reference(paths)
 
     def _evaluate_compiled(self, paths: np.ndarray) -> Evaluation:
-        j, pen, viol = kernel.evaluate(self, paths, _THREAT_T, _TERRAIN_T)
+        j, pen, viol, total = kernel.evaluate(self, paths, _THREAT_T, _TERRAIN_T)  # total: the reference's order
         terms = {name: j[:, i] for i, name in enumerate(TERMS)}
-        total = pen
-        for name, weight in self.weights.by_term().items():  # the reference's order of additions
-            total = total + weight * terms[name]
         return Evaluation(total=total, terms=terms, penalty=pen,
                           violations={c: viol[:, i] for i, c in enumerate(CATEGORIES)})
 

@@ -68,8 +68,8 @@ class SwarmState:
         self.x = x
         self.f = ev.total
         better = self.f < self.pbest_f
-        self.pbest_x[better] = x[better]
-        self.pbest_f[better] = self.f[better]
+        np.copyto(self.pbest_x, x, where=better.reshape(-1, *(1,) * (x.ndim - 1)))
+        np.copyto(self.pbest_f, self.f, where=better)
         ib = int(np.argmin(self.f))
         if self.f[ib] < self.gbest_f:
             # once feasible, an improvement by less than ``tol`` of the cost still counts as stagnation
