@@ -36,8 +36,9 @@ _LOITER, _PATROL, _TRACK = 0, 1, 2  # planner.world.environment's threat kinds
 
 
 def broad_phase() -> bool:
-    """Whether the kernel visits only obstacles near each segment (a uniform grid, the default) or every obstacle
-    (``FUSEPLAN_BROAD_PHASE=off``, for benches); the two give the same costs bit for bit."""
+    """Whether the kernels visit only obstacles that can count (the default) or every obstacle
+    (``FUSEPLAN_BROAD_PHASE=off``, for benches); the two give the same results bit for bit. The cost skips the
+    obstacles out of reach of the swarm's box for each segment; segment_blocked finds obstacles in a uniform grid."""
     want = os.environ.get(BROAD_ENV_VAR, "on").strip().lower() or "on"
     if want not in ("on", "off"):
         raise ValueError(f"{BROAD_ENV_VAR}={want!r}: expected on or off")
@@ -479,8 +480,7 @@ def _terrain_terms(pt, seg, q2, s, p, terrain_t, slope, z_min, z_max, tx0, ty0, 
 
 @_jit
 def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w,
-          terrain_h, thr, peak_table, threat_t, terrain_t, golden_iters, grid, ob_x, ob_y, ob_r, ob_start,
-          ob_items):  # noqa: ANN001, ANN202
+          terrain_h, thr, peak_table, threat_t, terrain_t, golden_iters):  # noqa: ANN001, ANN202
     """terms (P, 5), penalty (P,), violations (P, 5) and the weighted total (P,) for paths (P, N, 3); ``sc`` holds
     the scalars and ``thr`` the threats' laws, a row each (see _arrays).
 
@@ -519,10 +519,7 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
     viol = np.zeros((5, n_p), dtype=np.int64)  # collision, altitude, bounds, turn, climb
     n_cyl = cyl_x.shape[0]
     n_sph = sph_r.shape[0]
-    near = np.empty(ob_x.shape[0], dtype=np.int64)
-    stamp = np.full(ob_x.shape[0], -1, dtype=np.int64)
-    gox, goy, gcell, gnx, gny = grid[0], grid[1], grid[2], int(grid[3]), int(grid[4])
-    one_cell = gnx == 1 and gny == 1  # every obstacle is near every segment: whole-swarm passes per obstacle
+    broad = sc[30] > 0  # skip obstacles out of the swarm's reach (FUSEPLAN_BROAD_PHASE)
     climb_tan2 = math.tan(max_climb) ** 2 * (1.0 - 1e-9) if max_climb < 0.5 * math.pi else math.inf
     peak_max = peak_table.max()
     gap_cap = d_safe - d_coll
@@ -563,81 +560,58 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
             dev[0, p] = max(dev[0, p], 0.5 * acc_r * _sin_or_one(c0))
     # -- J2 hazard (§4.3, §4.5, §4.6) -------------------------------------------------------------------------
     box = np.empty((n_pts, 4))  # plan-view box of each waypoint over the swarm: x_lo, x_hi, y_lo, y_hi
-    if one_cell:
-        for w in range(n_pts):
-            for i in range(2):
-                lo, hi = math.inf, -math.inf
-                for p in range(n_p):
-                    lo = min(lo, pt[w, i, p])
-                    hi = max(hi, pt[w, i, p])
-                box[w, 2 * i], box[w, 2 * i + 1] = lo, hi
+    for w in range(n_pts):
+        for i in range(2):
+            lo, hi = math.inf, -math.inf
+            for p in range(n_p):
+                lo = min(lo, pt[w, i, p])
+                hi = max(hi, pt[w, i, p])
+            box[w, 2 * i], box[w, 2 * i + 1] = lo, hi
     for s in range(n_s):
-        if one_cell:
-            # a converging swarm's segments s share a small box: obstacles beyond every particle's reach from it add
-            # exact zeros for all of them, and are skipped (as the broad phase skips them one segment at a time)
+        # the broad phase: an obstacle adds to J2 only within d_safe + dev of a chord (in plan view). A converging
+        # swarm's segments s share a small box, and obstacles beyond every particle's reach from it add exact zeros
+        # for all of them: they are skipped, and the sums stay bit for bit those without skipping (method.md §4.3)
+        reach = math.inf
+        if broad:
             dev_hi = 0.0
             for p in range(n_p):
                 dev_hi = max(dev_hi, dev[s, p])
             reach = (d_safe + dev_hi) * (1.0 + 1e-9) + 1e-6
-            x_lo, x_hi = min(box[s, 0], box[s + 1, 0]), max(box[s, 1], box[s + 1, 1])
-            y_lo, y_hi = min(box[s, 2], box[s + 1, 2]), max(box[s, 3], box[s + 1, 3])
-            for k in range(n_cyl):
-                cx, cy, r, top = cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k]
-                if _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, r + reach):
-                    continue
-                if math.isfinite(top):  # a roof: the golden-section clearance near it, one particle at a time
-                    for p in range(n_p):
-                        _cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev[s, p], gap_cap, pen_c, per_m,
-                                       golden_iters, soft_cyl, pen, viol)
-                    continue
-                for p in range(n_p):  # beyond reach g is clipped to an exact zero: adding it changes no sum
-                    c = math.sqrt(_seg_point_2d_sq(pt[s, 0, p], pt[s, 1, p], pt[s + 1, 0, p], pt[s + 1, 1, p], cx,
-                                                   cy)) - r - dev[s, p]
-                    g = d_safe - c
-                    depth = g - gap_cap
-                    hit = depth > 0.0
-                    viol[0, p] += 1 if hit else 0
-                    pen[p] += pen_c + per_m * depth if hit else 0.0
-                    g = min(max(g, 0.0), gap_cap)
-                    soft_cyl[p] += g * g
-            for k in range(n_sph):
-                cx, cy, cz, r = sph_c[k, 0], sph_c[k, 1], sph_c[k, 2], sph_r[k]
-                if _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, r + reach):  # plan view: nearer than in 3-D
-                    continue
+        x_lo, x_hi = min(box[s, 0], box[s + 1, 0]), max(box[s, 1], box[s + 1, 1])
+        y_lo, y_hi = min(box[s, 2], box[s + 1, 2]), max(box[s, 3], box[s + 1, 3])
+        for k in range(n_cyl):
+            cx, cy, r, top = cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k]
+            if _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, r + reach):
+                continue
+            if math.isfinite(top):  # a roof: the golden-section clearance near it, one particle at a time
                 for p in range(n_p):
-                    c = math.sqrt(_seg_point_sq(pt[s, 0, p], pt[s, 1, p], pt[s, 2, p], pt[s + 1, 0, p],
-                                                pt[s + 1, 1, p], pt[s + 1, 2, p], cx, cy, cz)) - r - dev[s, p]
-                    g = d_safe - c
-                    depth = g - gap_cap
-                    hit = depth > 0.0
-                    viol[0, p] += 1 if hit else 0
-                    pen[p] += pen_c + per_m * depth if hit else 0.0
-                    g = min(max(g, 0.0), gap_cap)
-                    soft_sph[p] += g * g
-        else:
+                    _cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev[s, p], gap_cap, pen_c, per_m,
+                                   golden_iters, soft_cyl, pen, viol)
+                continue
+            for p in range(n_p):  # beyond reach g is clipped to an exact zero: adding it changes no sum
+                c = math.sqrt(_seg_point_2d_sq(pt[s, 0, p], pt[s, 1, p], pt[s + 1, 0, p], pt[s + 1, 1, p], cx,
+                                               cy)) - r - dev[s, p]
+                g = d_safe - c
+                depth = g - gap_cap
+                hit = depth > 0.0
+                viol[0, p] += 1 if hit else 0
+                pen[p] += pen_c + per_m * depth if hit else 0.0
+                g = min(max(g, 0.0), gap_cap)
+                soft_cyl[p] += g * g
+        for k in range(n_sph):
+            cx, cy, cz, r = sph_c[k, 0], sph_c[k, 1], sph_c[k, 2], sph_r[k]
+            if _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, r + reach):  # plan view: nearer than in 3-D
+                continue
             for p in range(n_p):
-                ax, ay, bx, by = pt[s, 0, p], pt[s, 1, p], pt[s + 1, 0, p], pt[s + 1, 1, p]
-                # an obstacle adds to J2 only within d_safe + dev of the chord (in plan view): the others add exact
-                # zeros, so the broad phase skips them and keeps the sums bit for bit (docs/method.md §4.3)
-                reach = (d_safe + dev[s, p]) * (1.0 + 1e-9) + 1e-6
-                n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, ob_start, ob_items, ob_x, ob_y,
-                               ob_r, stamp, p * n_s + s, near)
-                for q in range(n_near):  # cylinders first (indices below n_cyl), then spheres, each in index order
-                    k = near[q]
-                    if k < n_cyl:
-                        _cylinder_term(pt, s, p, cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k], d_safe, dev[s, p], gap_cap,
-                                       pen_c, per_m, golden_iters, soft_cyl, pen, viol)
-                        continue
-                    k -= n_cyl
-                    c = math.sqrt(_seg_point_sq(ax, ay, pt[s, 2, p], bx, by, pt[s + 1, 2, p], sph_c[k, 0],
-                                                sph_c[k, 1], sph_c[k, 2])) - sph_r[k] - dev[s, p]
-                    g = d_safe - c
-                    depth = g - gap_cap
-                    if depth > 0.0:
-                        viol[0, p] += 1
-                        pen[p] += pen_c + per_m * depth
-                    g = min(max(g, 0.0), gap_cap)
-                    soft_sph[p] += g * g
+                c = math.sqrt(_seg_point_sq(pt[s, 0, p], pt[s, 1, p], pt[s, 2, p], pt[s + 1, 0, p],
+                                            pt[s + 1, 1, p], pt[s + 1, 2, p], cx, cy, cz)) - r - dev[s, p]
+                g = d_safe - c
+                depth = g - gap_cap
+                hit = depth > 0.0
+                viol[0, p] += 1 if hit else 0
+                pen[p] += pen_c + per_m * depth if hit else 0.0
+                g = min(max(g, 0.0), gap_cap)
+                soft_sph[p] += g * g
         for k in range(rad_det.shape[0]):
             cx, cy, cz, det, wt = rad_c[k, 0], rad_c[k, 1], rad_c[k, 2], rad_det[k], rad_w[k]
             for p in range(n_p):
@@ -819,8 +793,12 @@ def _cells(grid: np.ndarray, x: np.ndarray, y: np.ndarray, r: np.ndarray) -> tup
     return start, items
 
 
+_COST_ARGS = 17  # of _arrays' tuple: what _cost reads
+
+
 def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -> tuple:  # noqa: ANN001
-    """Everything the kernel reads from a problem, as contiguous float arrays (made once per problem)."""
+    """Everything the kernel reads from a problem, as contiguous float arrays (made once per problem): the cost's
+    (the first _COST_ARGS), then the grid the ant colonies' segment_blocked finds obstacles in."""
     from planner.trajectory.smoothing import _PEAK_FACTOR  # the same G(cos θ) table as the reference
     from planner.world.geometry import GOLDEN_ITERS
 
@@ -836,6 +814,7 @@ def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -
         ter.x0 if ter is not None else 0.0, ter.y0 if ter is not None else 0.0,
         ter.dx if ter is not None else 1.0, ter.dy if ter is not None else 1.0, problem._terrain_slope,
         *problem.weights.by_term().values(),  # J1…J5's weights: the total is summed here, in the reference's order
+        float(broad),
     ], dtype=float)
 
     def f(a, shape=(-1,)):  # noqa: ANN001, ANN202 - a writeable copy: one compiled signature for every problem
@@ -878,7 +857,7 @@ def evaluate(
     paths = np.asarray(paths, dtype=np.float64)
     if not (paths.flags.c_contiguous and paths.flags.writeable):  # one signature: C-ordered and writeable
         paths = np.array(paths, dtype=np.float64, order="C")
-    return _cost(paths, *packed)
+    return _cost(paths, *packed[:_COST_ARGS])
 
 
 # -- the swarm's own per-iteration work: decoding spherical particles and the PSO update -------------------------

@@ -538,7 +538,9 @@ def markdown(records: Sequence[dict[str, Any]], s: SpeedSettings) -> str:
               "repeats and broad-phase settings: " + ("yes" if rep["same_kernel"] else "**NO**")
               + f" ({rep['groups']} groups of one seed and kernel). Between the two kernels one seed's final cost "
               f"differs by at most {rep['across_kernels']:.1e} relative: the kernels score one path alike to 1e-9 but "
-              "not bit for bit (they add in different orders), and a whole search can amplify the last bits.", ""]
+              "not bit for bit (the compiled one adds in other orders and takes its arctangents, sines and cosines "
+              "from polynomials within a rounding of libm's), and a search is chaotic: a difference in the last bits "
+              "can send one seed's swarm elsewhere. The tests compare the kernels over 20 seeds statistically.", ""]
     return "\n".join(lines)
 
 

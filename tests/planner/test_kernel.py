@@ -154,16 +154,17 @@ def field(rng: np.random.Generator, count: int = 120) -> Environment:
 
 
 def test_the_broad_phase_gives_the_same_costs_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
-    """Skipping obstacles out of reach of a segment only skips exact zeros, and the rest are summed in the
-    same order: on (a grid of many cells) and off (every obstacle) agree to the last bit, and both match the
-    reference; segments of every length, off the map too, over a dense field."""
+    """Skipping obstacles out of reach of the swarm's segment only skips exact zeros, and the rest are summed in
+    the same order: on and off (every obstacle) agree to the last bit, and both match the reference; segments of
+    every length, off the map too, over a dense field, in swarms from spread out to tight (where most are skipped).
+    The grid is segment_blocked's (tested below)."""
     problem = PlanningProblem(field(np.random.default_rng(4)), np.array([50.0, 60.0, 120.0]),
                               np.array([2950.0, 1900.0, 200.0]), VehicleLimits(),
                               HazardConfig(d_safe=60.0, d_coll=15.0))
     packed = kernel._arrays(problem, np.zeros(2), np.zeros(2), True)
     assert packed[-5][3] * packed[-5][4] > 16  # the grid really has cells
     rng = np.random.default_rng(9)
-    for n_wp, spread in ((2, 0.3), (16, 0.02), (16, 0.1), (40, 0.05)):
+    for n_wp, spread in ((2, 0.3), (16, 0.002), (16, 0.02), (16, 0.1), (40, 0.05)):
         paths = swarm(problem, rng, n_pop=128, n_wp=n_wp, spread=spread)
         on = problem.evaluate(paths)
         monkeypatch.setenv(kernel.BROAD_ENV_VAR, "off")
