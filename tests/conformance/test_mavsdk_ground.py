@@ -100,7 +100,12 @@ async def test_arming_in_auto_through_mavsdk_switches_to_hold_first(vehicle) -> 
     autopilot's refusal then names BRAKE, reaches us as FAILED with its STATUSTEXT, and the vehicle is left in
     BRAKE. (The companion never arms in AUTO on ArduCopter: its start sequence arms in GUIDED.)"""
     await vehicle.client.upload(numbered([home_item(), takeoff(20.0), waypoint(150.0, 0.0, 20.0)]))
-    await vehicle.supervisor.set_mode("AUTO")
+    with vehicle.link.subscribe("HEARTBEAT") as beats:
+        await vehicle.supervisor.set_mode("AUTO")  # returns on the ACK, before a heartbeat says AUTO
+        # MAVSDK chooses to switch to Hold from the flight mode its own heartbeats told it: arm only after two in
+        # AUTO, or it may still think the copter is in its earlier mode and arm straight away (seen once in CI)
+        for _ in range(2):
+            await next_matching(beats, lambda m: m.custom_mode == 3 and m.type != mavlink.MAV_TYPE_GCS, timeout=3.0)
     try:
         with vehicle.link.subscribe("STATUSTEXT") as sub:
             with pytest.raises(CommandError) as refused:
