@@ -286,6 +286,15 @@ def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad
     return n
 
 
+@_inline
+def _horner(c, w):  # noqa: ANN001, ANN202
+    """c[0] + c[1]·w + … + c[-1]·w^(n−1), by Horner's rule from the highest coefficient (the polynomials below)."""
+    a = c[len(c) - 1]
+    for k in range(len(c) - 2, -1, -1):
+        a = a * w + c[k]
+    return a
+
+
 # atan(z) = z·A(z²) for |z| ≤ tan(π/8): A interpolates atan(√w)/√w at 12 Chebyshev nodes of [0, tan²(π/8)] (its
 # relative error there is 2.2e-16, one rounding; tests/planner/test_kernel.py holds _atan2 to math.atan2)
 _ATAN = (1.0, -0.3333333333333312, 0.19999999999940893, -0.14285714279250245, 0.11111110744919658,
@@ -307,18 +316,7 @@ def _atan2(y, x):  # noqa: ANN001, ANN202
     den = mn + mx if big else mx
     z = num / (den if den > 0.0 else 1.0)
     w = z * z
-    a = _ATAN[11]
-    a = a * w + _ATAN[10]
-    a = a * w + _ATAN[9]
-    a = a * w + _ATAN[8]
-    a = a * w + _ATAN[7]
-    a = a * w + _ATAN[6]
-    a = a * w + _ATAN[5]
-    a = a * w + _ATAN[4]
-    a = a * w + _ATAN[3]
-    a = a * w + _ATAN[2]
-    a = a * w + _ATAN[1]
-    r = z * (a * w + _ATAN[0])
+    r = z * _horner(_ATAN, w)
     r = r + 0.25 * math.pi if big else r
     r = 0.5 * math.pi - r if ay > ax else r
     r = math.pi - r if x < 0.0 else r
@@ -343,22 +341,8 @@ def _sincos(a):  # noqa: ANN001, ANN202
     n = np.floor(a * (2.0 / math.pi) + 0.5)
     r = ((a - n * _PIO2_HI) - n * _PIO2_MID) - n * _PIO2_LO
     w = r * r
-    sn = _SIN[7]
-    sn = sn * w + _SIN[6]
-    sn = sn * w + _SIN[5]
-    sn = sn * w + _SIN[4]
-    sn = sn * w + _SIN[3]
-    sn = sn * w + _SIN[2]
-    sn = sn * w + _SIN[1]
-    sn = r * (sn * w + _SIN[0])
-    cs = _COS[7]
-    cs = cs * w + _COS[6]
-    cs = cs * w + _COS[5]
-    cs = cs * w + _COS[4]
-    cs = cs * w + _COS[3]
-    cs = cs * w + _COS[2]
-    cs = cs * w + _COS[1]
-    cs = cs * w + _COS[0]
+    sn = r * _horner(_SIN, w)
+    cs = _horner(_COS, w)
     odd = n - 2.0 * np.floor(0.5 * n)  # 1 in quadrants 1 and 3: sine and cosine swap
     m = np.floor(0.5 * n)
     flip_s = m - 2.0 * np.floor(0.5 * m)  # 1 in quadrants 2 and 3: the sine changes sign
@@ -390,9 +374,9 @@ def _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, dist):  # noqa: ANN001, ANN202
 
 
 @_inline
-def _cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev, gap_cap, pen_c, per_m, iters, soft, pen, viol):  # noqa: ANN001, ANN202
-    """Particle p's segment s against one cylinder, one particle at a time: J2's soft term into ``soft[p]``, a
-    collision into ``pen[p]``/``viol[0, p]``; a roof (finite ``top``) by golden section near it."""
+def _roofed_cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev, gap_cap, pen_c, per_m, iters, soft, pen, viol):  # noqa: ANN001, ANN202
+    """Particle p's segment s against one cylinder with a finite ``top``, one particle at a time: J2's soft term
+    into ``soft[p]``, a collision into ``pen[p]``/``viol[0, p]``; near the wall, the roof by golden section."""
     ax, ay, az = pt[s, 0, p], pt[s, 1, p], pt[s, 2, p]
     bx, by, bz = pt[s + 1, 0, p], pt[s + 1, 1, p], pt[s + 1, 2, p]
     reach = (d_safe + dev) * (1.0 + 1e-9) + 1e-6
@@ -400,7 +384,7 @@ def _cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev, gap_cap, pen_c, per_m,
     if d2 > (r + reach) * (r + reach):  # beyond reach: an exact zero, no root needed
         return
     c = math.sqrt(d2) - r
-    if math.isfinite(top) and c < d_safe + dev:
+    if c < d_safe + dev:
         c = _seg_cyl_finite(ax, ay, az, bx, by, bz, cx, cy, r, top, iters)
     c -= dev
     g = d_safe - c
@@ -585,8 +569,8 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
                 continue
             if math.isfinite(top):  # a roof: the golden-section clearance near it, one particle at a time
                 for p in range(n_p):
-                    _cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev[s, p], gap_cap, pen_c, per_m,
-                                   golden_iters, soft_cyl, pen, viol)
+                    _roofed_cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev[s, p], gap_cap, pen_c, per_m,
+                                          golden_iters, soft_cyl, pen, viol)
                 continue
             for p in range(n_p):  # beyond reach g is clipped to an exact zero: adding it changes no sum
                 c = math.sqrt(_seg_point_2d_sq(pt[s, 0, p], pt[s, 1, p], pt[s + 1, 0, p], pt[s + 1, 1, p], cx,
