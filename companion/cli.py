@@ -105,6 +105,7 @@ def cmd_bench_replan(args: argparse.Namespace) -> int:
     from companion.flight.latency_bench import run_flight_bench, run_latency_bench
     from companion.replanning.replan import ReplanConfig
 
+    planner_cli.local_only(args, "bench replan")
     runs = 5 if args.runs is None else args.runs
     hog = getattr(args, "cpu_hog", 0)
     if runs < 1 or not (math.isfinite(args.speedup) and args.speedup > 0) or hog < 0:

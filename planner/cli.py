@@ -51,17 +51,22 @@ def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.Argument
     cp.add_argument("--seed", type=int, default=1, help="run r uses seed SEED + r (default 1)")
     cp.add_argument("--algorithms", default=",".join(ALGORITHM_NAMES),
                     help=f"comma-separated subset (default: {','.join(ALGORITHM_NAMES)})")
-    cp.add_argument("--workers", type=int, default=None, help="worker processes (default: CPU count)")
+    cp.add_argument("--workers", type=int, default=None,
+                    help="local processes or dask-local workers (default: CPU count, at most 8)")
+    add_executor_options(cp)
     cp.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     cp.add_argument("-o", "--output", type=Path, default=Path("compare"),
-                    help="directory for compare.csv, compare_runs.csv, compare.png (default ./compare)")
+                    help="directory for compare.jsonl (records, resumable), compare.md, compare.csv, "
+                    "compare_runs.csv, compare.png (default ./compare)")
     cp.add_argument("-q", "--quiet", action="store_true")
     bn = sub.add_parser("bench", help="reproduce one of the paper's experiments (e.g. ablation) and report it")
     bn.add_argument("name", help="which bench (e.g. ablation)")
     bn.add_argument("--runs", type=int, default=None,
                     help="runs per variant (default: the bench's, 30; speed: repeats of each headline row, 5)")
     bn.add_argument("--workers", type=int, default=None,
-                    help="worker processes (default: CPU count; speed: 1, one plan at a time)")
+                    help="local processes or dask-local workers (default: CPU count, at most 8; speed: 1, one "
+                    "plan at a time)")
+    add_executor_options(bn)
     bn.add_argument("--seed-base", type=int, default=2000, help="run r uses seed SEED_BASE + r (default 2000)")
     bn.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a scenario value for every variant (repeatable)")
@@ -77,6 +82,26 @@ def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.Argument
     bn.add_argument("--latency-seeds", type=int, default=None, metavar="N",
                     help="bench speed only: seeds per scenario and load in the latency part (default 20)")
     return {"plan": pl, "compare": cp, "bench": bn}
+
+
+def add_executor_options(parser: argparse.ArgumentParser) -> None:
+    from planner.bench.executor import EXECUTORS
+
+    parser.add_argument("--executor", choices=EXECUTORS, default="local",
+                        help="where the runs execute: local (a process pool, the default), dask (an existing "
+                        "dask.distributed cluster, with --scheduler) or dask-local (a dask LocalCluster here); dask "
+                        "needs the [cluster] extra")
+    parser.add_argument("--scheduler", default=None, metavar="tcp://HOST:PORT",
+                        help="--executor dask: the scheduler's address (as `dask scheduler` prints it)")
+
+
+def executor_from(args: argparse.Namespace) -> typing.Any:
+    """The executor the options choose (planner.bench.executor.ExecutorSpec), checked: a mistake is one line."""
+    from planner.bench.executor import ExecutorSpec
+
+    spec = ExecutorSpec(getattr(args, "executor", "local"), args.workers, getattr(args, "scheduler", None))
+    spec.check()
+    return spec
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -151,8 +176,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     if args.runs < 1:
         raise FuseplanError("--runs must be >= 1")
-    if args.workers is not None and args.workers < 1:
-        raise FuseplanError("--workers must be >= 1")
+    executor = executor_from(args)
     if args.seed < 0:
         raise FuseplanError("--seed must be >= 0")
     try:
@@ -161,17 +185,26 @@ def cmd_compare(args: argparse.Namespace) -> int:
         raise FuseplanError(str(e)) from e
     load_scenario(args.scenario, args.overrides)  # bad input fails here, once, not in every worker
     make_output_dir(args.output)  # and an unusable output directory before the runs, not after them
-    workers = args.workers or compare.default_workers()
     if not args.quiet:
         print(f"comparing {', '.join(algorithms)} on {args.scenario.name}: {args.runs} runs each, "
-              f"seeds {args.seed}..{args.seed + args.runs - 1}, {workers} workers", file=sys.stderr)
+              f"seeds {args.seed}..{args.seed + args.runs - 1}, on {executor.describe()}", file=sys.stderr)
     specs = compare.specs_for(str(args.scenario), args.overrides, algorithms, args.runs, args.seed)
-    with console.run_progress("runs", args.quiet) as progress:
-        records = compare.run_all(specs, workers, progress)
+    jsonl = args.output / "compare.jsonl"
+    try:
+        with console.run_progress("runs", args.quiet) as progress:
+            records, outcome = compare.run_all(specs, jsonl, executor, progress)
+    except KeyboardInterrupt:
+        return _interrupted(jsonl, "runs")
+    if not args.quiet:  # stdout is the table's, for a pipe
+        print(f"{outcome.computed} runs computed, {outcome.reused} reused from {jsonl}"
+              + (f"; on {outcome.ran_on}" if outcome.ran_on else ""), file=sys.stderr)
     rows = compare.summarise(records, algorithms)
     console.show_markdown(compare.format_table(rows))
+    sets = "".join(f" --set '{o}'" for o in args.overrides)
+    header = (f"`fuseplan compare {args.scenario} --runs {args.runs} --seed {args.seed} --algorithms "
+              f"{','.join(algorithms)}{sets}`" + (f" (ran on {outcome.ran_on})" if outcome.ran_on else ""))
     try:
-        files = compare.write_outputs(args.output, "compare", records, rows)
+        files = compare.write_outputs(args.output, "compare", records, rows, header)
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
     print("wrote " + ", ".join(str(f) for f in files))
@@ -180,10 +213,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
 def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> int:
     """Run one of the planner's benches (``other_benches``: names the caller handles itself, for the message)."""
+    import dataclasses
     import time
 
     from planner.bench import BENCHES
-    from planner.bench.compare import default_workers
     from planner.bench.runner import BenchSettings, run_bench
 
     if args.name == "speed":
@@ -195,23 +228,31 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
     runs = bench.default_runs if args.runs is None else args.runs
     if runs < 1 or (args.workers is not None and args.workers < 1) or args.seed_base < 0:
         raise FuseplanError("--runs and --workers must be >= 1 and --seed-base >= 0")
+    executor = executor_from(args)
     settings = BenchSettings(bench, runs, args.seed_base, tuple(args.overrides))
     for v in bench.variants:  # bad input fails here, once, not in every worker
         settings.check(v)
     make_output_dir(args.output)
-    workers = args.workers or default_workers()
     if not args.quiet:
         print(f"bench {bench.name}: {bench.description}; {len(bench.variants)} variants × {runs} runs, seeds "
-              f"{args.seed_base}..{args.seed_base + runs - 1}, {workers} workers", file=sys.stderr)
+              f"{args.seed_base}..{args.seed_base + runs - 1}, on {executor.describe()}", file=sys.stderr)
     t0 = time.perf_counter()
     try:
         with console.run_progress("runs", args.quiet) as progress:
-            outcome = run_bench(settings, args.output, workers, progress)
+            outcome = run_bench(settings, args.output, executor, progress)
     except KeyboardInterrupt:
         return _interrupted(args.output / f"{bench.name}.jsonl", "runs")
     wall = time.perf_counter() - t0
-    print(f"{outcome.computed} runs computed, {outcome.reused} reused from {outcome.jsonl}; {wall:.1f} s")
+    print(f"{outcome.computed} runs computed, {outcome.reused} reused from {outcome.jsonl}; {wall:.1f} s"
+          + (f" on {outcome.ran_on}" if outcome.ran_on else ""))
+    settings = dataclasses.replace(settings, ran_on=outcome.ran_on)
     return _report(args.output, bench.name, lambda: bench.report(args.output, outcome.records, settings))
+
+
+def local_only(args: argparse.Namespace, what: str) -> None:
+    """``what`` (a timing bench) runs on this machine: any other executor is a user's mistake."""
+    if getattr(args, "executor", "local") != "local" or getattr(args, "scheduler", None):
+        raise FuseplanError(f"{what} times plans on this machine and runs on --executor local only")
 
 
 def cmd_bench_speed(args: argparse.Namespace) -> int:
@@ -222,6 +263,7 @@ def cmd_bench_speed(args: argparse.Namespace) -> int:
 
     from planner.bench import speed
 
+    local_only(args, "bench speed")
     s = speed.settings_from(getattr(args, "quick", False), args.runs, args.seed_base, args.workers, args.overrides,
                             getattr(args, "parts", None), getattr(args, "latency_seeds", None))
     speed.check(s)  # bad input fails here, once, not in every worker

@@ -15,7 +15,7 @@ from rich.console import Console
 from rich.markdown import Markdown
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-Advance = Callable[[int, int], None]  # (done, total)
+Advance = Callable[..., None]  # (done, total[, failed]): failed runs are among the done ones
 
 
 def interactive(stream: TextIO) -> bool:
@@ -30,23 +30,27 @@ def _rich_bar(console: Console, *fields: TextColumn) -> Progress:
 
 @contextmanager
 def run_progress(label: str, quiet: bool = False, stream: TextIO | None = None) -> Iterator[Advance | None]:
-    """A ``(done, total)`` callback for work done in runs: a live bar on a terminal, one line per tenth of the work
-    on a pipe or log, None with ``quiet``."""
+    """A ``(done, total[, failed])`` callback for work done in runs: a live bar on a terminal, one line per tenth
+    of the work (and at each failure) on a pipe or log, None with ``quiet``."""
     stream = stream or sys.stderr
     if quiet:
         yield None
         return
     if not interactive(stream):
-        def line(done: int, total: int) -> None:
-            if done == total or done * 10 // total != (done - 1) * 10 // total:
-                print(f"  {label}: {done}/{total}", file=stream, flush=True)
+        seen = [0]
+
+        def line(done: int, total: int, failed: int = 0) -> None:
+            if done == total or done * 10 // total != (done - 1) * 10 // total or failed > seen[0]:
+                print(f"  {label}: {done}/{total}" + (f", {failed} failed" if failed else ""), file=stream,
+                      flush=True)
+            seen[0] = failed
         yield line
         return
-    with _rich_bar(Console(file=stream)) as bar:
-        task = bar.add_task(label, total=None)
+    with _rich_bar(Console(file=stream), TextColumn("[red]{task.fields[failed]}")) as bar:
+        task = bar.add_task(label, total=None, failed="")
 
-        def advance(done: int, total: int) -> None:
-            bar.update(task, completed=done, total=total)
+        def advance(done: int, total: int, failed: int = 0) -> None:
+            bar.update(task, completed=done, total=total, failed=f"{failed} failed" if failed else "")
         yield advance
 
 

@@ -1,67 +1,41 @@
-"""`fuseplan compare`: every algorithm N times on one scenario, in a process pool, summarised as a table
-(mean ± std), a CSV and a PNG of convergence curves. Run r of every algorithm uses seed S + r, so the
-numbers do not depend on the number of workers (only the times do)."""
+"""`fuseplan compare`: every algorithm N times on one scenario, on an executor (a local process pool or a dask
+cluster), summarised as a table (mean ± std), a CSV and a PNG of convergence curves. Run r of every algorithm uses
+seed S + r, so the numbers do not depend on the executor or the number of workers (only the times do). Each run is
+appended to ``compare.jsonl`` as it finishes, so an interrupted comparison resumes (the bench runner's machinery,
+:mod:`planner.bench.runner`, with the algorithm as the variant)."""
 
 from __future__ import annotations
 
 import csv
-import os
-from collections.abc import Callable, Sequence
-from concurrent.futures import ProcessPoolExecutor, as_completed
-from dataclasses import dataclass
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from planner.errors import FuseplanError
+from planner.bench import runner
+from planner.bench.executor import ExecutorSpec
 from planner.world.config import ALGORITHM_NAMES
+from planner.world.scenario_text import ScenarioText
 
 COLUMNS = ("cost", "length_m", "smoothness", "time_s", "robustness", "violations")
+KEYS = ("run", "seed", "status", "feasible", "cost", "length_m", "smoothness", "time_s", "robustness", "violations",
+        "history")  # of a bench record, what a comparison keeps
 
 
-@dataclass(frozen=True)
-class RunSpec:
-    scenario: str
-    overrides: tuple[str, ...]
-    algorithm: str
-    run: int
-    seed: int
+def specs_for(scenario: str, overrides: Sequence[str], algorithms: Sequence[str], runs: int,
+              seed: int) -> list[runner.RunSpec]:
+    """Bench runs whose variant is the algorithm, each carrying the scenario's text."""
+    text = ScenarioText.read(scenario, overrides)
+    return [runner.RunSpec(scenario, (*overrides, f'planner.algorithm="{alg}"'), alg, r, seed + r, source=text)
+            for alg in algorithms for r in range(runs)]
 
 
-def run_one(spec: RunSpec) -> dict[str, Any]:
-    """Plan once (in a worker process): the bench runner's record, keyed by algorithm."""
-    from planner.bench import runner
-
-    rec = runner.run_one(runner.RunSpec(spec.scenario, (*spec.overrides, f'planner.algorithm="{spec.algorithm}"'),
-                                        spec.algorithm, spec.run, spec.seed))
-    keys = ("run", "seed", "status", "feasible", "cost", "length_m", "smoothness", "time_s", "robustness",
-            "violations", "history")
-    return {"algorithm": spec.algorithm, **{k: rec[k] for k in keys}}
-
-
-def run_all(specs: Sequence[RunSpec], workers: int,
-            progress: Callable[[int, int], None] | None = None) -> list[dict[str, Any]]:
-    """Run every spec, calling ``progress(done, total)`` as runs finish; records come back in spec order whatever
-    the pool did."""
-    out: dict[int, dict[str, Any]] = {}
-    done = 0
-    with ProcessPoolExecutor(max_workers=workers) as pool:
-        futures = {pool.submit(run_one, s): i for i, s in enumerate(specs)}
-        for fut in as_completed(futures):
-            try:
-                out[futures[fut]] = fut.result()
-            except Exception as e:  # a failed run stops the comparison, with what failed and why
-                pool.shutdown(wait=False, cancel_futures=True)
-                spec = specs[futures[fut]]
-                if isinstance(e, FuseplanError):
-                    raise
-                raise FuseplanError(f"{spec.algorithm} run {spec.run} (seed {spec.seed}) failed: "
-                                    f"{type(e).__name__}: {e}") from e
-            done += 1
-            if progress is not None:
-                progress(done, len(specs))
-    return [out[i] for i in range(len(specs))]
+def run_all(specs: Sequence[runner.RunSpec], jsonl: Path, executor: ExecutorSpec,
+            progress: runner.Progress | None = None) -> tuple[list[dict[str, Any]], runner.BenchOutcome]:
+    """Run what ``jsonl`` does not hold yet; the comparison's records in spec order, and what the runner did."""
+    outcome = runner.run_specs(specs, jsonl, executor, progress)
+    return [{"algorithm": rec["variant"], **{k: rec[k] for k in KEYS}} for rec in outcome.records], outcome
 
 
 def summarise(records: Sequence[dict[str, Any]], algorithms: Sequence[str]) -> list[dict[str, Any]]:
@@ -94,10 +68,12 @@ def format_table(rows: Sequence[dict[str, Any]]) -> str:
 
 
 def write_outputs(out_dir: Path, name: str, records: Sequence[dict[str, Any]],
-                  rows: Sequence[dict[str, Any]]) -> list[Path]:
-    """``NAME.csv`` (summary), ``NAME_runs.csv`` (one row per run) and ``NAME.png`` (convergence)."""
+                  rows: Sequence[dict[str, Any]], header: str = "") -> list[Path]:
+    """``NAME.md`` (``header``, then the table), ``NAME.csv`` (summary), ``NAME_runs.csv`` (one row per run) and
+    ``NAME.png`` (convergence)."""
     out_dir.mkdir(parents=True, exist_ok=True)
-    summary, runs, png = out_dir / f"{name}.csv", out_dir / f"{name}_runs.csv", out_dir / f"{name}.png"
+    md, summary, runs, png = (out_dir / f"{name}{ext}" for ext in (".md", ".csv", "_runs.csv", ".png"))
+    md.write_text(f"# {name}\n\n" + (f"{header}\n\n" if header else "") + format_table(rows) + "\n")
     with summary.open("w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=list(rows[0].keys()))
         w.writeheader()
@@ -108,7 +84,7 @@ def write_outputs(out_dir: Path, name: str, records: Sequence[dict[str, Any]],
         w.writeheader()
         w.writerows(records)
     plot_convergence(png, records, [r["algorithm"] for r in rows])
-    return [summary, runs, png]
+    return [md, summary, runs, png]
 
 
 def plot_convergence(path: Path, records: Sequence[dict[str, Any]], algorithms: Sequence[str]) -> None:
@@ -134,15 +110,6 @@ def plot_convergence(path: Path, records: Sequence[dict[str, Any]], algorithms: 
     fig.tight_layout()
     fig.savefig(path, dpi=100)
     plt.close(fig)
-
-
-def default_workers() -> int:
-    return max(1, min(os.cpu_count() or 1, 8))
-
-
-def specs_for(scenario: str, overrides: Sequence[str], algorithms: Sequence[str], runs: int,
-              seed: int) -> list[RunSpec]:
-    return [RunSpec(scenario, tuple(overrides), alg, r, seed + r) for alg in algorithms for r in range(runs)]
 
 
 def check_algorithms(names: Sequence[str]) -> list[str]:

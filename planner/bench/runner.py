@@ -1,22 +1,24 @@
-"""The bench runner: every (variant, run) of a bench in a process pool, each finished run appended at once as
-one JSON line to ``DIR/NAME.jsonl``, so an interrupted bench resumes where it stopped.
+"""The bench runner: every (variant, run) of a bench on an executor (a local process pool or a dask cluster,
+:mod:`planner.bench.executor`), each finished run appended at once as one JSON line to ``DIR/NAME.jsonl``, so an
+interrupted bench resumes where it stopped, on any executor.
 
-Run r of every variant plans with ``numpy.random.default_rng(seed_base + r)``; records are put back in
-(variant, run) order before anything is summarised, so every number except the wall-clock times is the same,
-bit for bit, whatever the number of workers or the order in which runs finished.
+Run r of every variant plans with ``numpy.random.default_rng(seed_base + r)``; a run carries its scenario's text,
+so it loads the same map wherever it runs; records are put back in (variant, run) order before anything is
+summarised, so every number except the wall-clock times is the same, bit for bit, whatever the executor, the
+number of workers or the order in which runs finished.
 """
 
 from __future__ import annotations
 
 import contextlib
 import csv
+import dataclasses
 import functools
 import hashlib
 import json
 import logging
 import math
 from collections.abc import Callable, Iterator, Sequence
-from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, TextIO
@@ -24,7 +26,9 @@ from typing import Any, TextIO
 import numpy as np
 
 from planner import kernel
+from planner.bench.executor import ExecutorSpec, Failed, open_pool
 from planner.errors import FuseplanError
+from planner.world.scenario_text import ScenarioText, materialise
 
 log = logging.getLogger(__name__)
 
@@ -62,6 +66,7 @@ class BenchSettings:
     runs: int
     seed_base: int
     user_overrides: tuple[str, ...] = ()
+    ran_on: str = ""  # the executor and its worker count, for the report ("" before the runs)
 
     def overrides_for(self, variant: Variant) -> tuple[str, ...]:
         return (*self.bench.base_overrides, *self.user_overrides, *variant.overrides)
@@ -87,6 +92,7 @@ class RunSpec:
     family: str | None = None
     budget_s: float | None = None
     peer: str | None = None
+    source: ScenarioText | None = None  # the scenario's text, loaded in place of the file wherever the run is
 
     @property
     def fingerprint(self) -> str:
@@ -105,12 +111,15 @@ class BenchOutcome:
     reused: int  # runs found in the JSON-lines file
     computed: int  # runs planned now
     jsonl: Path = field(default_factory=Path)
+    ran_on: str = ""  # the executor and its worker count ("" when every run was reused)
 
 
 def specs_for(settings: BenchSettings) -> list[RunSpec]:
     b = settings.bench
+    text = functools.cache(ScenarioText.read)
     return [RunSpec(str(settings.scenario_for(v)), settings.overrides_for(v), v.key, r, settings.seed_base + r,
-                    v.family, v.budget_s, v.peer)
+                    v.family, v.budget_s, v.peer,
+                    None if v.family else text(settings.scenario_for(v), settings.overrides_for(v)))
             for v in b.variants for r in range(settings.runs)]
 
 
@@ -145,13 +154,36 @@ def _planted_length(spec: RunSpec) -> dict[str, Any]:
     return {"family": spec.family, "planted_length_m": float(np.linalg.norm(np.diff(route, axis=0), axis=1).sum())}
 
 
+_WARM: set[Any] = set()  # what this process has warmed up
+
+
+def warm_once(key: Any, problem: Any, settings: Any) -> None:
+    """Before a process's first timed plan of ``key`` (scenario, overrides, kernel …): load (or compile) the
+    kernels and import the planner's modules with a tiny search of the same settings on ``problem``, so that no
+    run's time includes them. The tiny search leaves no state behind that a later plan reads."""
+    from planner.plan import plan
+
+    if key in _WARM:
+        return
+    kernel.warm_up(problem)
+    small = dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=10, max_iter=2),
+                                aco=dataclasses.replace(settings.aco, max_iter=2))
+    plan(problem, small, np.random.default_rng(0))
+    _WARM.add(key)
+
+
 def run_one(spec: RunSpec) -> dict[str, Any]:
     """Plan once (in a worker process) and return a flat, JSON-ready record."""
     from planner.plan import json_safe, plan, problem_from_scenario, uses_roadmap
     from planner.world.scenario import load_scenario
 
-    path = generated_map(spec.family, spec.seed) if spec.family else spec.scenario
-    sc = load_scenario(path, spec.overrides)
+    path: str | Path = spec.scenario
+    extra: tuple[str, ...] = ()
+    if spec.family:
+        path = generated_map(spec.family, spec.seed)
+    elif spec.source is not None:
+        path, extra = materialise(spec.source)
+    sc = load_scenario(path, (*spec.overrides, *extra))
     problem = problem_from_scenario(sc)
     if spec.peer:
         return json_safe(_run_peer(spec, problem))
@@ -160,6 +192,7 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
         from planner.search import roadmap
 
         build_s = roadmap.routes(problem, sc.planner.roadmap)[0].build_s  # builds (and caches) what plan uses
+    warm_once((spec.scenario, spec.overrides), problem, sc.planner)
     res = plan(problem, sc.planner, np.random.default_rng(spec.seed), seed=spec.seed, budget_s=spec.budget_s)
     m = res.metrics(sc.hazard.d_safe)
     return json_safe({
@@ -226,50 +259,57 @@ def appending(jsonl: Path) -> Iterator[TextIO]:
         yield f
 
 
-def run_bench(settings: BenchSettings, out_dir: Path, workers: int,
-              progress: Callable[[int, int], None] | None = None) -> BenchOutcome:
-    """Run what ``DIR/NAME.jsonl`` does not hold yet, appending each record as its run finishes."""
-    specs = specs_for(settings)
-    jsonl = out_dir / f"{settings.bench.name}.jsonl"
+Progress = Callable[[int, int, int], None]  # (runs finished, runs to do, of them failed)
+
+
+def run_bench(settings: BenchSettings, out_dir: Path, executor: ExecutorSpec,
+              progress: Progress | None = None) -> BenchOutcome:
+    """Run what ``DIR/NAME.jsonl`` does not hold yet on ``executor``, appending each record as its run finishes."""
+    return run_specs(specs_for(settings), out_dir / f"{settings.bench.name}.jsonl", executor, progress)
+
+
+def run_specs(specs: Sequence[RunSpec], jsonl: Path, executor: ExecutorSpec,
+              progress: Progress | None = None) -> BenchOutcome:
+    """Run the specs ``jsonl`` does not hold yet (by (variant, run), made with the same settings), appending each
+    record as its run finishes; a failed run is retried by the next invocation, after the others have finished."""
     have = load_records(jsonl)
     for s in specs:
         rec = have.get((s.variant, s.run))
         if rec is not None and rec.get("fingerprint") != s.fingerprint:
             raise FuseplanError(f"{jsonl}: {s.variant} run {s.run} was made with other settings (scenario, --set "
-                                f"or --seed-base); delete the file or choose another -o to start afresh")
+                                f"or seeds); delete the file or choose another -o to start afresh")
     todo = [s for s in specs if (s.variant, s.run) not in have]
     new: dict[tuple[str, int], dict[str, Any]] = {}
+    ran_on = ""
     if todo:
-        _run_pool(todo, jsonl, workers, new, progress)
+        ran_on = _run_tasks(todo, jsonl, executor, new, progress)
     records = [have.get((s.variant, s.run)) or new[(s.variant, s.run)] for s in specs]
-    return BenchOutcome(records, len(specs) - len(todo), len(todo), jsonl)
+    return BenchOutcome(records, len(specs) - len(todo), len(todo), jsonl, ran_on)
 
 
-def _run_pool(todo: Sequence[RunSpec], jsonl: Path, workers: int, new: dict[tuple[str, int], dict[str, Any]],
-              progress: Callable[[int, int], None] | None) -> None:
-    """Submit ``todo`` to a pool; the parent alone writes the file, one flushed line per finished run."""
-    with appending(jsonl) as f:
-        pool = ProcessPoolExecutor(max_workers=max(1, min(workers, len(todo))))
-        try:
-            pending = {pool.submit(run_one, s): s for s in todo}
-            while pending:
-                finished, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in finished:
-                    spec = pending.pop(fut)
-                    try:
-                        rec = fut.result()
-                    except FuseplanError:
-                        raise
-                    except Exception as e:  # a failed run stops the bench, saying which run and why
-                        raise FuseplanError(f"{spec.variant} run {spec.run} (seed {spec.seed}) failed: "
-                                            f"{type(e).__name__}: {e}") from e
-                    f.write(json.dumps(rec, allow_nan=False) + "\n")
-                    f.flush()
-                    new[(spec.variant, spec.run)] = rec
-                    if progress is not None:
-                        progress(len(new), len(todo))
-        finally:
-            pool.shutdown(wait=False, cancel_futures=True)
+def _run_tasks(todo: Sequence[RunSpec], jsonl: Path, executor: ExecutorSpec,
+               new: dict[tuple[str, int], dict[str, Any]], progress: Progress | None) -> str:
+    """Run ``todo`` on the executor; this process alone writes the file, one flushed line per finished run.
+    Returns what ran them (executor, workers)."""
+    failed: list[tuple[RunSpec, str]] = []
+    with appending(jsonl) as f, open_pool(executor, len(todo)) as pool:
+        for i, rec in pool.run(run_one, todo):
+            spec = todo[i]
+            if isinstance(rec, Failed):
+                failed.append((spec, rec.error))
+                log.warning("%s run %d (seed %d) failed: %s", spec.variant, spec.run, spec.seed, rec.error)
+            else:
+                f.write(json.dumps(rec, allow_nan=False) + "\n")
+                f.flush()
+                new[(spec.variant, spec.run)] = rec
+            if progress is not None:
+                progress(len(new) + len(failed), len(todo), len(failed))
+    if failed:
+        spec, error = failed[0]
+        raise FuseplanError(f"{len(failed)} of {len(todo)} runs failed, the first {spec.variant} run {spec.run} "
+                            f"(seed {spec.seed}): {error}; the {len(new)} finished are in {jsonl}: run the same "
+                            f"command again to retry the failed ones")
+    return pool.ran_on
 
 
 def summarise(records: Sequence[dict[str, Any]], variants: Sequence[Variant], columns: Sequence[str],
@@ -290,11 +330,12 @@ def summarise(records: Sequence[dict[str, Any]], variants: Sequence[Variant], co
 
 # --- report pieces every bench uses ----------------------------------------------------------------------
 def command_line(settings: BenchSettings) -> str:
-    """The command that reproduces these results, in Markdown code quotes, and the cost kernel they ran on (the
-    numpy one when numba is missing or FUSEPLAN_KERNEL=numpy; times differ, docs/design.md)."""
+    """The command that reproduces these results, in Markdown code quotes, the cost kernel they ran on (the
+    numpy one when numba is missing or FUSEPLAN_KERNEL=numpy; times differ, docs/design.md) and the executor."""
     sets = "".join(f" --set '{o}'" for o in settings.user_overrides)
+    ran_on = f"; ran on {settings.ran_on}" if settings.ran_on else ""
     return (f"`fuseplan bench {settings.bench.name} --runs {settings.runs} --seed-base {settings.seed_base}{sets}` "
-            f"(cost kernel: {kernel.chosen()})")
+            f"(cost kernel: {kernel.chosen()}{ran_on})")
 
 
 def settings_list(settings: BenchSettings) -> str:

@@ -39,6 +39,7 @@ from typing import Any
 import numpy as np
 
 from planner import kernel
+from planner.bench import runner
 from planner.bench.load import cpu_hog
 from planner.bench.robustness import REPLAN_BUDGET_S, REPLAN_POP
 from planner.bench.runner import PAPER_MODE, ROADMAP_MODE, SCENARIO_DIR, appending, load_records, write_csv
@@ -204,7 +205,6 @@ def revision() -> str:
     return f"{head}" + (" with uncommitted changes in planner/" if dirty else "")
 
 
-_WARM: set[tuple[Any, ...]] = set()  # (scenario, overrides, kernel, broad phase) this worker has planned once
 
 
 def _set_environment(job: Job) -> None:
@@ -256,13 +256,8 @@ def run_job(job: Job) -> dict[str, Any]:
         from planner.search import roadmap
 
         roadmap.routes(problem, settings.roadmap)
-    warm = (job.scenario, job.overrides, job.kernel, job.broad_phase)
-    if warm not in _WARM:  # the first plan in a process loads the compiled code: not what is measured
-        kernel.warm_up(problem)  # every compiled function, as the replan worker loads them
-        small = dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=10, max_iter=2),
-                                    aco=dataclasses.replace(settings.aco, max_iter=2))
-        plan(problem, small, np.random.default_rng(0))
-        _WARM.add(warm)
+    # the first plan in a process loads the compiled code and the modules: not what is measured
+    runner.warm_once((job.scenario, job.overrides, job.kernel, job.broad_phase), problem, settings)
     res = plan(problem, settings, np.random.default_rng(job.seed), seed=job.seed, budget_s=job.budget_s)
     return json_safe({
         **common, "kernel": kernel.chosen(), "n_waypoints": settings.pso.n_waypoints,

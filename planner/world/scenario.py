@@ -600,6 +600,24 @@ def _read_toml(path: Path, file: str) -> dict[str, Any]:
         raise ScenarioError(file, "", f"cannot read file: {exc.strerror or exc}") from exc
 
 
+def named_files(path: str | Path, overrides: Sequence[str] = ()) -> dict[str, Path]:
+    """The files a scenario names (a terrain DEM), by the key that names them, resolved as :func:`load_scenario`
+    resolves them: what a run needs beside the scenario's text on a machine without the file's folder."""
+    path = Path(path)
+    file = str(path)
+    raw = _read_toml(path, file)
+    for text in overrides:
+        try:
+            _apply_override(raw, text)
+        except ValueError as exc:
+            raise ScenarioError(file, "--set", str(exc)) from exc
+    terrain = raw.get("terrain")
+    if not (isinstance(terrain, dict) and terrain.get("kind") == "file" and isinstance(terrain.get("path"), str)):
+        return {}
+    dem = Path(terrain["path"])
+    return {"terrain.path": dem if dem.is_absolute() else path.parent / dem}
+
+
 def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
     """Read, validate and build a scenario; ``overrides`` are ``section.key=value`` strings applied before checks.
 

@@ -10,10 +10,13 @@ pulls every particle towards the heavy ones, the PSO part towards the global bes
     v  ← w v + c1 r a + c2 r' (gbest − x),  |v_d| ≤ velocity_limit (hi_d − lo_d);  x ← clamp(x + v)
 
 Positions are whole particles flattened to vectors (n·3 metres); R and a are computed with P×P matrix
-products. The paper draws w at random; here w follows the shared damped schedule w0·w_damp^t of
-:class:`SPSOConfig` (as SPSO and the Cartesian PSO baseline do), so the only difference between the
-PSO baselines is the gravitational term, not the inertia. A coordinate leaving its bounds is clamped and
-keeps its velocity. g0, alpha, c1, c2 come from :class:`PSOGSAConfig`; the budget from SPSOConfig.
+products, on one BLAS thread: a multi-threaded product adds in another order, so its last bits (and, through
+the search's chaos, the plan) would depend on the machine's core count, a process pool's or a dask worker's
+thread setting (which pins BLAS to one thread).
+
+The paper draws w at random; here w follows the shared damped schedule w0·w_damp^t of :class:`SPSOConfig`
+(as SPSO and the Cartesian PSO baseline do), so the only difference between the PSO baselines is the
+gravitational term, not the inertia. A coordinate leaving its bounds is clamped and keeps its velocity. g0, alpha, c1, c2 come from :class:`PSOGSAConfig`; the budget from SPSOConfig.
 
 The gravitational acceleration is computed on positions normalised to the search box ([0, 1] per
 coordinate) and scaled back to metres. Mirjalili's G0 = 1 was set for benchmark functions on ranges of a
@@ -28,6 +31,7 @@ import math
 from collections.abc import Callable
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from planner.problem import PlanningProblem
 from planner.search.encoding import make_encoding
@@ -102,4 +106,5 @@ class PSOGSA:
                                   cfg.c1, cfg.c2, enc.lo, enc.hi, vmax, r_pair, r1, r2)
             return x
 
-        return run_swarm("psogsa", problem, pso, enc, x0, step, budget_s, progress, v0=np.zeros_like(x0))
+        with threadpool_limits(limits=1, user_api="blas"):  # same seed, same plan, wherever it runs
+            return run_swarm("psogsa", problem, pso, enc, x0, step, budget_s, progress, v0=np.zeros_like(x0))

@@ -167,3 +167,19 @@ def test_bpso_step_by_hand() -> None:
     # v + 0.75 (pbest − x) + 0.75 (gbest − x) = (3 + 1.5, −1 − 0.75, −1.5) → (4 clamped, −1.75, −1.5)
     np.testing.assert_allclose(v1, [[[4.0, -1.75, -1.5]]])
     np.testing.assert_array_equal(bits, [[[1.0, 0.0, 0.0]]])  # sigmoid > ½ ⇔ v > 0
+
+
+
+def test_psogsa_plans_the_same_whatever_the_blas_threads(rescue) -> None:
+    """PSOGSA's gravity is a matrix product, whose last bits depend on BLAS's thread count (they do here at these
+    sizes): the run pins BLAS to one thread itself, so a seed's plan does not depend on the core count, a process
+    pool or a dask worker (which pins BLAS to one thread)."""
+    from threadpoolctl import threadpool_limits
+
+    prob, pso = rescue
+    opt = PSOGSA(dataclasses.replace(pso, n_pop=300, max_iter=100, stagnation_iters=100))
+    runs = []
+    for threads in (1, 2):
+        with threadpool_limits(limits=threads, user_api="blas"):
+            runs.append(opt.run(prob, np.random.default_rng(3)))
+    assert runs[0].history == runs[1].history and np.array_equal(runs[0].path, runs[1].path)

@@ -361,3 +361,30 @@ def test_esri_terrain_errors_name_the_field(tmp_path: Path) -> None:
     (tmp_path / "holes.asc").write_text(header + "1 2\n-9999 4\n")
     path = write_scenario(tmp_path, lambda d: d.update(terrain={"kind": "file", "path": "holes.asc"}))
     expect_error(path, "terrain.path", "nodata")
+
+
+def test_scenario_text_loads_where_its_folder_is_gone(tmp_path: Path) -> None:
+    """A run on a cluster worker gets the scenario as text with the DEM it names (planner.world.scenario_text):
+    loaded after the folder is deleted it is the same scenario, terrain included."""
+    import shutil
+
+    from planner.world.scenario_text import ScenarioText, materialise
+
+    folder = tmp_path / "site"
+    (folder / "dem").mkdir(parents=True)
+    header = "ncols 3\nnrows 3\nxllcorner -500\nyllcorner -500\ncellsize 1000\n"
+    (folder / "dem" / "slope.asc").write_text(header + "590 595 600\n602 605 608\n610 612 615\n")
+    sets = ["route.start=[200, 200, 80]", "route.goal=[800,800,80]"]
+    path = write_scenario(folder, lambda d: d.update(terrain={"kind": "file", "path": "dem/slope.asc"}),
+                          name="with_dem.toml")
+    here = load_scenario(path, sets)
+    text = ScenarioText.read(path, sets)
+    assert [(key, name) for key, name, _ in text.named] == [("terrain.path", "slope.asc")]
+    shutil.rmtree(folder)
+    copy_path, extra = materialise(text)
+    there = load_scenario(copy_path, [*sets, *extra])
+    assert there.name == here.name == "with_dem"
+    assert copy_path.parent != folder and copy_path.name == "with_dem.toml"
+    for x, y in ((300.0, 300.0), (-400.0, 900.0), (750.0, 10.0)):
+        assert float(there.environment.ground(x, y)) == float(here.environment.ground(x, y))
+    assert materialise(text) == (copy_path, extra)  # once per process and content
