@@ -16,7 +16,8 @@ thread setting (which pins BLAS to one thread).
 
 The paper draws w at random; here w follows the shared damped schedule w0·w_damp^t of :class:`SPSOConfig`
 (as SPSO and the Cartesian PSO baseline do), so the only difference between the PSO baselines is the
-gravitational term, not the inertia. A coordinate leaving its bounds is clamped and keeps its velocity. g0, alpha, c1, c2 come from :class:`PSOGSAConfig`; the budget from SPSOConfig.
+gravitational term, not the inertia. A coordinate leaving its bounds is clamped and keeps its velocity.
+g0, alpha, c1, c2 come from :class:`PSOGSAConfig`; the budget from SPSOConfig.
 
 The gravitational acceleration is computed on positions normalised to the search box ([0, 1] per
 coordinate) and scaled back to metres. Mirjalili's G0 = 1 was set for benchmark functions on ranges of a
