@@ -129,20 +129,37 @@ def software() -> dict[str, str]:
     return out
 
 
+def _mismatch(have: dict[str, str], expected: dict[str, str], where: str) -> str:
+    """'' when ``have`` is ``expected``, else a one-line reason naming what differs."""
+    if have == expected:
+        return ""
+    diff = ", ".join(f"{k} {have.get(k)} (here {v})" for k, v in expected.items() if have.get(k) != v)
+    return (f"{where} runs other software than this machine: {diff}; install the same fuseplan and libraries on "
+            f"every worker")
+
+
 def _on_worker(fn: Callable[[Any], Any], item: Any, expected: dict[str, str]) -> Any:
-    """A task on a dask worker: refuse to run on other software than the submitter's, then run."""
-    have = software()
-    if have != expected:
-        diff = ", ".join(f"{k} {have.get(k)} (here {v})" for k, v in expected.items() if have.get(k) != v)
-        raise FuseplanError(f"a worker runs other software than this machine: {diff}; install the same fuseplan "
-                            f"and libraries on every worker")
+    """A task on a dask worker: refuse to run on other software than the submitter's (a worker may have joined
+    after the check at the start), then run."""
+    reason = _mismatch(software(), expected, "a worker")
+    if reason:
+        raise FuseplanError(reason)
     return fn(item)
 
 
 class _DaskPool:
     def __init__(self, client: Any, kind: str) -> None:
         self._client = client
-        self.workers = len(client.scheduler_info(n_workers=-1)["workers"])
+        try:  # every worker there now, before any run: a mismatch is one line, not a failure per run
+            found = client.run(software)
+        except Exception as e:  # noqa: BLE001 - a worker without fuseplan cannot even unpickle the check
+            raise FuseplanError(f"a dask worker cannot run fuseplan ({type(e).__name__}: {e}); install "
+                                f"fuseplan[cluster] on every worker") from None
+        for address, have in sorted(found.items()):
+            reason = _mismatch(have, software(), f"dask worker {address}")
+            if reason:
+                raise FuseplanError(reason)
+        self.workers = len(found)
         self.ran_on = f"{kind}, {self.workers} worker{'s' if self.workers > 1 else ''}"
 
     def run(self, fn: Callable[[Any], Any], items: Sequence[Any]) -> Iterator[tuple[int, Any]]:
@@ -183,9 +200,12 @@ def _dask_client(spec: ExecutorSpec, n_tasks: int) -> tuple[Any, Any]:
     if spec.kind == "dask-local":
         n = max(1, min(spec.workers or default_workers(), n_tasks))
         # loopback only, one single-threaded process per worker (a plan is one core's work), any free ports
-        cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
-                                           scheduler_port=0, dashboard_address="127.0.0.1:0",
-                                           silence_logs=logging.WARNING)
+        try:
+            cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
+                                               scheduler_port=0, dashboard_address="127.0.0.1:0",
+                                               silence_logs=logging.WARNING)
+        except Exception as e:  # noqa: BLE001 - dask's reasons vary (a worker that cannot start, no free port)
+            raise FuseplanError(f"cannot start a dask LocalCluster of {n} workers: {type(e).__name__}: {e}") from None
         return distributed.Client(cluster), cluster
     try:
         client = distributed.Client(spec.scheduler, timeout=f"{CONNECT_TIMEOUT_S}s")

@@ -4,6 +4,8 @@ failed runs are reported and retried, and every mistake in the options is one li
 
 from __future__ import annotations
 
+import contextlib
+import io
 import json
 import os
 import re
@@ -11,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -60,26 +63,33 @@ def local_ablation(tmp_path_factory) -> Path:
     return out
 
 
-def test_dask_local_gives_the_local_records_field_by_field(local_ablation, tmp_path, capsys) -> None:
-    capsys.readouterr()
-    assert main(["bench", "ablation", "-o", str(tmp_path), *TINY, "--executor", "dask-local", "--workers", "2"]) == 0
-    out = capsys.readouterr().out
-    assert "12 runs computed, 0 reused" in out and " s on dask-local, 2 workers\n" in out
-    _assert_same_records(local_ablation / "ablation.jsonl", tmp_path / "ablation.jsonl")
-    md = (tmp_path / "ablation.md").read_text()
+@pytest.fixture(scope="module")
+def dask_local_ablation(tmp_path_factory) -> tuple[Path, str]:
+    out = tmp_path_factory.mktemp("dask-local")
+    with contextlib.redirect_stdout(io.StringIO()) as stdout:
+        assert main(["bench", "ablation", "-o", str(out), *TINY, "--executor", "dask-local", "--workers", "2"]) == 0
+    return out, stdout.getvalue()
+
+
+def test_dask_local_gives_the_local_records_field_by_field(local_ablation, dask_local_ablation) -> None:
+    out, stdout = dask_local_ablation
+    assert "12 runs computed, 0 reused" in stdout and " s on dask-local, 2 workers\n" in stdout
+    _assert_same_records(local_ablation / "ablation.jsonl", out / "ablation.jsonl")
+    md = (out / "ablation.md").read_text()
     assert "ran on dask-local, 2 workers" in md
     assert "ran on local, 1 process)" in (local_ablation / "ablation.md").read_text()
     strip = re.compile(r"ran on [^)]*|\d+\.\d+ ± \d+\.\d+ \| (?=\d+\.\d ± )")  # the executor, then the time column
     assert strip.sub("", md) == strip.sub("", (local_ablation / "ablation.md").read_text())
 
 
-def test_a_sweep_interrupted_on_one_executor_resumes_on_another(local_ablation, tmp_path, capsys) -> None:
-    lines = (local_ablation / "ablation.jsonl").read_text().splitlines()
-    (tmp_path / "ablation.jsonl").write_text("\n".join(lines[:5]) + "\n")  # five runs done on the local pool
+def test_a_sweep_interrupted_on_one_executor_resumes_on_another(local_ablation, dask_local_ablation, tmp_path,
+                                                                 capsys) -> None:
+    lines = (dask_local_ablation[0] / "ablation.jsonl").read_text().splitlines()
+    (tmp_path / "ablation.jsonl").write_text("\n".join(lines[:9]) + "\n")  # nine runs done on dask-local
     capsys.readouterr()
-    assert main(["bench", "ablation", "-o", str(tmp_path), *TINY, "--executor", "dask-local", "--workers", "2"]) == 0
+    assert main(["bench", "ablation", "-o", str(tmp_path), *TINY, "--workers", "2"]) == 0
     out = capsys.readouterr().out
-    assert "7 runs computed, 5 reused" in out and " s on dask-local, 2 workers\n" in out
+    assert "3 runs computed, 9 reused" in out and " s on local, 2 processes\n" in out
     _assert_same_records(local_ablation / "ablation.jsonl", tmp_path / "ablation.jsonl")
 
 
@@ -160,15 +170,36 @@ def test_a_run_needs_no_file_on_the_worker(tmp_path) -> None:
     assert _without_times(there) == _without_times(here)  # the fingerprint too: it names the file, not its folder
 
 
+def _dask_command() -> list[str]:
+    bin_dir = Path(sys.executable).parent
+    return [str(bin_dir / "dask")] if (bin_dir / "dask").exists() else [sys.executable, "-m", "distributed.cli.dask"]
+
+
+def _stop(procs: list[subprocess.Popen]) -> None:
+    for p in reversed(procs):
+        p.terminate()
+    for p in procs:
+        try:
+            p.wait(timeout=20)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
+def _start_worker(address: str, folder: Path, env: dict[str, str] | None = None) -> subprocess.Popen:
+    """One single-threaded `dask worker` in a folder of its own, as a user starts it."""
+    folder.mkdir()
+    return subprocess.Popen([*_dask_command(), "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
+                             "--no-nanny", "--no-dashboard"], env={**os.environ, **(env or {})}, cwd=folder,
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+
 @pytest.fixture(scope="module")
-def dask_cluster(tmp_path_factory):
-    """`dask scheduler` and one `dask worker` (dask's own commands, as a user starts them), on loopback; the
-    worker runs in a folder of its own."""
+def dask_cluster(tmp_path_factory) -> Iterator[str]:
+    """`dask scheduler` and one `dask worker` (dask's own commands) on loopback; the scheduler's address."""
     folder = tmp_path_factory.mktemp("cluster")
     address_file = folder / "scheduler.json"
-    bin_dir = Path(sys.executable).parent
-    dask = [str(bin_dir / "dask")] if (bin_dir / "dask").exists() else [sys.executable, "-m", "distributed.cli.dask"]
-    procs = [subprocess.Popen([*dask, "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
+    procs = [subprocess.Popen([*_dask_command(), "scheduler", "--host", "127.0.0.1", "--port", "0", "--no-dashboard",
                                "--scheduler-file", str(address_file)],
                               cwd=folder, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)]
     try:
@@ -176,21 +207,10 @@ def dask_cluster(tmp_path_factory):
         while not address_file.exists() and time.monotonic() < deadline:
             time.sleep(0.1)
         address = json.loads(address_file.read_text())["address"]
-        work = folder / "worker"
-        work.mkdir()
-        procs.append(subprocess.Popen([*dask, "worker", address, "--host", "127.0.0.1", "--nthreads", "1",
-                                       "--nworkers", "1", "--no-dashboard"],
-                                      cwd=work, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL))
+        procs.append(_start_worker(address, folder / "worker"))
         yield address
     finally:
-        for p in reversed(procs):
-            p.terminate()
-        for p in procs:
-            try:
-                p.wait(timeout=20)
-            except subprocess.TimeoutExpired:
-                p.kill()
-                p.wait()
+        _stop(procs)
 
 
 def test_compare_on_a_running_dask_cluster_matches_the_local_pool(dask_cluster, tmp_path, capsys) -> None:
@@ -205,9 +225,25 @@ def test_compare_on_a_running_dask_cluster_matches_the_local_pool(dask_cluster, 
     assert "(ran on dask, 1 worker)" in (tmp_path / "dask" / "compare.md").read_text()
 
 
-def test_a_worker_with_other_software_is_refused() -> None:
-    """Records must not depend on which worker ran them: a worker whose fuseplan code, kernel or libraries differ
-    raises, naming what differs (checked on the worker before the run)."""
+def test_a_worker_with_other_software_is_refused(dask_cluster, tmp_path, capsys) -> None:
+    """Records must not depend on which worker ran them: a worker on the numpy cost kernel (here: compiled) joins
+    the cluster, and the sweep is refused before any run, naming the worker and what differs; a task checks again
+    on its worker (one may join later)."""
+    from distributed import Client
+
+    bad = _start_worker(dask_cluster, tmp_path / "numpy-worker", {"FUSEPLAN_KERNEL": "numpy"})
+    try:
+        with Client(dask_cluster, timeout="10s") as client:
+            client.wait_for_workers(2, timeout=60)
+        code = main(["bench", "ablation", "-o", str(tmp_path / "out"), *TINY, "--executor", "dask", "--scheduler",
+                     dask_cluster])
+    finally:
+        _stop([bad])
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and len(err.splitlines()) == 1, err
+    assert re.search(r"dask worker tcp://127\.0\.0\.1:\d+ runs other software than this machine: cost kernel numpy "
+                     r"\(here compiled\)", err), err
+    assert not (tmp_path / "out" / "ablation.jsonl").exists() or not (tmp_path / "out" / "ablation.jsonl").read_text()
     want = {**executor.software(), "numpy": "0.0.0"}
     with pytest.raises(FuseplanError, match=r"numpy .* \(here 0\.0\.0\)"):
         executor._on_worker(len, "abc", want)
