@@ -294,6 +294,15 @@ def test_missing_cluster_extra_is_one_line(tmp_path) -> None:
     assert "pip install 'fuseplan[cluster]'" in r.stderr
 
 
+def test_the_cluster_extra_is_imported_only_for_a_dask_executor(tmp_path) -> None:
+    code = ("import sys; from companion.cli import main; code = main(sys.argv[1:]); "
+            "print(code, 'distributed' in sys.modules, 'dask' in sys.modules)")
+    r = subprocess.run([sys.executable, "-c", code, "compare", str(SCENARIOS / "rescue_static.toml"), "--runs", "1",
+                        "--algorithms", "spso", "--set", "planner.pso.n_pop=10", "--set", "planner.pso.max_iter=2",
+                        "--workers", "1", "-q", "-o", str(tmp_path / "c")], capture_output=True, text=True, timeout=120)
+    assert r.stdout.split()[-3:] == ["0", "False", "False"], r.stdout + r.stderr
+
+
 @pytest.mark.parametrize("argv", [["bench", "speed", "--quick"], ["bench", "replan"]])
 def test_timing_benches_run_locally_only(argv, tmp_path, capsys) -> None:
     assert main([*argv, "-o", str(tmp_path), "-q", "--executor", "dask-local"]) == 2
