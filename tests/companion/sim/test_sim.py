@@ -402,7 +402,9 @@ async def test_serve_runs_for_the_given_simulated_time(static: Scenario) -> None
 
 @pytest.mark.asyncio
 async def test_arming_is_refused_until_the_vehicle_is_ready(static: Scenario) -> None:
-    async with SimAutopilot(static, "udpin:127.0.0.1:0", speedup=2.0) as sim, Client(sim.port) as gcs:
+    # ready 1.5 s (wall) after start, not the default 0.5 s: on a loaded CI host the first command has come later
+    async with (SimAutopilot(static, "udpin:127.0.0.1:0", speedup=4.0, ready_after_s=6.0) as sim,
+                Client(sim.port) as gcs):
         mark = gcs.mark()
         assert await gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == mavlink.MAV_RESULT_FAILED
         await gcs.expect("STATUSTEXT", where=lambda m: m.text == PREARM_TEXT["plane"], after=mark)
