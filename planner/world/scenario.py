@@ -600,17 +600,22 @@ def _read_toml(path: Path, file: str) -> dict[str, Any]:
         raise ScenarioError(file, "", f"cannot read file: {exc.strerror or exc}") from exc
 
 
-def named_files(path: str | Path, overrides: Sequence[str] = ()) -> dict[str, Path]:
-    """The files a scenario names (a terrain DEM), by the key that names them, resolved as :func:`load_scenario`
-    resolves them: what a run needs beside the scenario's text on a machine without the file's folder."""
-    path = Path(path)
-    file = str(path)
-    raw = _read_toml(path, file)
+def _raw_with_overrides(path: Path, overrides: Sequence[str]) -> dict[str, Any]:
+    """The file's TOML as a dict with ``overrides`` applied in order (a bad one: ``FILE: --set: REASON``)."""
+    raw = _read_toml(path, str(path))
     for text in overrides:
         try:
             _apply_override(raw, text)
         except ValueError as exc:
-            raise ScenarioError(file, "--set", str(exc)) from exc
+            raise ScenarioError(str(path), "--set", str(exc)) from exc
+    return raw
+
+
+def named_files(path: str | Path, overrides: Sequence[str] = ()) -> dict[str, Path]:
+    """The files a scenario names (a terrain DEM), by the key that names them, resolved as :func:`load_scenario`
+    resolves them: what a run needs beside the scenario's text on a machine without the file's folder."""
+    path = Path(path)
+    raw = _raw_with_overrides(path, overrides)
     terrain = raw.get("terrain")
     if not (isinstance(terrain, dict) and terrain.get("kind") == "file" and isinstance(terrain.get("path"), str)):
         return {}
@@ -625,12 +630,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
     """
     path = Path(path)
     file = str(path)
-    raw = _read_toml(path, file)
-    for text in overrides:
-        try:
-            _apply_override(raw, text)
-        except ValueError as exc:
-            raise ScenarioError(file, "--set", str(exc)) from exc
+    raw = _raw_with_overrides(path, overrides)
     try:
         spec = _ScenarioFile.model_validate(raw)
     except ValidationError as exc:
