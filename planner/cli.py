@@ -172,6 +172,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 def cmd_compare(args: argparse.Namespace) -> int:
     from planner.bench import compare
+    from planner.bench.runner import set_options
     from planner.world.scenario import load_scenario
 
     if args.runs < 1:
@@ -200,9 +201,9 @@ def cmd_compare(args: argparse.Namespace) -> int:
               + (f"; on {outcome.ran_on}" if outcome.ran_on else ""), file=sys.stderr)
     rows = compare.summarise(records, algorithms)
     console.show_markdown(compare.format_table(rows))
-    sets = "".join(f" --set '{o}'" for o in args.overrides)
     header = (f"`fuseplan compare {args.scenario} --runs {args.runs} --seed {args.seed} --algorithms "
-              f"{','.join(algorithms)}{sets}`" + (f" (ran on {outcome.ran_on})" if outcome.ran_on else ""))
+              f"{','.join(algorithms)}{set_options(args.overrides)}`"
+              + (f" (ran on {outcome.ran_on})" if outcome.ran_on else ""))
     try:
         files = compare.write_outputs(args.output, "compare", records, rows, header)
     except OSError as e:

@@ -60,11 +60,17 @@ class ExecutorSpec:
         if self.kind != "local":  # before any run: the extra is imported only for the executor that needs it
             _distributed(self.kind)
 
+    def processes(self, n_tasks: int | None = None) -> int:
+        """Local processes or dask-local workers: ``--workers`` (default :func:`default_workers`), at most one per
+        task."""
+        n = self.workers or default_workers()
+        return n if n_tasks is None else max(1, min(n, n_tasks))
+
     def describe(self) -> str:
         """What will run the sweep, before it starts."""
         if self.kind == "dask":
             return f"the dask cluster at {self.scheduler}"
-        n = self.workers or default_workers()
+        n = self.processes()
         if self.kind == "local":
             return f"{n} local process{'es' if n > 1 else ''}"
         return f"a dask LocalCluster of {n} worker{'s' if n > 1 else ''}"
@@ -198,7 +204,7 @@ def _dask_client(spec: ExecutorSpec, n_tasks: int) -> tuple[Any, Any]:
     if not log.isEnabledFor(logging.DEBUG):  # dask's own INFO lines (-v shows them); its warnings stay
         logging.getLogger("distributed").setLevel(logging.WARNING)
     if spec.kind == "dask-local":
-        n = max(1, min(spec.workers or default_workers(), n_tasks))
+        n = spec.processes(n_tasks)
         # loopback only, one single-threaded process per worker (a plan is one core's work), any free ports
         try:
             cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
@@ -225,7 +231,7 @@ def open_pool(spec: ExecutorSpec, n_tasks: int) -> Iterator[Pool]:
     """The executor ``spec`` names, ready for ``n_tasks`` runs, closed (its unfinished tasks cancelled) on exit."""
     spec.check()
     if spec.kind == "local":
-        pool = _LocalPool(max(1, min(spec.workers or default_workers(), n_tasks)))
+        pool = _LocalPool(spec.processes(n_tasks))
         try:
             yield pool
         finally:

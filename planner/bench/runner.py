@@ -329,10 +329,15 @@ def summarise(records: Sequence[dict[str, Any]], variants: Sequence[Variant], co
 
 
 # --- report pieces every bench uses ----------------------------------------------------------------------
+def set_options(overrides: Sequence[str]) -> str:
+    """The ``--set`` options that reproduce ``overrides``, each quoted for a shell, with a leading space each."""
+    return "".join(f" --set '{o}'" for o in overrides)
+
+
 def command_line(settings: BenchSettings) -> str:
     """The command that reproduces these results, in Markdown code quotes, the cost kernel they ran on (the
     numpy one when numba is missing or FUSEPLAN_KERNEL=numpy; times differ, docs/design.md) and the executor."""
-    sets = "".join(f" --set '{o}'" for o in settings.user_overrides)
+    sets = set_options(settings.user_overrides)
     ran_on = f"; ran on {settings.ran_on}" if settings.ran_on else ""
     return (f"`fuseplan bench {settings.bench.name} --runs {settings.runs} --seed-base {settings.seed_base}{sets}` "
             f"(cost kernel: {kernel.chosen()}{ran_on})")
