@@ -1,4 +1,4 @@
-"""The ``fuseplan`` command line: plan, compare, bench (:mod:`planner.cli`) with export, fly, sim, demo.
+"""The ``fuseplan`` command line: plan, compare, bench (:mod:`planner.cli`) with export, fly, sim, demo, report.
 
 The top layer: it assembles the planner's subcommands and the companion's. User mistakes print one line and exit 2;
 an infeasible plan exits 3; success exits 0; ``fly`` adds 4 (link or upload failure) and 5 (started but not
@@ -73,6 +73,7 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--seed", type=int, default=None)
     fl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None)
     fl.add_argument("-q", "--quiet", action="store_true")
+    _status_options(fl)
     sm = sub.add_parser("sim", help="run the built-in simulated autopilot alone")
     sm.add_argument("scenario", type=Path)
     sm.add_argument("--listen", default="udpin:127.0.0.1:14550", help="udpin:HOST:PORT or tcp:HOST:PORT "
@@ -92,9 +93,45 @@ def _parser() -> argparse.ArgumentParser:
     bn.add_argument("--cpu-hog", type=int, default=0, metavar="N",
                     help="bench replan only: N busy processes beside the flights (deadlines under load, issue 16; "
                          "default 0)")
-    sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated autopilot "
-                   "at 20x, replanning around an intruder")
+    dm = sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated "
+                        "autopilot at 20x, replanning around an intruder")
+    _status_options(dm)
+    rp = sub.add_parser("report", help="summarise a `fuseplan fly` report directory, or serve its status page")
+    rp.add_argument("directory", type=Path, help="the report directory (holds events.jsonl, flight.json)")
+    rp.add_argument("--serve", nargs="?", const=STATUS_DEFAULT, metavar="[HOST:]PORT",
+                    help=f"serve the flight's status page until Ctrl-C (default {STATUS_DEFAULT})")
+    rp.add_argument("--status-token", type=Path, metavar="FILE",
+                    help="a file holding the page's token (required to serve beyond loopback)")
     return p
+
+
+STATUS_DEFAULT = "127.0.0.1:8765"
+
+
+def _status_options(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--status-page", metavar="[HOST:]PORT",
+                   help="serve a live, read-only status page of the flight (default host 127.0.0.1; port 0: any "
+                        "free port); any address but loopback needs --status-token")
+    p.add_argument("--status-token", type=Path, metavar="FILE",
+                   help="a file holding the status page's token (16+ characters); every request must carry it")
+
+
+def _status_bind(args: argparse.Namespace, option: str = "status_page") -> tuple[object, str | None] | None:
+    """(Bind, token) for the status page options, checked before any work; None when no page was asked for."""
+    from companion.status import Bind, read_token
+
+    where = getattr(args, option, None)
+    token_file = getattr(args, "status_token", None)
+    if where is None:
+        if token_file is not None:
+            raise FuseplanError("--status-token goes with " + ("--serve" if option == "serve" else "--status-page"))
+        return None
+    bind = Bind.parse(where)
+    return bind, read_token(token_file, bind)
+
+
+def _announce(url: str, token: str | None) -> None:
+    print(f"status page: {url}" + ("?token=<the token in --status-token FILE>" if token else ""), flush=True)
 
 
 REPLAN_BENCH_SCENARIOS = ("rescue_dynamic.toml", "crossing_traffic.toml")
@@ -222,6 +259,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
         if why:
             raise FuseplanError(why)
     key = SigningKey.load(args.signing_key) if getattr(args, "signing_key", None) else None
+    status = _status_bind(args)
     overrides = list(args.overrides) + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else [])
     try:
         args.report.mkdir(parents=True, exist_ok=True)
@@ -248,7 +286,14 @@ def cmd_fly(args: argparse.Namespace) -> int:
                       heartbeat_timeout=HEARTBEAT_WAIT_S if heartbeat is None else heartbeat)
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
     try:
-        flight = asyncio.run(fly(doc, sc, opts, events))
+        if status is None:
+            flight = asyncio.run(fly(doc, sc, opts, events))
+        else:
+            from companion.status import serve_flight
+
+            bind, token = status
+            flight = asyncio.run(serve_flight(lambda: fly(doc, sc, opts, events), events, bind, token,
+                                              lambda url: _announce(url, token)))
     except CompanionError as e:
         events.log("failed", error=str(e))
         write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e)}, indent=1) + "\n")
@@ -343,8 +388,46 @@ def cmd_demo(args: argparse.Namespace) -> int:
     ns = argparse.Namespace(scenario=here, connect=None, sim=True, speedup=20.0, sim_loss=0.0, arm=False,
                             no_fence=False, densify=False, report=Path("fuseplan-demo"), scenario_file=None,
                             overrides=[], seed=None, algorithm=None, quiet=False, no_replan=False,
-                            replan_budget=None)
+                            replan_budget=None, status_page=args.status_page, status_token=args.status_token)
     return cmd_fly(ns)
+
+
+def cmd_report(args: argparse.Namespace) -> int:
+    """A report directory's summary (flight.json), or its status page served until Ctrl-C (``--serve``)."""
+    import asyncio
+
+    from companion.status import load_events, serve_report
+
+    status = _status_bind(args, "serve")
+    if status is None:
+        return _summarise_report(args.directory, load_events(args.directory))
+    bind, token = status
+    print(f"serving the status page of {args.directory}; Ctrl-C stops", flush=True)
+    try:
+        asyncio.run(serve_report(args.directory, bind, token, lambda url: _announce(url, token)))
+    except KeyboardInterrupt:
+        pass
+    return EXIT_OK
+
+
+def _summarise_report(directory: Path, records: list[dict]) -> int:
+    try:
+        flight = json.loads((directory / "flight.json").read_text())
+    except (OSError, ValueError):
+        flight = {}
+    scene = next((r for r in records if r["event"] == "scene"), {})
+    done = next((r for r in reversed(records) if r["event"] in ("finished", "failed", "aborted")), None)
+    print(f"{directory}: {scene.get('name', 'unknown scenario')}, {len(records)} events over "
+          f"{records[-1]['t'] if records else 0:.1f} s")
+    if done is not None:
+        print(f"  {done['event']}: {done.get('reason') or done.get('error') or ''}".rstrip())
+    if flight.get("replans") is not None:
+        lat = flight.get("replan_latency_s") or {}
+        print(f"  replans {flight['replans']}" + (f", latency median {lat['median']:.2f} s, max {lat['max']:.2f} s"
+                                                  if lat else "")
+              + f"; min clearance {flight.get('min_clearance_m', float('nan')):.1f} m")
+    print(f"  `fuseplan report {directory} --serve` shows the flight in a browser")
+    return EXIT_OK
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -362,6 +445,8 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_fly(args)
         if args.command == "sim":
             return cmd_sim(args)
+        if args.command == "report":
+            return cmd_report(args)
         if args.command == "bench":
             if args.name == "replan":
                 return cmd_bench_replan(args)

@@ -21,6 +21,7 @@ from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
 from companion.mavlink.protocol import MissionClient
 from companion.mavlink.signing import SigningKey
 from companion.mavlink.telemetry import TelemetryRates
+from companion.mission import picture
 from companion.mission.builder import build_fence, mission_from_plan_json, spec_from_plan_json
 from companion.mission.events import EventLog
 from companion.mission.exports import write_geojson, write_qgc_plan, write_waypoints, zones_of
@@ -62,6 +63,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
     from companion.sim import SimAutopilot
     from companion.sim.traffic import TrafficFeed
 
+    events.log("scene", **picture.scene(scenario, plan_doc))
     sim = None
     if opts.sim:
         sim = SimAutopilot(scenario, listen="udpin:127.0.0.1:0", speedup=opts.speedup, loss=opts.sim_loss,
@@ -89,7 +91,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                 if opts.fence and len(scenario.environment.cylinders) else []
             _write_mission_files(opts.report, plan_doc, scenario, items, spec, fence)
             client = (MavsdkMissionClient if isinstance(link, MavsdkLink) else MissionClient)(link)  # the link's own
-            sup = FlightSupervisor(link, client, events, arm=opts.arm or opts.sim)
+            sup = FlightSupervisor(link, client, events, arm=opts.arm or opts.sim, home=scenario.home)
             length = float(plan_doc["metrics"]["length_m"])
             timeout = 120.0 + 4.0 * length / scenario.vehicle.cruise_speed / max(opts.speedup, 1e-3)
             replanner = feed = None

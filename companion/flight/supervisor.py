@@ -24,12 +24,15 @@ from companion.mavlink.errors import (
     UploadAborted,
 )
 from companion.mavlink.items import FENCE, MISSION, MissionItem
-from companion.mavlink.link import Link, Subscription
+from companion.mavlink.link import Link, Message, Subscription
 from companion.mavlink.profiles import ARM, MODE, PILOT_ARM, START, profile_for
 from companion.mavlink.protocol import MissionClient
+from companion.mission import picture
 from companion.mission.events import EventLog
+from companion.mission.geo import geodetic_to_enu
 from companion.mission.restore import restore_mission
 from companion.replanning.replanner import LiveReplanner
+from planner.world.home import Home
 
 log = logging.getLogger(__name__)
 PREARM_BIT = 0x10000000  # MAV_SYS_STATUS_PREARM_CHECK
@@ -39,6 +42,7 @@ REPLANNER_STOP_S = 5.0  # wall seconds a cancelled replanner may take to finish 
 UPLOAD_ATTEMPTS = 3  # whole verified uploads tried before the flight when the link breaks one
 BOOT_TIMEOUT_S = 60.0  # wall seconds an autopilot may take to finish booting
 VERDICT_S = 3.0  # wall seconds PX4's navigator may take to accept a verified mission (measured: ≤ 0.21 s)
+POSITION_EVERY_S = 0.1  # wall seconds between two ``position`` records (the status page's vehicle and track)
 BOOT_GRACE_S = 10.0  # a MAV_MISSION_NO_SPACE this soon after boot is the boot's, not the mission's size
 
 
@@ -69,11 +73,14 @@ def _mode_name(hb: object) -> str:
 class FlightSupervisor:
     """Flies one mission. ``arm``: may the companion arm the vehicle (only when asked, or our own sim)."""
 
-    def __init__(self, link: Link, client: MissionClient, events: EventLog, *, arm: bool) -> None:
+    def __init__(self, link: Link, client: MissionClient, events: EventLog, *, arm: bool,
+                 home: Home | None = None) -> None:
         self.link = link
         self.client = client
         self.events = events
         self.arm = arm
+        self.home = home  # with it, the ``mission`` and ``position`` records in the local frame
+        self._position_at = -math.inf  # wall time of the last ``position`` record
         self.booted_at: float | None = None  # time.monotonic() when the autopilot was seen booted
 
     # -- readiness ---------------------------------------------------------------------------------
@@ -343,6 +350,7 @@ class FlightSupervisor:
             t = time.monotonic() - t0
             if kind == "GLOBAL_POSITION_INT":
                 outcome.track.append((t, msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0))
+                self._log_position(msg)
             elif kind == "MISSION_ITEM_REACHED":
                 if msg.seq not in outcome.items_reached:
                     outcome.items_reached.append(msg.seq)
@@ -370,6 +378,17 @@ class FlightSupervisor:
                 self.events.log("disarmed")
                 return
 
+    def _log_position(self, msg: Message) -> None:
+        """A ``position`` record (local frame, ground speed, heading), at most every :data:`POSITION_EVERY_S`."""
+        now = time.monotonic()
+        if self.home is None or now - self._position_at < POSITION_EVERY_S:
+            return
+        self._position_at = now
+        e, n, _u = geodetic_to_enu(msg.lat / 1e7, msg.lon / 1e7, self.home.alt, self.home)
+        self.events.log("position", x=round(float(e), 1), y=round(float(n), 1), z=round(msg.relative_alt / 1000, 1),
+                        gs=round(math.hypot(msg.vx, msg.vy) / 100, 1),
+                        hdg=None if msg.hdg == 65535 else round(msg.hdg / 100, 1))
+
     async def fly(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (), *,
                   ready_timeout: float = 60.0, flight_timeout: float = 600.0,
                   replanner: LiveReplanner | None = None) -> FlightOutcome:
@@ -386,6 +405,8 @@ class FlightSupervisor:
                                  "disarmed vehicle; nothing was uploaded")
         await self.wait_booted()
         out.upload_s = await self.upload(items, fence)
+        if self.home is not None:
+            self.events.log("mission", **picture.mission(items, self.home))
         if replanner is not None:
             replanner.note_upload(out.upload_s)
         await self.wait_ready(ready_timeout)

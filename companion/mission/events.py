@@ -1,4 +1,5 @@
-"""The flight's event log: one JSON object per line (``events.jsonl``), optionally echoed to a callback."""
+"""The flight's event log: one JSON object per line (``events.jsonl``), optionally echoed to a callback and passed
+to listeners (the status page)."""
 
 from __future__ import annotations
 
@@ -17,6 +18,14 @@ class EventLog:
         self._echo = echo
         self._t0 = time.monotonic()
         self.records: list[dict[str, Any]] = []
+        self._listeners: list[Callable[[dict[str, Any]], None]] = []
+
+    def subscribe(self, listener: Callable[[dict[str, Any]], None]) -> None:
+        """Pass every record from now on to ``listener`` too (it must not block: it runs inside :meth:`log`)."""
+        self._listeners.append(listener)
+
+    def unsubscribe(self, listener: Callable[[dict[str, Any]], None]) -> None:
+        self._listeners.remove(listener)
 
     def log(self, event: str, **fields: Any) -> dict[str, Any]:
         rec = {"t": round(time.monotonic() - self._t0, 3), "event": event, **fields}
@@ -26,6 +35,8 @@ class EventLog:
             self._file.flush()
         if self._echo is not None:
             self._echo(rec)
+        for listener in self._listeners:
+            listener(rec)
         return rec
 
     def close(self) -> None:

@@ -37,6 +37,7 @@ from companion.mavlink.errors import CommandError, CompanionError, MissionUpload
 from companion.mavlink.items import MissionItem
 from companion.mavlink.link import MAV_COMP_ID_ADSB, Link, Message, Subscription
 from companion.mavlink.protocol import MissionClient
+from companion.mission import picture
 from companion.mission.builder import MissionSpec
 from companion.mission.events import EventLog
 from companion.mission.geo import geodetic_to_enu
@@ -65,6 +66,8 @@ WATCHED = ("GLOBAL_POSITION_INT", "ADSB_VEHICLE", "MISSION_CURRENT", "MISSION_IT
 ADSB_SOURCES = {"ADSB_VEHICLE": (MAV_COMP_ID_ADSB,)}
 BAND_INSET_M = 0.5  # a commit point is moved at least this far inside the altitude band
 GOOD = (PlanStatus.EXACT.value, PlanStatus.APPROXIMATE.value)
+CONTACTS_EVERY_S = 0.25  # wall seconds between two ``contacts`` records (the status page's traffic picture)
+CONTACT_PATH_S = 60.0  # vehicle seconds of each contact's predicted path in a ``contacts`` record
 PACE_TAU_S = 8.0  # vehicle seconds over which the ground speed along the route is smoothed
 
 
@@ -216,6 +219,7 @@ class LiveReplanner:
         # monotonic time of the latest position and (if the autopilot streams it) active item
         self._seen: dict[str, float] = {"GLOBAL_POSITION_INT": 0.0}
         self._sub: Any = None
+        self._contacts_at = -math.inf  # wall time of the last ``contacts`` record
         # started now, and warmed up on the whole route, so the first conflict finds it ready
         self._worker = PlanWorker(
             replan_problem(scenario, self.route.points[0], self.route.goal, scenario.environment.threats, 0.0),
@@ -417,6 +421,7 @@ class LiveReplanner:
             return
         now = self.now()
         threats = self.threats(now)
+        self._log_contacts(now, threats)
         if not self.in_control():
             return
         if self.holding is not None:
@@ -431,6 +436,16 @@ class LiveReplanner:
         if now - self._last_replan < self.cfg.min_interval_s:
             return
         await self.replan(conflicts[0], now, threats)
+
+    def _log_contacts(self, now: float, threats: Threats) -> None:
+        """A ``contacts`` record (every threat, where it is and where it is predicted to go), at most every
+        :data:`CONTACTS_EVERY_S` wall seconds: the status page's picture of the traffic."""
+        wall = time.monotonic()
+        if wall - self._contacts_at < CONTACTS_EVERY_S:
+            return
+        self._contacts_at = wall
+        self.events.log("contacts", t_mission=round(now, 2),
+                        contacts=picture.contacts(threats, now, min(self.cfg.horizon_s, CONTACT_PATH_S)))
 
     # -- replanning ---------------------------------------------------------------------------------
     async def replan(self, conflict: Conflict, now: float, threats: Threats, lead_m: float | None = None) -> bool:
@@ -497,7 +512,7 @@ class LiveReplanner:
                                    or rec.sep_after_m >= max(d_coll, conflict.separation))
         self.events.log("replan_planned", n=rec.n, status=rec.plan_status, plan_s=rec.plan_s,
                         separation_after_m=rec.sep_after_m, commit=rec.commit, waypoints=len(new_route),
-                        violations=job.violations)
+                        violations=job.violations, old_route=rec.old_route, new_route=rec.new_route)
         if not safe and self.holding is None and conflict.separation >= d_coll:
             rec.outcome = "no better route: the current one (inside the margin, outside d_coll) is kept"
             self.events.log("replan_skipped", n=rec.n, reason=rec.outcome)
@@ -585,6 +600,7 @@ class LiveReplanner:
         self.route = MissionRoute.of(items, self.scenario.home)
         self.verified.append((time.monotonic(), list(items)))
         self.events.log("replan_verified", n=rec.n, items=len(items), first_new=first_new_seq)
+        self.events.log("mission", **picture.mission(items, self.scenario.home))
         self._pump()
         target = self.current_seq
         if self.current_seq >= first_new_seq:  # its active item was replaced: join the new route

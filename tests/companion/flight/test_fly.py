@@ -39,9 +39,11 @@ def test_fly_sim_completes_and_writes_the_report(tmp_path) -> None:
     n_wp = len(json.loads((report / "PLAN.json").read_text())["waypoints"])
     assert len(fl["items_reached"]) >= n_wp - 1  # every route waypoint after the start
     records = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
-    assert records[0]["event"] == "sim_started" and records[0]["loss"] == 0.05
+    assert records[0]["event"] == "scene" and len(records[0]["route"]) >= 10  # the status page's map, first
+    assert records[1]["event"] == "sim_started" and records[1]["loss"] == 0.05
     events = [r["event"] for r in records]
-    order = [events.index(e) for e in ("connected", "upload_verified", "ready", "armed", "mission_start", "finished")]
+    order = [events.index(e) for e in ("connected", "upload_verified", "mission", "ready", "armed", "mission_start",
+                                       "position", "finished")]
     assert order == sorted(order)
     loaded = mavwp.MAVWPLoader()
     assert loaded.load(str(report / "mission.waypoints")) == fl["mission_items"]
