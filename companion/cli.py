@@ -127,7 +127,9 @@ def _status_bind(args: argparse.Namespace, option: str = "status_page") -> tuple
             raise FuseplanError("--status-token goes with " + ("--serve" if option == "serve" else "--status-page"))
         return None
     bind = Bind.parse(where)
-    return bind, read_token(token_file, bind)
+    token = read_token(token_file, bind)
+    bind.check_free()
+    return bind, token
 
 
 def _announce(url: str, token: str | None) -> None:

@@ -16,14 +16,18 @@ from collections import deque
 from collections.abc import AsyncIterator, Iterable
 from typing import Any
 
+from planner.plan import json_safe
+
 HISTORY = 20_000  # records kept for browsers that join late or fall behind (~4 MB at 200 bytes a record)
 PINNED = ("scene", "mission")  # kinds whose latest record every reader gets, even after it left the ring
 CHUNK_BYTES = 64 * 1024  # at most this much per write to one browser
 
 
 def sse(seq: int, rec: dict[str, Any]) -> bytes:
-    """One Server-Sent Event: ``id`` the sequence number, ``data`` the record as JSON (one line)."""
-    return f"id: {seq}\ndata: {json.dumps(rec, default=str, separators=(',', ':'))}\n\n".encode()
+    """One Server-Sent Event: ``id`` the sequence number, ``data`` the record as strict JSON on one line (a
+    non-finite number, which the log may hold, becomes null: a browser's JSON.parse refuses Infinity)."""
+    data = json.dumps(json_safe(rec), default=str, separators=(",", ":"), allow_nan=False)
+    return f"id: {seq}\ndata: {data}\n\n".encode()
 
 
 class StatusHub:

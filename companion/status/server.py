@@ -14,6 +14,7 @@ import contextlib
 import hmac
 import ipaddress
 import logging
+import socket
 from dataclasses import dataclass
 from importlib import resources
 from pathlib import Path
@@ -57,6 +58,19 @@ class Bind:
         if not 0 <= number <= 65535 or (sep and not host):
             raise FuseplanError(f"--status-page {text!r}: expected PORT or HOST:PORT (e.g. 8765 or 0.0.0.0:8765)")
         return cls(host, number)
+
+    def check_free(self) -> None:
+        """Fail now, in one line, if the address cannot be listened on (before a flight is planned for it); the
+        server binds again when it starts."""
+        if self.port == 0:
+            return
+        try:
+            infos = socket.getaddrinfo(self.host, self.port, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+            with socket.socket(infos[0][0], socket.SOCK_STREAM) as probe:
+                probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server does
+                probe.bind(infos[0][4])
+        except OSError as e:
+            raise FuseplanError(f"--status-page {self.host}:{self.port}: cannot listen: {e.strerror or e}") from e
 
     @property
     def loopback(self) -> bool:
@@ -123,7 +137,7 @@ def make_app(hub: StatusHub, token: str | None = None) -> web.Application:
         if token is not None and request.query.get("token"):
             resp.set_cookie(COOKIE, token, httponly=True, samesite="Strict")
         await resp.prepare(request)
-        with contextlib.suppress(ConnectionError, asyncio.CancelledError):
+        with contextlib.suppress(ConnectionError):  # the browser went away: its reader ends here, nothing else
             async for chunk in hub.read():
                 await resp.write(chunk)
         return resp

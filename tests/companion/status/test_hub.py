@@ -5,12 +5,13 @@ from __future__ import annotations
 
 import asyncio
 import json
+import math
 import threading
 import tracemalloc
 
 import pytest
 
-from companion.status.hub import StatusHub
+from companion.status.hub import StatusHub, sse
 
 
 def parse(chunks: list[bytes]) -> list[dict]:
@@ -99,6 +100,20 @@ async def test_memory_is_the_rings_whatever_the_readers() -> None:
     for r in readers:
         await r.aclose()
     assert hub.readers == 0
+
+
+def test_records_go_out_as_strict_json() -> None:
+    """A replan with no threat left in view has an infinite predicted separation: the log keeps Infinity, the
+    browser's JSON.parse would refuse it, so the stream carries null."""
+    frame = sse(7, {"event": "replan_planned", "separation_after_m": math.inf, "route": [[1.0, math.nan, 2.0]]})
+    data = frame.decode().split("data: ")[1].strip()
+
+    def refuse(name: str) -> None:
+        raise ValueError(name)
+
+    assert frame.startswith(b"id: 7\n") and frame.endswith(b"\n\n")
+    assert json.loads(data, parse_constant=refuse) == {"event": "replan_planned", "separation_after_m": None,
+                                                       "route": [[1.0, None, 2.0]]}
 
 
 @pytest.mark.asyncio

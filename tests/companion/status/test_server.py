@@ -6,7 +6,9 @@ from __future__ import annotations
 
 import asyncio
 import json
+import logging
 import socket
+import struct
 import tracemalloc
 from pathlib import Path
 
@@ -66,6 +68,14 @@ def test_fly_refuses_a_page_beyond_loopback_without_a_token_before_planning(
     code = main(["fly", str(rescue_static), "--sim", "--status-token", str(tmp_path / "t"), "--report",
                  str(tmp_path / "r")])
     assert code == 2 and "--status-token goes with --status-page" in capsys.readouterr().err
+    with socket.socket() as taken:  # a port already in use: refused before planning, and no report written
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        code = main(["fly", str(rescue_static), "--sim", "--status-page", str(port), "--report", str(tmp_path / "r")])
+    err = capsys.readouterr()
+    assert code == 2 and "planning" not in err.out and f"127.0.0.1:{port}: cannot listen" in err.err
+    assert not (tmp_path / "r").exists()
 
 
 async def _get(session: aiohttp.ClientSession, url: str, method: str = "GET", **kw) -> tuple[int, bytes, dict]:
@@ -117,6 +127,31 @@ async def test_the_event_stream_carries_the_records_in_order() -> None:
                 hub.publish({"event": "position", "n": n})
             got = [json.loads((await r.content.readuntil(b"\n\n")).split(b"data: ")[1]) for _ in range(20)]
             assert [g["n"] for g in got] == list(range(20))
+
+
+@pytest.mark.asyncio
+async def test_a_browser_that_vanishes_mid_stream_is_let_go(caplog: pytest.LogCaptureFixture) -> None:
+    """A connection reset in the middle of the stream (a phone leaving the Wi-Fi) ends that reader and nothing
+    else: the others go on, and nothing is logged as an error."""
+    hub = StatusHub()
+    async with StatusServer(hub, Bind.parse("0")) as server, aiohttp.ClientSession() as s:
+        gone = _stalled_client(server.port)
+        gone.setsockopt(socket.SOL_SOCKET, socket.SO_LINGER, struct.pack("ii", 1, 0))  # close → RST
+        async with s.get(server.url + "events") as r:
+            while hub.readers < 2:
+                await asyncio.sleep(0.01)
+            for n in range(2000):
+                hub.publish({"event": "position", "n": n, "pad": "x" * 1000})
+                if n == 100:
+                    gone.close()
+                if n % 20 == 19:
+                    await asyncio.sleep(0.001)
+            while hub.readers > 1:
+                await asyncio.sleep(0.01)
+            await r.content.readuntil(b"\n\n")  # the reset
+            got = [json.loads((await r.content.readuntil(b"\n\n")).split(b"data: ")[1])["n"] for _ in range(2000)]
+    assert got == list(range(2000))
+    assert not [rec for rec in caplog.records if rec.levelno >= logging.ERROR], caplog.text
 
 
 async def _count_in_order(session: aiohttp.ClientSession, url: str) -> int:
