@@ -427,7 +427,8 @@ def _summarise_report(directory: Path, records: list[dict]) -> int:
         lat = flight.get("replan_latency_s") or {}
         print(f"  replans {flight['replans']}" + (f", latency median {lat['median']:.2f} s, max {lat['max']:.2f} s"
                                                   if lat else "")
-              + f"; min clearance {flight.get('min_clearance_m', float('nan')):.1f} m")
+              + (f"; min clearance {clear:.1f} m" if isinstance(clear := flight.get("min_clearance_m"), (int, float))
+                 else ""))
     print(f"  `fuseplan report {directory} --serve` shows the flight in a browser")
     return EXIT_OK
 

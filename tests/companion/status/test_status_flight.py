@@ -60,6 +60,10 @@ def test_report_summarises_and_refuses_what_is_not_a_report(tmp_path: Path, caps
     assert main(["report", str(d)]) == 0
     out = capsys.readouterr().out
     assert "rescue_dynamic, 3 events" in out and "goal waypoint reached" in out and "replans 1" in out
+    assert "min clearance 16.5 m" in out
+    (d / "flight.json").write_text(json.dumps({"replans": 0, "replan_latency_s": None, "min_clearance_m": None}))
+    assert main(["report", str(d)]) == 0  # an empty map's clearance is infinite: null in flight.json
+    assert "replans 0" in capsys.readouterr().out
     assert main(["report", str(tmp_path / "nothing")]) == 2
     assert "no events.jsonl here" in capsys.readouterr().err
     (d / "events.jsonl").write_text('{"t": 0, "event": "scene"}\nnot json\n{"t": 1, "event": "x"}\n')
