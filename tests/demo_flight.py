@@ -12,6 +12,8 @@ import threading
 import time
 from pathlib import Path
 
+from processes import rss_kib, terminate
+
 from companion.replanning.replan import ReplanConfig
 from companion.status import load_events
 
@@ -47,17 +49,6 @@ async def main(url, clients):
 
 asyncio.run(main(sys.argv[1], int(sys.argv[2])))
 """
-
-
-def rss_kib(pid: int) -> int | None:
-    """Resident memory of ``pid`` (KiB), None once it is gone."""
-    try:
-        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
-            if line.startswith("VmRSS:"):
-                return int(line.split()[1])
-    except (OSError, ValueError):
-        return None
-    return None
 
 
 class Companion:
@@ -105,9 +96,7 @@ class Companion:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        if self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
+        terminate(self.proc, 5.0)
         if self.proc.stdout is not None:
             self.proc.stdout.close()
         self._reader.join(5)

@@ -1,5 +1,6 @@
-"""What the autopilot processes the tests start hold, and how they are claimed and stopped: shared by
-tests/sitl_harness.py (ArduPilot SITL) and tests/px4_harness.py (PX4 SITL). Linux /proc only; no pytest."""
+"""What the processes the tests start hold, and how they are claimed and stopped: shared by
+tests/sitl_harness.py (ArduPilot SITL), tests/px4_harness.py (PX4 SITL) and tests/demo_flight.py (the companion);
+also their resident memory. Linux /proc only; no pytest."""
 
 from __future__ import annotations
 
@@ -101,3 +102,14 @@ def terminate(process: subprocess.Popen, grace: float, kill: Callable[[], None] 
             (kill or process.kill)()
             process.wait()
     return time.monotonic() - t0
+
+
+def rss_kib(pid: int) -> int | None:
+    """Resident memory of ``pid`` (KiB), None once it is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1])
+    except (OSError, ValueError):
+        return None
+    return None

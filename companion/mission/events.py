@@ -15,10 +15,9 @@ class EventLog:
 
     def __init__(self, path: Path | None = None, echo: Callable[[dict[str, Any]], None] | None = None) -> None:
         self._file: TextIO | None = path.open("w") if path is not None else None
-        self._echo = echo
         self._t0 = time.monotonic()
         self.records: list[dict[str, Any]] = []
-        self._listeners: list[Callable[[dict[str, Any]], None]] = []
+        self._listeners: list[Callable[[dict[str, Any]], None]] = [echo] if echo is not None else []
 
     def subscribe(self, listener: Callable[[dict[str, Any]], None]) -> None:
         """Pass every record from now on to ``listener`` too (it must not block: it runs inside :meth:`log`)."""
@@ -33,8 +32,6 @@ class EventLog:
         if self._file is not None:
             self._file.write(json.dumps(rec, default=str) + "\n")
             self._file.flush()
-        if self._echo is not None:
-            self._echo(rec)
         for listener in self._listeners:
             listener(rec)
         return rec

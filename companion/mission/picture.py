@@ -11,7 +11,8 @@ from typing import Any
 
 import numpy as np
 
-from companion.mavlink.items import FRAME_GLOBAL, MissionItem, normalise_frame
+from companion.mavlink.items import MissionItem
+from companion.mission.builder import is_home_item
 from companion.mission.geo import geodetic_to_enu
 from planner.world.environment import Threats
 from planner.world.home import Home
@@ -59,7 +60,7 @@ def scene(scenario: Scenario, plan_doc: dict[str, Any]) -> dict[str, Any]:
 
 def mission(items: Sequence[MissionItem], home: Home) -> dict[str, Any]:
     """The ``mission`` record: every item with a position (not item 0, home), as ``[seq, x, y, z]``."""
-    placed = [it for it in items if (it.x or it.y) and not (it.seq == 0 and normalise_frame(it.frame) == FRAME_GLOBAL)]
+    placed = [it for it in items if (it.x or it.y) and not is_home_item(it)]
     if not placed:
         return {"count": len(items), "items": []}
     lat = np.array([it.lat for it in placed])

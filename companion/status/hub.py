@@ -10,6 +10,7 @@ ring behind skips what fell out (drop-oldest) and is told how many it missed; th
 from __future__ import annotations
 
 import asyncio
+import itertools
 import json
 import threading
 from collections import deque
@@ -117,7 +118,7 @@ class StatusHub:
             parts.extend(b for s, b in sorted(self._pinned.values()) if s < first)
             cursor = first - 1
         size = sum(map(len, parts))
-        for s, b in _after(self._ring, cursor, first):
+        for s, b in itertools.islice(self._ring, cursor + 1 - first, None):  # sequence numbers are contiguous
             if parts and size + len(b) > CHUNK_BYTES:
                 break
             parts.append(b)
@@ -125,8 +126,3 @@ class StatusHub:
             cursor = s
         return cursor, b"".join(parts)
 
-
-def _after(ring: deque[tuple[int, bytes]], cursor: int, first: int) -> Iterable[tuple[int, bytes]]:
-    """Entries of ``ring`` (contiguous sequence numbers from ``first``) after ``cursor``."""
-    for i in range(cursor + 1 - first, len(ring)):
-        yield ring[i]

@@ -238,8 +238,7 @@ function apply(rec) {
     case "mode": chip("mode", `mode: ${rec.mode}`); break;
     case "armed": chip("armed", "ARMED", "armed"); break;
     case "disarmed": chip("armed", "disarmed", "none"); break;
-    case "current": S.current = rec.seq; markItems(); break;
-    case "set_current": S.current = rec.seq; markItems(); break;
+    case "current": case "set_current": S.current = rec.seq; markItems(); break;
     case "reached": S.reached.add(rec.seq); markItems(); break;
     case "conflict":
       S.conflictWith.add(rec.threat);
@@ -260,7 +259,7 @@ function apply(rec) {
       Object.assign(replanRow(rec.n), { failed: true, outcome: rec.outcome || rec.reason || e.replace("replan_", "") });
       renderReplan(S.replans.get(rec.n));
       break;
-    case "threat_cleared": case "track_expired":
+    case "track_expired":
       S.conflictWith.delete(rec.id);
       break;
     case "hold": {

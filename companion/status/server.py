@@ -70,7 +70,10 @@ class Bind:
                 probe.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)  # as the server does
                 probe.bind(infos[0][4])
         except OSError as e:
-            raise FuseplanError(f"--status-page {self.host}:{self.port}: cannot listen: {e.strerror or e}") from e
+            raise self.cannot_listen(e) from e
+
+    def cannot_listen(self, e: OSError) -> FuseplanError:
+        return FuseplanError(f"--status-page {self.host}:{self.port}: cannot listen: {e.strerror or e}")
 
     @property
     def loopback(self) -> bool:
@@ -122,9 +125,15 @@ def make_app(hub: StatusHub, token: str | None = None) -> web.Application:
             return web.Response(status=405, text="405: this page is read-only\n",
                                 headers={**_HEADERS, "Allow": "GET, HEAD"})
         resp = await handler(request)  # type: ignore[operator]
-        if token is not None and request.query.get("token") and not resp.prepared:
-            resp.set_cookie(COOKIE, token, httponly=True, samesite="Strict")
+        if not resp.prepared:  # the event stream has sent its headers already, and set the cookie itself
+            remember_token(request, resp)
         return resp
+
+    def remember_token(request: web.Request, resp: web.StreamResponse) -> None:
+        """A request authorised by ``?token=`` leaves the cookie, so the page's own requests carry it (before
+        the response's headers go out: aiohttp turns cookies into headers then)."""
+        if token is not None and request.query.get("token"):
+            resp.set_cookie(COOKIE, token, httponly=True, samesite="Strict")
 
     async def static(request: web.Request) -> web.Response:
         name, kind = _FILES[request.path]
@@ -134,8 +143,7 @@ def make_app(hub: StatusHub, token: str | None = None) -> web.Application:
     async def events(request: web.Request) -> web.StreamResponse:
         resp = web.StreamResponse(headers={**_HEADERS, "Content-Type": "text/event-stream",
                                            "X-Accel-Buffering": "no"})
-        if token is not None and request.query.get("token"):
-            resp.set_cookie(COOKIE, token, httponly=True, samesite="Strict")
+        remember_token(request, resp)
         await resp.prepare(request)
         with contextlib.suppress(ConnectionError):  # the browser went away: its reader ends here, nothing else
             async for chunk in hub.read():
@@ -175,8 +183,7 @@ class StatusServer:
             await site.start()
         except OSError as e:
             await self._runner.cleanup()
-            raise FuseplanError(f"--status-page {self.bind.host}:{self.bind.port}: cannot listen: "
-                                f"{e.strerror or e}") from e
+            raise self.bind.cannot_listen(e) from e
         sockets = self._runner.addresses
         self.port = int(sockets[0][1]) if sockets else self.bind.port
         log.info("status page on %s", self.url)

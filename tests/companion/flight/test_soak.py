@@ -14,6 +14,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from processes import rss_kib
 
 from companion.flight.supervisor import FlightSupervisor
 from companion.mavlink.link import Link
@@ -27,11 +28,6 @@ ROOT = Path(__file__).resolve().parents[3]
 STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
 FLIGHTS = 6
 LEGS = 4  # route points flown per mission: the start and three more (the last one as the goal)
-
-
-def _rss_mb() -> float:
-    with open("/proc/self/statm") as f:
-        return int(f.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
 def _sockets() -> int:
@@ -69,7 +65,7 @@ def test_six_missions_in_a_row_without_leaks(static_plan_doc) -> None:
         seed, loss = int(rng.integers(1 << 30)), float(rng.uniform(0.0, 0.3))
         completed += asyncio.run(one(seed, loss))
         assert _sockets() <= sockets0, f"flight {k}: sockets left open"
-        rss.append(_rss_mb())
+        rss.append((rss_kib(os.getpid()) or 0) / 1024)
     assert completed == FLIGHTS
     growth = rss[-1] - rss[2]  # after the first flights have warmed caches and allocator pools
     assert growth < 12.0, f"memory grew {growth:.1f} MB over {FLIGHTS - 3} flights: {np.round(rss, 1)}"
