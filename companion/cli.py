@@ -1,8 +1,8 @@
 """The ``fuseplan`` command line: plan, compare, bench (:mod:`planner.cli`) with export, fly, sim, demo, report.
 
 The top layer: it assembles the planner's subcommands and the companion's. User mistakes print one line and exit 2;
-an infeasible plan exits 3; success exits 0; ``fly`` adds 4 (link or upload failure) and 5 (started but not
-completed).
+an infeasible plan exits 3; success exits 0; ``fly`` adds 4 (link or upload failure, or a vehicle the scenario
+cannot be flown from), 5 (started but not completed) and 6 (the flown track broke d_coll).
 """
 
 from __future__ import annotations
@@ -227,7 +227,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-EXIT_LINK, EXIT_ABORTED = 4, 5
+EXIT_LINK, EXIT_ABORTED, EXIT_UNSAFE = 4, 5, 6
 
 
 def _seconds(args: argparse.Namespace, name: str) -> float | None:
@@ -308,19 +308,22 @@ def cmd_fly(args: argparse.Namespace) -> int:
         return 130
     finally:
         events.close()
-    say(f"{'completed' if flight['completed'] else 'NOT completed'}: {flight['reason']}; "
+    near = f" ({flight['nearest_obstacle']})" if flight.get("nearest_obstacle") else ""
+    say(f"{'completed' if flight['completed'] else 'NOT completed'}"
+        f"{'' if flight['flown_safe'] else ' but UNSAFE'}: {flight['reason']}; "
         f"{len(flight['items_reached'])} items reached, upload {flight['upload_s']:.2f} s, "
-        f"min clearance {flight['min_clearance_m']:.1f} m; report in {args.report}/")
+        f"flown clearance {flight['min_static_clearance_m']:.1f} m{near}; report in {args.report}/")
     if flight.get("min_separation_m"):
         seps = ", ".join(f"{k} {v:.1f} m" for k, v in flight["min_separation_m"].items())
         lat = flight.get("replan_latency_s") or {}
         say(f"replans {flight['replans']}" + (f" (latency median {lat['median']:.2f} s, max {lat['max']:.2f} s)"
                                                if lat else "")
             + f"; min separation (truth): {seps}; d_coll {flight['d_coll_m']:g} m")
-        lost = [k for k, v in flight["min_separation_m"].items() if v < flight["d_coll_m"]]
-        if lost:
-            print(f"fuseplan: warning: separation below d_coll with {', '.join(lost)}"
-                  + (" (replanning was off)" if not flight["replanning"] else ""), file=sys.stderr)
+    if not flight["flown_safe"]:  # never a plain success, whatever the mission's own outcome
+        print(f"fuseplan: UNSAFE flight ({'completed' if flight['completed'] else 'not completed'}): "
+              + "; ".join(flight["breaches"]) + (" (replanning was off)" if not flight["replanning"] else ""),
+              file=sys.stderr)
+        return EXIT_UNSAFE
     return EXIT_OK if flight["completed"] else EXIT_ABORTED
 
 

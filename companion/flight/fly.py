@@ -6,7 +6,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import math
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -15,6 +14,7 @@ import numpy as np
 
 from companion.flight import HEARTBEAT_WAIT_S
 from companion.flight.report import plot_track, write_json
+from companion.flight.safety import flown_safety
 from companion.flight.supervisor import FlightOutcome, FlightSupervisor
 from companion.mavlink.link import Link
 from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
@@ -29,7 +29,6 @@ from companion.mission.geo import geodetic_to_enu, lonlatalt
 from companion.replanning.replan import ReplanConfig
 from companion.replanning.replanner import LiveReplanner
 from companion.replanning.separation import min_separations
-from planner.trajectory.checks import obstacle_clearance
 from planner.world.scenario import Scenario
 
 if TYPE_CHECKING:
@@ -143,10 +142,9 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         source = "GLOBAL_POSITION_INT"
     else:
         flown, source = np.zeros((0, 3)), "none"
-    airborne = flown[:, 2] > 1.0 if len(flown) else np.zeros(0, dtype=bool)
-    clearance = obstacle_clearance(flown[airborne], None, scenario.environment) if airborne.any() else np.zeros(0)
-    min_clear = float(clearance.min()) if clearance.size else math.inf
     seps = truth_separations(sim, scenario) if feed is None else feed.separations()
+    safety = flown_safety(flown, scenario.environment, scenario.hazard.d_coll,
+                          {k: v.separation for k, v in seps.items()})
     records = replanner.records if replanner is not None else []
     done = [r for r in records if r.latency_s is not None]
     doc = {
@@ -156,7 +154,13 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         "items_reached": sorted(out.items_reached),
         "mission_items": n_items,
         "fence_items": out.fence_count,
-        "min_clearance_m": min_clear,
+        "min_clearance_m": safety.static_clearance_m,  # static obstacles (kept under its old name)
+        "min_static_clearance_m": safety.static_clearance_m,
+        "nearest_obstacle": safety.nearest_obstacle,
+        "min_traffic_separation_m": safety.traffic_separation_m,
+        "nearest_traffic": safety.nearest_traffic,
+        "flown_safe": safety.safe,
+        "breaches": safety.breaches,
         "d_coll_m": scenario.hazard.d_coll,
         "replanning": bool(opts.replan),
         "replans": len(done),

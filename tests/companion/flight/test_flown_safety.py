@@ -1,0 +1,69 @@
+"""The flown track's verdict: clearance from the static world and from traffic, each against d_coll, and `fly`'s
+own exit code (6) for a flight that broke it, whatever the mission's outcome."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+
+from companion.cli import EXIT_UNSAFE, main
+from companion.flight.safety import flown_safety
+from planner.world.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[3]
+STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
+FAST = ["--set", "planner.pso.n_pop=200", "--set", "planner.pso.max_iter=80"]
+
+
+def test_a_track_through_a_cylinder_names_it_and_is_unsafe() -> None:
+    sc = load_scenario(STATIC)
+    c = sc.environment.cylinders
+    x, y, r = float(c.x[3]), float(c.y[3]), float(c.radius[3])
+    # north-south through the cylinder, 20 m inside its wall, and a ground roll that passes under nothing
+    track = np.array([[x - r + 20.0, y - 300.0, 0.0], *[[x - r + 20.0, y + d, 60.0] for d in range(-200, 201, 5)]])
+    v = flown_safety(track, sc.environment, sc.hazard.d_coll, {})
+    assert v.nearest_obstacle == "cylinders[3]"
+    assert abs(v.static_clearance_m + 20.0) < 0.5
+    assert not v.safe and "cylinders[3]" in v.breaches[0] and "20.0 m in" in v.breaches[0]
+    assert v.traffic_separation_m == float("inf") and v.nearest_traffic is None
+
+
+def test_traffic_below_d_coll_is_a_breach_of_its_own_and_ground_samples_do_not_count() -> None:
+    sc = load_scenario(STATIC)
+    c = sc.environment.cylinders
+    # on the ground inside a cylinder's footprint (a vehicle standing there is nobody's airspace), then clear
+    track = np.array([[float(c.x[0]), float(c.y[0]), 0.0], [20.0, 20.0, 60.0], [30.0, 20.0, 60.0]])
+    clear = flown_safety(track, sc.environment, sc.hazard.d_coll, {"adsb-1": 25.0, "patrol-1": float("inf")})
+    assert clear.safe and clear.static_clearance_m > sc.hazard.d_coll
+    assert clear.traffic_separation_m == 25.0 and clear.nearest_traffic == "adsb-1"
+    close = flown_safety(track, sc.environment, sc.hazard.d_coll, {"adsb-1": 25.0, "intruder-1": 3.5})
+    assert not close.safe and close.breaches == [f"separation from intruder-1 3.5 m, d_coll {sc.hazard.d_coll:g} m"]
+
+
+def test_fly_exits_6_with_one_line_when_the_flown_track_breaks_d_coll(tmp_path, capsys) -> None:
+    """A plan whose middle waypoint was moved into a cylinder (a PLAN.json edited by hand): the simulated plane
+    flies into it, the mission completes, and `fly` says UNSAFE and exits 6, not 0."""
+    first = tmp_path / "first"
+    assert main(["fly", str(STATIC), "--sim", "--speedup", "30", "--report", str(first), "-q", *FAST]) == 0
+    doc = json.loads((first / "PLAN.json").read_text())
+    sc = load_scenario(STATIC)
+    c = sc.environment.cylinders
+    wps = np.asarray(doc["waypoints"])
+    k = len(wps) // 2
+    inside = int(np.argmin(np.hypot(c.x - wps[k, 0], c.y - wps[k, 1])))
+    wps[k, :2] = (c.x[inside], c.y[inside])
+    doc["waypoints"] = wps.tolist()
+    edited = tmp_path / "edited.json"
+    edited.write_text(json.dumps(doc))
+    capsys.readouterr()
+    report = tmp_path / "unsafe"
+    code = main(["fly", str(edited), "--scenario-file", str(STATIC), "--sim", "--speedup", "30", "--no-fence",
+                 "--report", str(report), "-q"])
+    err = capsys.readouterr().err.strip().splitlines()
+    fl = json.loads((report / "flight.json").read_text())
+    assert code == EXIT_UNSAFE == 6
+    assert fl["flown_safe"] is False and fl["min_static_clearance_m"] < 0
+    assert fl["nearest_obstacle"] == f"cylinders[{inside}]"
+    assert len(err) == 1 and err[0].startswith("fuseplan: UNSAFE flight") and f"cylinders[{inside}]" in err[0]
