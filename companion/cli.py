@@ -19,7 +19,13 @@ import numpy as np
 from companion.flight import HEARTBEAT_WAIT_S
 from planner import cli as planner_cli
 from planner import console
-from planner.cli import EXIT_BAD_INPUT, EXIT_INFEASIBLE, EXIT_OK, check_writable, write_text
+from planner.cli import (
+    EXIT_BAD_INPUT,
+    EXIT_INFEASIBLE,
+    EXIT_OK,
+    check_writable,
+    write_text,
+)
 from planner.errors import FuseplanError
 from planner.world.config import ALGORITHM_NAMES
 
@@ -285,7 +291,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
                       replan=not getattr(args, "no_replan", False),
                       replan_config=None if budget is None else ReplanConfig(budget_s=budget),
                       signing_key=key, traffic=getattr(args, "traffic", None), backend=backend,
-                      heartbeat_timeout=HEARTBEAT_WAIT_S if heartbeat is None else heartbeat)
+                      heartbeat_timeout=HEARTBEAT_WAIT_S if heartbeat is None else heartbeat,
+                      plan_again=None if args.scenario.suffix.lower() == ".json" else (
+                          lambda extra: _plan_doc_for(args.scenario, args.scenario_file, overrides + extra, args.seed,
+                                                      feasible_only=False, for_flight=True)))
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
     try:
         if status is None:

@@ -6,6 +6,8 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -13,18 +15,38 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from companion.flight import HEARTBEAT_WAIT_S
+from companion.flight.departure import VehicleFix, check_departure
 from companion.flight.report import plot_track, write_json
 from companion.flight.safety import flown_safety
-from companion.flight.supervisor import FlightOutcome, FlightSupervisor
+from companion.flight.supervisor import (
+    DepartureRefused,
+    FlightOutcome,
+    FlightSupervisor,
+)
 from companion.mavlink.link import Link
 from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
+from companion.mavlink.params import read_params
 from companion.mavlink.protocol import MissionClient
 from companion.mavlink.signing import SigningKey
 from companion.mavlink.telemetry import TelemetryRates
+from companion.mavlink.vehicle_limits import (
+    AutopilotLimits,
+    limits_from,
+    parameter_names,
+)
 from companion.mission import picture
-from companion.mission.builder import build_fence, mission_from_plan_json, spec_from_plan_json
+from companion.mission.builder import (
+    build_fence,
+    mission_from_plan_json,
+    spec_from_plan_json,
+)
 from companion.mission.events import EventLog
-from companion.mission.exports import write_geojson, write_qgc_plan, write_waypoints, zones_of
+from companion.mission.exports import (
+    write_geojson,
+    write_qgc_plan,
+    write_waypoints,
+    zones_of,
+)
 from companion.mission.geo import geodetic_to_enu, lonlatalt
 from companion.replanning.replan import ReplanConfig
 from companion.replanning.replanner import LiveReplanner
@@ -55,6 +77,12 @@ class FlyOptions:
     traffic: str | None = None  # a real autopilot's spare port: fly the scenario's intruders there (TrafficFeed)
     backend: str = "pymavlink"  # or "mavsdk": the vehicle through MAVSDK (companion.mavlink.mavsdk_backend)
     heartbeat_timeout: float = HEARTBEAT_WAIT_S  # s to wait for the autopilot's first HEARTBEAT
+    # plans the scenario again with these extra --set overrides (the vehicle's own limits), or None: a PLAN.json
+    # given by the user is flown as it is or refused
+    plan_again: Callable[[list[str]], tuple[dict[str, Any], Scenario]] | None = None
+
+
+DEFAULT_LOITER_RADIUS_M = 60.0  # ArduPlane's WP_LOITER_RAD default, when the autopilot does not say
 
 
 async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, events: EventLog) -> dict[str, Any]:
@@ -83,6 +111,10 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(asyncio.shield(rates.wait()), RATES_WAIT_S)
             autopilot = link.profile.layout  # the builder's layout key ("ardupilot", "px4")
+            params = await read_params(link, parameter_names(autopilot, scenario.vehicle.type))
+            limits = limits_from(params, autopilot, scenario.vehicle, DEFAULT_LOITER_RADIUS_M)
+            events.log("vehicle_limits", **limits.summary())
+            plan_doc, scenario = await _plan_within(plan_doc, scenario, limits, opts, events)
             items = mission_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)
             spec = spec_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)
             top = float(np.max(np.asarray(plan_doc["trajectory"]["points"])[:, 2]))
@@ -102,13 +134,59 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                 if opts.replan and (len(scenario.environment.threats) or scenario.intruders or opts.connect):
                     replanner = await stack.enter_async_context(LiveReplanner(
                         link, client, events, scenario, spec, items, opts.replan_config,
-                        rate=opts.speedup if sim is not None else None, seed=int(plan_doc.get("seed") or 0)))
+                        rate=opts.speedup if sim is not None else None, seed=int(plan_doc.get("seed") or 0),
+                        limits=limits))
                 outcome = await sup.fly(items, fence, ready_timeout=60.0 if sim is None else 30.0,
-                                        flight_timeout=timeout, replanner=replanner)
+                                        flight_timeout=timeout, replanner=replanner,
+                                        departure=_departure_check(plan_doc, scenario, limits, events))
     finally:
         if sim is not None:
             await sim.stop()
-    return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, len(items), replanner, feed)
+    return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, len(items), replanner, feed,
+                                limits)
+
+
+async def _plan_within(plan_doc: dict[str, Any], scenario: Scenario, limits: AutopilotLimits, opts: FlyOptions,
+                 events: EventLog) -> tuple[dict[str, Any], Scenario]:
+    """The plan, made again within the vehicle's own limits when it asks for more than the autopilot will fly: a
+    bank beyond its roll limit, or (a plane) a climb steeper than its climb-rate limit allows at the plan's speed.
+    A PLAN.json that does so is refused (nothing uploaded)."""
+    v = scenario.vehicle
+    stricter: list[str] = []
+    if limits.read and v.max_bank_deg > limits.max_bank_deg + 1e-6:
+        stricter.append(f"vehicle.max_bank_deg={limits.max_bank_deg:g}")
+    if limits.read and v.type == "plane":
+        climb = math.degrees(math.asin(min(min(limits.climb_rate, limits.sink_rate) / v.cruise_speed, 1.0)))
+        if v.max_climb_deg > climb + 0.05:
+            stricter.append(f"vehicle.max_climb_deg={math.floor(climb * 10) / 10:g}")
+    if not stricter:
+        return plan_doc, scenario
+    events.log("plan_beyond_vehicle", overrides=stricter, plan_again=opts.plan_again is not None)
+    if opts.plan_again is None:
+        raise DepartureRefused(f"the plan asks for more than the vehicle's parameters allow ({', '.join(stricter)}): "
+                               "plan the scenario again with those values; nothing was uploaded")
+    doc, sc = await asyncio.to_thread(opts.plan_again, stricter)  # the link's tasks keep running meanwhile
+    events.log("planned_again", status=doc["status"], length_m=round(float(doc["metrics"]["length_m"]), 1),
+               overrides=stricter)
+    if doc["status"] not in ("exact", "approximate"):
+        raise DepartureRefused(f"no feasible plan within the vehicle's limits ({', '.join(stricter)}: "
+                               f"{doc['status']}); nothing was uploaded")
+    write_json(opts.report / "PLAN.json", doc)
+    events.log("scene", **picture.scene(sc, doc))
+    return doc, sc
+
+
+def _departure_check(plan_doc: dict[str, Any], scenario: Scenario, limits: AutopilotLimits,
+                     events: EventLog) -> Callable[[VehicleFix, bool], None]:
+    """The supervisor's check of the departure from where the vehicle is (before anything is uploaded)."""
+    def check(fix: VehicleFix, on_ground: bool) -> None:
+        start = np.asarray(plan_doc["waypoints"][0], dtype=float)
+        verdict = check_departure(fix, start, scenario.vehicle.takeoff_alt, limits, scenario.environment,
+                                  scenario.hazard.d_coll, on_ground)
+        events.log("departure", on_ground=on_ground, **verdict.summary())
+        if verdict.refusal is not None:
+            raise DepartureRefused(verdict.refusal)
+    return check
 
 
 def _link(url: str, opts: FlyOptions) -> Link:
@@ -129,7 +207,7 @@ def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scena
 
 def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: Scenario, out: FlightOutcome,
                          sim: Any, autopilot: str, n_items: int, replanner: LiveReplanner | None = None,
-                         feed: TrafficFeed | None = None) -> dict[str, Any]:
+                         feed: TrafficFeed | None = None, limits: AutopilotLimits | None = None) -> dict[str, Any]:
     """flight.json and track.png; the flown track is the simulator's truth when we ran it, else telemetry.
     Separations: the simulator's truth tracks, or a traffic feed's (the autopilot's positions against the
     intruders' scripted tracks)."""
@@ -180,8 +258,9 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         "backend": opts.backend,
         "speedup": opts.speedup if sim is not None else None,
         "track_source": source,
-        "track_points": int(len(flown)),
+        "track_points": len(flown),
         "statustexts": out.statustexts[-20:],
+        "vehicle_limits": None if limits is None else limits.summary(),
     }
     write_json(opts.report / "flight.json", doc)
     truth = sim.intruder_truth if sim is not None else (feed.intruders if feed is not None else {})

@@ -12,8 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planner.trajectory.checks import obstacle_distances
 from planner.world.environment import Environment
-from planner.world.geometry import cylinder_signed_distance
 
 AIRBORNE_M = 1.0  # m above home: samples below this are the vehicle on the ground (not in anyone's airspace)
 
@@ -32,20 +32,6 @@ class FlownSafety:
     @property
     def safe(self) -> bool:
         return not self.breaches
-
-
-def obstacle_distances(points: np.ndarray, env: Environment) -> dict[str, np.ndarray]:
-    """Signed distance (M,) from each point to each named static obstacle ("cylinders[i]", "spheres[j]")."""
-    out: dict[str, np.ndarray] = {}
-    cyl = env.cylinders
-    if len(cyl) and len(points):
-        col = (slice(None), None)
-        d = cylinder_signed_distance(points[None], cyl.x[col], cyl.y[col], cyl.radius[col], cyl.top[col])
-        out.update({f"cylinders[{i}]": d[i] for i in range(len(cyl))})
-    if len(env.spheres) and len(points):
-        d = np.linalg.norm(points[None] - env.spheres.center[:, None], axis=-1) - env.spheres.radius[:, None]
-        out.update({f"spheres[{j}]": d[j] for j in range(len(env.spheres))})
-    return out
 
 
 def flown_safety(flown: np.ndarray, env: Environment, d_coll: float,

@@ -10,11 +10,13 @@ import asyncio
 import logging
 import math
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
 
+import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
+from companion.flight.departure import VehicleFix
 from companion.mavlink.errors import (
     CommandError,
     CompanionError,
@@ -44,6 +46,12 @@ BOOT_TIMEOUT_S = 60.0  # wall seconds an autopilot may take to finish booting
 VERDICT_S = 3.0  # wall seconds PX4's navigator may take to accept a verified mission (measured: ≤ 0.21 s)
 POSITION_EVERY_S = 0.1  # wall seconds between two ``position`` records (the status page's vehicle and track)
 BOOT_GRACE_S = 10.0  # a MAV_MISSION_NO_SPACE this soon after boot is the boot's, not the mission's size
+FIX_TIMEOUT_S = 5.0  # wall seconds for the vehicle's position (GLOBAL_POSITION_INT) before the upload
+HOME_TIMEOUT_S = 2.0  # wall seconds for its HOME_POSITION, asked for with MAV_CMD_REQUEST_MESSAGE
+
+
+class DepartureRefused(CompanionError):
+    """The vehicle is not where the scenario can be flown from (nothing was uploaded)."""
 
 
 @dataclass
@@ -151,6 +159,32 @@ class FlightSupervisor:
                 elif kind == "EKF_STATUS_REPORT":
                     state["ekf"] = (msg.flags & EKF_GOOD) == EKF_GOOD
         self.events.log("ready", **{k: v for k, v in state.items() if v is not None})
+
+    async def vehicle_fix(self, timeout: float = FIX_TIMEOUT_S) -> tuple[VehicleFix, bool]:
+        """Where the vehicle is, its heading and its autopilot's home, in the scenario's frame (needs ``home``),
+        and whether it is on the ground: the departure is planned and checked from there."""
+        assert self.home is not None
+        try:
+            pos = await self.link.wait_for("GLOBAL_POSITION_INT", timeout=timeout)
+        except TimeoutError:
+            raise DepartureRefused(f"no GLOBAL_POSITION_INT from the vehicle within {timeout:.0f} s: cannot check "
+                                   "where it takes off from; nothing was uploaded") from None
+        home = None
+        with self.link.subscribe("HOME_POSITION") as sub:
+            try:
+                await self.client.command_long(mavlink.MAV_CMD_REQUEST_MESSAGE, mavlink.MAVLINK_MSG_ID_HOME_POSITION,
+                                               timeout=0.5, retries=2, persist=False)
+                hp = await sub.get(HOME_TIMEOUT_S)
+                home = geodetic_to_enu(hp.latitude / 1e7, hp.longitude / 1e7, hp.altitude / 1000.0, self.home)
+            except (CommandError, TimeoutError):
+                pass
+        home_up = 0.0 if home is None else float(home[2])
+        e, n, _u = geodetic_to_enu(pos.lat / 1e7, pos.lon / 1e7, self.home.alt, self.home)
+        fix = VehicleFix(np.array([float(e), float(n), home_up + pos.relative_alt / 1000.0]),
+                         None if pos.hdg == 65535 else pos.hdg / 100.0, home)
+        on_ground = pos.relative_alt < 2000 and math.hypot(pos.vx, pos.vy) < 300
+        self.events.log("vehicle_fix", on_ground=on_ground, **fix.summary())
+        return fix, on_ground
 
     # -- upload ------------------------------------------------------------------------------------
     async def upload(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (),
@@ -391,9 +425,11 @@ class FlightSupervisor:
 
     async def fly(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (), *,
                   ready_timeout: float = 60.0, flight_timeout: float = 600.0,
-                  replanner: LiveReplanner | None = None) -> FlightOutcome:
-        """Ready → upload + verify → start → monitor (and replan, with a ``replanner``). Raises on link/upload
-        failures (the CLI maps them)."""
+                  replanner: LiveReplanner | None = None,
+                  departure: Callable[[VehicleFix, bool], None] | None = None) -> FlightOutcome:
+        """Ready → where is the vehicle (``departure`` checks it, raising :class:`DepartureRefused`) → upload +
+        verify → start → monitor (and replan, with a ``replanner``). Raises on link/upload failures (the CLI maps
+        them)."""
         out = FlightOutcome(False, "", mission_count=len(items), fence_count=len(fence))
         hb = await self.link.wait_heartbeat(timeout=10.0)
         mode = _mode_name(hb)
@@ -404,12 +440,14 @@ class FlightSupervisor:
             raise CompanionError(f"the vehicle is armed (mode {mode}): fuseplan fly uploads a mission only to a "
                                  "disarmed vehicle; nothing was uploaded")
         await self.wait_booted()
+        await self.wait_ready(ready_timeout)  # a position fix first: the departure is checked from it
+        if departure is not None:
+            departure(*await self.vehicle_fix())
         out.upload_s = await self.upload(items, fence)
         if self.home is not None:
             self.events.log("mission", **picture.mission(items, self.home))
         if replanner is not None:
             replanner.note_upload(out.upload_s)
-        await self.wait_ready(ready_timeout)
         if replanner is not None:  # its planner process warmed up before take-off, not at the first conflict
             await replanner.ready()
         first = next(it.seq for it in items if it.command != mavlink.MAV_CMD_NAV_WAYPOINT or it.seq > 0)

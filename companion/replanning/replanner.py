@@ -33,15 +33,27 @@ from typing import Any
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.mavlink.errors import CommandError, CompanionError, MissionUploadError, VehicleHolding
+from companion.mavlink.errors import (
+    CommandError,
+    CompanionError,
+    MissionUploadError,
+    VehicleHolding,
+)
 from companion.mavlink.items import MissionItem
 from companion.mavlink.link import MAV_COMP_ID_ADSB, Link, Message, Subscription
 from companion.mavlink.protocol import MissionClient
+from companion.mavlink.vehicle_limits import AutopilotLimits
 from companion.mission import picture
 from companion.mission.builder import MissionSpec
 from companion.mission.events import EventLog
-from companion.mission.geo import geodetic_to_enu
+from companion.mission.geo import enu_to_geodetic, geodetic_to_enu
 from companion.mission.restore import restore_mission
+from companion.replanning.holds import (
+    HOLD_MARGIN_M,
+    HoldPattern,
+    copter_hold,
+    plane_hold,
+)
 from companion.replanning.replan import (
     CommitPoint,
     MissionRoute,
@@ -53,9 +65,15 @@ from companion.replanning.replan import (
     splice,
     warm_starts,
 )
-from companion.replanning.threats import Conflict, TrackPicture, predict_conflicts, route_separations
+from companion.replanning.threats import (
+    Conflict,
+    TrackPicture,
+    predict_conflicts,
+    route_separations,
+)
 from planner import kernel
 from planner.plan import PlanStatus, plan
+from planner.trajectory.checks import obstacle_distances
 from planner.world.environment import Threats
 from planner.world.scenario import Scenario
 
@@ -188,8 +206,9 @@ class LiveReplanner:
 
     def __init__(self, link: Link, client: MissionClient, events: EventLog, scenario: Scenario,
                  spec: MissionSpec, items: Sequence[MissionItem], cfg: ReplanConfig | None = None, *,
-                 rate: float | None = None, seed: int = 0) -> None:
+                 rate: float | None = None, seed: int = 0, limits: AutopilotLimits | None = None) -> None:
         self.link, self.client, self.events = link, client, events
+        self.limits = limits  # the vehicle's own (loiter radius, braking); None: the config's and scenario's
         self.scenario, self.spec = scenario, spec
         self.cfg = cfg or ReplanConfig()
         self.clock = VehicleClock(rate)
@@ -204,6 +223,9 @@ class LiveReplanner:
         self._mission_wall: float | None = None  # wall time of the mission start
         self._mission_t0: float | None = None  # vehicle time of the mission start, once the clock is synced
         self.holding: str | None = None  # why the vehicle is held, or None
+        self.held_in: str | None = None  # the mode it is held in (GUIDED for a plane's checked circle)
+        self.hold_pattern: HoldPattern | None = None  # the checked pattern it holds on
+        self.velocity = np.zeros(2)  # ENU m/s over the ground, from GLOBAL_POSITION_INT
         self._held_since: float | None = None  # mission time the current hold began
         self._last_replan = -math.inf  # mission time
         self._last_check = -math.inf  # wall
@@ -270,6 +292,7 @@ class LiveReplanner:
                                 self.scenario.home)
             self.position = np.array([p[0], p[1], msg.relative_alt / 1000.0])
             self.groundspeed = math.hypot(msg.vx, msg.vy) / 100.0
+            self.velocity = np.array([msg.vy / 100.0, msg.vx / 100.0])  # NED north/east → ENU east/north
             self._track_pace(self.groundspeed, msg.time_boot_ms / 1000.0)
         elif kind == "HEARTBEAT":
             self.custom_mode = int(msg.custom_mode)
@@ -322,12 +345,19 @@ class LiveReplanner:
     def hold_mode(self) -> str:
         return self.link.profile.hold_mode
 
+    @property
+    def loiter_radius(self) -> float:
+        """The radius a plane's hold circles at: the vehicle's WP_LOITER_RAD when read, else the config's."""
+        if self.hold_pattern is not None and self.hold_pattern.kind == "circle":
+            return self.hold_pattern.radius
+        return self.limits.loiter_radius if self.limits is not None else self.cfg.plane_loiter_radius_m
+
     def in_control(self) -> bool:
         """The vehicle flies our mission in AUTO, or holds in the mode we put it in. Any other mode (the pilot
         took over, a failsafe's RTL) belongs to someone else: the replanner then only watches."""
         if self.custom_mode is None:
             return True
-        ours = self._number(self.hold_mode) if self.holding is not None else self._number("AUTO")
+        ours = self._number(self.held_in or self.hold_mode) if self.holding is not None else self._number("AUTO")
         mine = self.custom_mode == ours
         if not mine and self._paused_in != self.custom_mode:
             self._paused_in = self.custom_mode
@@ -372,7 +402,7 @@ class LiveReplanner:
         which is why a hold that merely delays a plane by a few seconds must not look like a cleared threat."""
         if self.holding is None or not self.link.profile.hold_circles:
             return np.zeros(1)
-        circle = 2.0 * math.pi * self.cfg.plane_loiter_radius_m / self.speed
+        circle = 2.0 * math.pi * self.loiter_radius / self.speed
         held = self.now() - self._held_since if self._held_since is not None else circle
         # having turned away for ``held`` seconds it needs about as long to turn back; never more than a circle
         longest = min(circle, 2.0 * held + self.cfg.rejoin_step_s)
@@ -613,6 +643,14 @@ class LiveReplanner:
             if target != self.current_seq:
                 await self.set_current(target)
             return False
+        if self.holding is not None and (blocked := self.leg_blocked(target)) is not None:
+            # held off the route: the straight leg back to the join crosses an obstacle; keep holding on the
+            # checked pattern and plan again from where the vehicle is
+            self.events.log("resume_blocked", seq=target, obstacle=blocked[1], clearance_m=round(blocked[0], 1))
+            if target != self.current_seq:
+                await self.set_current(target)
+            rec.held = True
+            return False
         if target != self.current_seq:  # else AUTO resumes (restarts) the current, unchanged item by itself
             await self.set_current(target)
         if self.holding is not None:
@@ -717,30 +755,95 @@ class LiveReplanner:
             # not flying the mission (a failsafe, the pilot): it cannot step into a mixed item; leave it be
             self.events.log("not_holding", reason=reason, mode=self._name(self.custom_mode))
             return
-        await self._mode(self.hold_mode)
+        pattern = self._checked_hold()
+        if pattern is None:
+            # no circle clear of the obstacles and the traffic: the leg it flies was cleared when it was planned
+            self.events.log("hold_refused", reason=reason, decision="no checked hold pattern: the vehicle keeps "
+                            "flying its current, already-cleared leg")
+            return
+        if pattern.kind == "circle":
+            await self._circle(pattern)
+            self.held_in = "GUIDED"
+        else:
+            await self._mode(self.hold_mode)
+            self.held_in = self.hold_mode
+        self.hold_pattern = pattern
         self.holding = reason
         self._held_since = self.now()
-        self.events.log("hold", mode=self.hold_mode, reason=reason)
+        self.events.log("hold", mode=self.held_in, reason=reason, pattern=pattern.summary())
+
+    def _checked_hold(self) -> HoldPattern | None:
+        """The hold pattern for where the vehicle is now, checked against the static world and the traffic
+        (:mod:`companion.replanning.holds`): a plane on ArduPilot circles a centre and radius of ours; any other
+        vehicle stops (its stopping run checked, and flown whatever the verdict: stopping is a copter's safest
+        move). None: no circle is clear."""
+        assert self.position is not None
+        d_coll = self.scenario.hazard.d_coll
+        env = self.scenario.environment
+        if self.link.profile.hold_circles and self.link.profile.layout == "ardupilot":
+            now = self.now()
+            return plane_hold(self.position, self.velocity, self.loiter_radius, env, d_coll,
+                              max(self.groundspeed, self.scenario.vehicle.cruise_speed), self.threats(now), now)
+        stop = self.limits.stopping_distance if self.limits is not None else \
+            self.scenario.vehicle.cruise_speed ** 2 / 5.0
+        speed_share = min(self.groundspeed / max(self.scenario.vehicle.cruise_speed, 0.1), 1.0) ** 2
+        pattern = copter_hold(self.position, self.velocity, stop * speed_share, env, d_coll)
+        if pattern.clearance_m < d_coll:
+            self.events.log("hold_unclear", pattern=pattern.summary(),
+                            note="the stopping run comes within d_coll; stopping is still the safest move")
+        return pattern
+
+    async def _circle(self, pattern: HoldPattern) -> None:
+        """ArduPlane: MAV_CMD_DO_REPOSITION with MAV_DO_REPOSITION_FLAGS_CHANGE_MODE (GUIDED) at the pattern's
+        centre and radius (param3), clockwise unless param4 is set; altitude above home (COMMAND_LONG's frame)."""
+        lat, lon, _ = enu_to_geodetic(np.array([pattern.centre[0], pattern.centre[1], 0.0]), self.scenario.home)
+        await self.client.command_long(mavlink.MAV_CMD_DO_REPOSITION, -1.0, 1.0, float(pattern.radius),
+                                       0.0 if pattern.clockwise else 1.0, float(lat), float(lon),
+                                       float(pattern.centre[2]))
+        self.custom_mode = self._number("GUIDED")
+
+    def leg_blocked(self, seq: int) -> tuple[float, str | None] | None:
+        """(clearance, obstacle) when the straight leg from the vehicle to item ``seq`` (what AUTO flies on
+        resuming) comes within d_coll + the hold margin of a static obstacle; None when it is clear."""
+        if self.position is None:
+            return None
+        hit = np.flatnonzero(self.route.seqs >= seq)
+        if not hit.size:
+            return None
+        target = self.route.points[hit[0]]
+        leg = np.linspace(self.position, target, max(int(np.linalg.norm(target - self.position) / 5.0), 1) + 1)
+        per = {k: float(v.min()) for k, v in obstacle_distances(leg, self.scenario.environment).items()}
+        worst = min(per, key=per.__getitem__, default=None)
+        if worst is None or per[worst] >= self.scenario.hazard.d_coll + HOLD_MARGIN_M:
+            return None
+        return per[worst], worst
 
     async def resume(self) -> None:
         """Back to AUTO at the current item, unless someone else has changed the mode meanwhile. AUTO is not
         someone else's: an autopilot may acknowledge the hold before its HEARTBEAT shows it (PX4 does: a stale
         AUTO arrived between the hold and the resume and left the vehicle holding for good), and a pilot who put
         it back in AUTO wants the mission flown; AUTO is sent either way."""
-        if self.custom_mode is not None and self.custom_mode not in (self._number(self.hold_mode),
+        if self.custom_mode is not None and self.custom_mode not in (self._number(self.held_in or self.hold_mode),
                                                                      self._number("AUTO")):
             self.events.log("not_resuming", reason="the mode was changed by someone else",
                             mode=self._name(self.custom_mode))
-            self.holding = None
+            self.holding = self.held_in = self.hold_pattern = None
             return
         await self._mode("AUTO")
         self.events.log("resume", reason=self.holding, seq=self.current_seq)
-        self.holding = None
+        self.holding = self.held_in = self.hold_pattern = None
 
     async def _retry_from_hold(self, now: float, threats: Threats) -> None:
         """While holding: resume if the old route is clear again, else plan from here."""
         self._last_replan = now
         conflicts = self.predict(now, threats) if len(threats) else []
+        seq = max(self.current_seq, int(self.route.seqs[0]))
+        if not conflicts and (blocked := self.leg_blocked(seq)) is not None:
+            # resuming would fly straight from here through an obstacle: a route from here first
+            clearance, obstacle = blocked
+            self.events.log("resume_blocked", seq=seq, obstacle=obstacle, clearance_m=round(clearance, 1))
+            assert self.position is not None
+            conflicts = [Conflict(f"static {obstacle}", now, clearance, tuple(self.position), 0, 0.0)]
         if not conflicts:
             self.events.log("threat_cleared", rejoin_s=float(self.rejoin_delays()[-1]))
             await self.resume()

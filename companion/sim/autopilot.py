@@ -31,10 +31,18 @@ from companion.sim import streams
 from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, wrap_pi
 from companion.sim.intruders import IntruderTrack, adsb_report
 from companion.sim.mission_server import MAX_ITEMS, MissionServer, is_nav
-from companion.sim.navigator import Land, Loiter, Navigator, NavTask, ReturnHome, Takeoff, rtl_altitude
+from companion.sim.navigator import (
+    Land,
+    Loiter,
+    Navigator,
+    NavTask,
+    ReturnHome,
+    Takeoff,
+    rtl_altitude,
+)
 from companion.sim.streams import StreamTable
 from companion.sim.transport import SimTransport
-from planner.world.config import G0
+from planner.world.config import G0, VehicleLimits
 from planner.world.scenario import Scenario
 
 logger = logging.getLogger(__name__)
@@ -73,6 +81,18 @@ PARAMS = {"FENCE_ENABLE": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
           "FENCE_ACTION": ((1.0, 1.0), mavlink.MAV_PARAM_TYPE_INT8),
           "RALLY_TOTAL": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
           "RALLY_LIMIT_KM": ((5.0, 0.3), mavlink.MAV_PARAM_TYPE_REAL32)}
+PLANE_DEFAULT_LOITER_RAD = PLANE_LOITER_RADIUS  # WP_LOITER_RAD of SITL's plane.parm, settable with PARAM_SET
+
+
+def vehicle_params(limits: VehicleLimits) -> dict[str, float]:
+    """The flight parameters the simulator answers, in ArduPilot's names and units: what its flight model does
+    (the scenario's vehicle) and its loiter radius (SITL's WP_LOITER_RAD, which LOITER and GUIDED circle at)."""
+    if limits.type == "plane":
+        return {"ROLL_LIMIT_DEG": limits.max_bank_deg, "AIRSPEED_CRUISE": limits.cruise_speed,
+                "WP_RADIUS": limits.acceptance_radius, "WP_LOITER_RAD": PLANE_DEFAULT_LOITER_RAD}
+    return {"WPNAV_SPEED": limits.cruise_speed * 100.0, "WPNAV_RADIUS": 200.0, "WPNAV_ACCEL": 250.0}
+
+
 PHYSICS_DT = 0.05  # s of sim time per physics step
 TRUTH_DT = 0.1  # s of sim time between truth samples
 MAX_CATCH_UP_S = 0.25  # wall s simulated per tick at most (a stalled loop does not make time jump)
@@ -161,6 +181,10 @@ class SimAutopilot:
         self.adsb_receiver = adsb_receiver
         self.wait_for_client = wait_for_client
         self._params = {name: value[0 if limits.type == "plane" else 1] for name, (value, _) in PARAMS.items()}
+        self._param_types = {name: kind for name, (_, kind) in PARAMS.items()}
+        for name, value in vehicle_params(limits).items():  # what its flight model flies, as ArduPilot names it
+            self._params[name] = value
+            self._param_types[name] = mavlink.MAV_PARAM_TYPE_REAL32
         self._ready = False
         self._sim_time = 0.0
         self._model = FlightModel(limits, math.radians(heading_deg))
@@ -460,7 +484,7 @@ class SimAutopilot:
             elif s.on_ground:
                 model.stay()
             else:
-                model.circle((s.x, s.y), PLANE_LOITER_RADIUS, s.z, True, dt)  # copter: hover
+                model.circle((s.x, s.y), self.loiter_radius, s.z, True, dt)  # copter: hover
             return
         task = self._mode_task
         if task is not None:
@@ -469,7 +493,7 @@ class SimAutopilot:
                 if s.on_ground:
                     self._on_landed()
                 elif isinstance(task, Takeoff):
-                    self._mode_task = Loiter((s.x, s.y, s.z), PLANE_LOITER_RADIUS)
+                    self._mode_task = Loiter((s.x, s.y, s.z), self.loiter_radius)
         elif s.on_ground:
             model.stay()
         else:
@@ -573,7 +597,9 @@ class SimAutopilot:
         elif name == "TAKEOFF":
             self._mode_task = Takeoff(self.vehicle.takeoff_alt)
         elif name in ("LOITER", "GUIDED", "CIRCLE") and not s.on_ground:
-            self._mode_task = Loiter(here, PLANE_LOITER_RADIUS)
+            # ArduPlane: LOITER (and GUIDED without a target) circles the point where the mode changed, at
+            # |WP_LOITER_RAD|, counter-clockwise when it is negative
+            self._mode_task = Loiter(here, self.loiter_radius, clockwise=self._params.get("WP_LOITER_RAD", 1.0) >= 0)
         logger.info("simulator: mode %s → %s", previous, name)
         self._send(self._heartbeat())
         return True
@@ -648,7 +674,7 @@ class SimAutopilot:
         self._send_param(name, 0xFFFF)
 
     def _send_param(self, name: str, index: int) -> None:
-        self._send(mavlink.MAVLink_param_value_message(name.encode(), self._params[name], PARAMS[name][1],
+        self._send(mavlink.MAVLink_param_value_message(name.encode(), self._params[name], self._param_types[name],
                                                        len(self._params), index))
 
     def _stalled(self, msg: mavlink.MAVLink_message) -> bool:
@@ -722,7 +748,34 @@ class SimAutopilot:
             return ok if self._set_mode(COPTER_MODES["LAND"]) else failed
         if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
             return self._takeoff_command(p[6])
+        if cmd == mavlink.MAV_CMD_DO_REPOSITION:
+            return self._reposition(p)
         return mavlink.MAV_RESULT_UNSUPPORTED
+
+    def _reposition(self, p: tuple[float, ...]) -> int:
+        """MAV_CMD_DO_REPOSITION as ArduPlane takes it: lat/lon (param5/6), altitude above home (param7); GUIDED
+        first when param2 has MAV_DO_REPOSITION_FLAGS_CHANGE_MODE, else only in GUIDED (FAILED otherwise); the
+        plane circles the point at param3 when it is > 0 (else |WP_LOITER_RAD|), counter-clockwise when param4 is
+        non-zero; a copter flies there and hovers."""
+        s = self._model.state
+        if not self._armed or s.on_ground or not (math.isfinite(p[4]) and math.isfinite(p[5])):
+            return mavlink.MAV_RESULT_FAILED
+        if int(p[1]) & 1:
+            if not self._set_mode(self._modes["GUIDED"]):
+                return mavlink.MAV_RESULT_FAILED
+        elif self.mode != "GUIDED":
+            return mavlink.MAV_RESULT_FAILED
+        e, n, _ = pymap3d.geodetic2enu(p[4], p[5], self._home.alt, self._home.lat, self._home.lon, self._home.alt)
+        radius = p[2] if p[2] > 0 else self.loiter_radius
+        ccw = p[3] != 0 and math.isfinite(p[3])
+        self._mode_task = Loiter((float(e), float(n), float(p[6])), radius, clockwise=not ccw)
+        return mavlink.MAV_RESULT_ACCEPTED
+
+    @property
+    def loiter_radius(self) -> float:
+        """|WP_LOITER_RAD| (ArduPlane uses 60 m when it is 0 or 1)."""
+        r = abs(self._params.get("WP_LOITER_RAD", PLANE_DEFAULT_LOITER_RAD))
+        return r if r > 1.0 else 60.0
 
     def _arm(self, arm: bool, force: bool) -> int:
         if not arm:

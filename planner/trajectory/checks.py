@@ -82,6 +82,20 @@ def obstacle_clearance(
     return np.min(np.stack(parts), axis=0)
 
 
+def obstacle_distances(points: np.ndarray, env: Environment) -> dict[str, np.ndarray]:
+    """Signed distance (M,) from each point to each named static obstacle ("cylinders[i]", "spheres[j]")."""
+    out: dict[str, np.ndarray] = {}
+    cyl = env.cylinders
+    if len(cyl) and len(points):
+        col = (slice(None), None)
+        d = cylinder_signed_distance(points[None], cyl.x[col], cyl.y[col], cyl.radius[col], cyl.top[col])
+        out.update({f"cylinders[{i}]": d[i] for i in range(len(cyl))})
+    if len(env.spheres) and len(points):
+        d = np.linalg.norm(points[None] - env.spheres.center[:, None], axis=-1) - env.spheres.radius[:, None]
+        out.update({f"spheres[{j}]": d[j] for j in range(len(env.spheres))})
+    return out
+
+
 def check_trajectory(
     traj: Trajectory, waypoints: np.ndarray, env: Environment, hazard: HazardConfig,
     vehicle: VehicleLimits, timed: bool = False, start_heading: np.ndarray | None = None,

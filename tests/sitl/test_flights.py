@@ -97,7 +97,8 @@ def test_crossing_traffic_on_serial1_with_adsb_from_a_receiver(sitl_factory_fn, 
     with sitl.hold_serial0():
         code, flight, events = _fly(scenario, sitl.serial1_url, tmp_path / "rep", "--traffic", sitl.serial2_url,
                                     *([] if replan else ["--no-replan"]))
-    assert code == 0 and flight["completed"] is True, flight
+    assert code == (0 if replan else 6) and flight["completed"] is True, flight  # 6: completed but unsafe
+    assert flight["flown_safe"] is replan and flight["min_static_clearance_m"] >= flight["d_coll_m"], flight
     seps = flight["min_separation_m"]
     assert sorted(seps) == sorted(i.id for i in sc.intruders), seps
     assert any(e["event"] == "track" for e in events) is replan  # the companion heard them (it listens only then)

@@ -42,8 +42,9 @@ def test_fly_sim_completes_and_writes_the_report(tmp_path) -> None:
     assert records[0]["event"] == "scene" and len(records[0]["route"]) >= 10  # the status page's map, first
     assert records[1]["event"] == "sim_started" and records[1]["loss"] == 0.05
     events = [r["event"] for r in records]
-    order = [events.index(e) for e in ("connected", "upload_verified", "mission", "ready", "armed", "mission_start",
-                                       "position", "finished")]
+    # the vehicle's limits read, then its position fix and the departure checked from it, all before the upload
+    order = [events.index(e) for e in ("vehicle_limits", "connected", "ready", "vehicle_fix", "departure",
+                                       "upload_verified", "mission", "armed", "mission_start", "position", "finished")]
     assert order == sorted(order)
     loaded = mavwp.MAVWPLoader()
     assert loaded.load(str(report / "mission.waypoints")) == fl["mission_items"]

@@ -1,0 +1,147 @@
+"""The departure: from where the vehicle stands to the route's start, as the autopilot will fly it, checked like
+any other leg before anything is uploaded (docs/design.md, "Departure").
+
+ArduPlane takes off where it stands, straight ahead on its heading, and only after the take-off altitude turns
+towards the first waypoint, as wide as its path-follower turns (L1). On SITL, from the region's corner, that
+climb-out ran 270 m north before the turn; started 300 m east, it went straight through a no-fly cylinder. A
+copter climbs vertically and then flies straight to the start. Where the plane really climbs and turns is not
+known to the metre, so the check covers an envelope: the steepest and the shallowest climb, the tightest and
+the widest turn.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from companion.mavlink.vehicle_limits import AutopilotLimits
+from planner.trajectory.checks import obstacle_distances
+from planner.world.environment import Environment
+
+PLANE_GROUND_ROLL_M = 30.0  # ArduPlane SITL: lift-off about 30 m down the runway
+PLANE_STEEPEST_CLIMB_DEG = 25.0  # a full-throttle take-off climb (SITL: 10 m/s at 27 m/s, 22°)
+PLANE_TAKEOFF_SPEED_M_S = 27.0  # ground speed in the take-off climb and the first turn (SITL)
+DEPARTURE_MARGIN_M = 5.0  # beyond d_coll: the envelope is a model, not a measurement
+SAMPLE_M = 5.0  # spacing of the checked points
+HOME_ALT_TOLERANCE_M = 10.0  # the autopilot's home this far above or below the scenario's: the altitudes are off
+
+
+@dataclass(frozen=True)
+class VehicleFix:
+    """Where the vehicle is before the flight, in the scenario's ENU frame (z above the scenario's home)."""
+
+    position: np.ndarray  # (3,)
+    heading_deg: float | None  # compass, None when the autopilot does not say
+    home: np.ndarray | None  # the autopilot's home (3,) in the same frame, None when it did not send one
+
+    def summary(self) -> dict[str, object]:
+        return {"position": np.round(self.position, 1).tolist(), "heading_deg": self.heading_deg,
+                "home": None if self.home is None else np.round(self.home, 1).tolist()}
+
+
+@dataclass(frozen=True)
+class Departure:
+    """The checked envelope: its paths (each (M, 3)), the least clearance over them, and why it is refused."""
+
+    paths: list[np.ndarray]
+    clearance_m: float
+    nearest_obstacle: str | None
+    refusal: str | None  # one line, or None when the vehicle can fly it
+
+    def summary(self) -> dict[str, object]:
+        return {"paths": len(self.paths), "clearance_m": round(self.clearance_m, 1) if math.isfinite(
+            self.clearance_m) else None, "nearest_obstacle": self.nearest_obstacle, "refusal": self.refusal}
+
+
+def _unit(deg: float) -> np.ndarray:
+    r = math.radians(deg)
+    return np.array([math.sin(r), math.cos(r)])
+
+
+def turn_then_straight(p: np.ndarray, heading: np.ndarray, target: np.ndarray, radius: float) -> np.ndarray:
+    """Horizontal path (K, 2): from ``p`` on ``heading`` (unit), a turn of ``radius`` towards ``target`` until it
+    points at it, then straight to it. A target inside the turn circle gets the whole circle first (the vehicle
+    overshoots and comes round)."""
+    to = target - p
+    if radius <= 0 or float(np.linalg.norm(to)) < 1e-6:
+        return np.stack([p, target])
+    side = 1.0 if heading[0] * to[1] - heading[1] * to[0] < 0 else -1.0  # +1: turn right (clockwise)
+    normal = side * np.array([heading[1], -heading[0]])  # towards the turn centre
+    c = p + radius * normal
+    d = float(np.linalg.norm(target - c))
+    a0 = math.atan2(*(p - c)[::-1])
+    if d <= radius:  # inside the circle: one full turn, then straight
+        arc = np.linspace(0.0, 2 * math.pi, 73)
+        ring = c + radius * np.stack([np.cos(a0 - side * arc), np.sin(a0 - side * arc)], axis=1)
+        return np.vstack([ring, target])
+    # tangent point from the target on the side the vehicle turns
+    beta = math.atan2(*(target - c)[::-1])
+    alpha = math.acos(radius / d)
+    exit_angle = beta + side * alpha
+    sweep = (a0 - exit_angle) * side % (2 * math.pi)  # clockwise turns sweep angles downwards
+    n = max(int(sweep * radius / SAMPLE_M), 2)
+    angles = a0 - side * np.linspace(0.0, sweep, n)
+    arc = c + radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    return np.vstack([arc, target])
+
+
+def _densify(path: np.ndarray, spacing: float = SAMPLE_M) -> np.ndarray:
+    seg = np.diff(path, axis=0)
+    out = [path[:1]]
+    for a, s in zip(path[:-1], seg, strict=True):
+        n = max(math.ceil(float(np.linalg.norm(s)) / spacing), 1)
+        out.append(a + np.outer(np.arange(1, n + 1) / n, s))
+    return np.vstack(out)
+
+
+def departure_paths(fix: VehicleFix, start: np.ndarray, takeoff_alt: float,
+                    limits: AutopilotLimits) -> list[np.ndarray]:
+    """The envelope of paths (M, 3) from the vehicle to the route's ``start``."""
+    p0 = np.asarray(fix.position, dtype=float)
+    start = np.asarray(start, dtype=float)
+    alt = max(takeoff_alt, float(start[2]))
+    if limits.vehicle_type != "plane":
+        up = np.array([p0[0], p0[1], alt])
+        return [_densify(np.stack([p0, up, start]))]
+    heading = _unit(fix.heading_deg or 0.0)
+    paths = []
+    shallow = min(limits.climb_angle_deg, PLANE_STEEPEST_CLIMB_DEG)
+    for climb_deg in (PLANE_STEEPEST_CLIMB_DEG, shallow):
+        run = PLANE_GROUND_ROLL_M + alt / math.tan(math.radians(climb_deg))
+        top = p0[:2] + run * heading
+        for radius in (limits.turn_radius, limits.wide_turn_radius(PLANE_TAKEOFF_SPEED_M_S)):
+            flat = turn_then_straight(top, heading, start[:2], radius)
+            z = np.concatenate([[alt] * (len(flat) - 1), [start[2]]])
+            climb = np.stack([p0, [*(p0[:2] + PLANE_GROUND_ROLL_M * heading), p0[2]], [*top, alt]])
+            paths.append(_densify(np.vstack([climb, np.column_stack([flat, z])[1:]])))
+    return paths
+
+
+def check_departure(fix: VehicleFix, start: np.ndarray, takeoff_alt: float, limits: AutopilotLimits,
+                    env: Environment, d_coll: float, on_ground: bool = True) -> Departure:
+    """The departure's verdict: refused (one line) when the vehicle is outside the region, its home's altitude
+    is not the scenario's, or any path of the envelope comes within d_coll + :data:`DEPARTURE_MARGIN_M` of a
+    static obstacle. An airborne vehicle flies straight to the start from where it is (checked the same way)."""
+    p = np.asarray(fix.position, dtype=float)
+    where = f"at ({p[0]:.0f}, {p[1]:.0f}) m"
+    if fix.home is not None and abs(float(fix.home[2])) > HOME_ALT_TOLERANCE_M:
+        return Departure([], math.nan, None, f"the autopilot's home is {fix.home[2]:+.0f} m from the scenario's "
+                         "home altitude: every mission altitude would be off by that; set its home or the scenario's")
+    if not (0.0 <= p[0] <= env.size_x and 0.0 <= p[1] <= env.size_y):
+        return Departure([], math.nan, None, f"the vehicle is {where}, outside the scenario's region "
+                         f"(0..{env.size_x:g} × 0..{env.size_y:g} m): it cannot be flown from there")
+    paths = departure_paths(fix, start, takeoff_alt, limits) if on_ground else [_densify(np.stack([p, start]))]
+    pts = np.vstack(paths)
+    per = {k: float(v.min()) for k, v in obstacle_distances(pts, env).items()}
+    nearest = min(per, key=per.__getitem__, default=None)
+    clearance = per[nearest] if nearest is not None else math.inf
+    need = d_coll + DEPARTURE_MARGIN_M
+    if clearance < need:
+        how = (f"take off on heading {fix.heading_deg or 0.0:.0f}° and climb out" if on_ground and
+               limits.vehicle_type == "plane" else "climb out" if on_ground else "fly")
+        return Departure(paths, clearance, nearest, (
+            f"the vehicle {where} would {how} to the route's start within {max(clearance, -999):.0f} m of {nearest} "
+            f"(needs {need:g} m): nothing uploaded; move the vehicle (or turn it) or start the route elsewhere"))
+    return Departure(paths, clearance, nearest, None)

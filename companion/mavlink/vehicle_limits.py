@@ -1,0 +1,128 @@
+"""The vehicle's own limits, read from the autopilot's parameters at connect (docs/autopilots.md, "Limits read from
+the autopilot"), with the scenario's ``[vehicle]`` values as the fallback for anything the autopilot does not say.
+
+The plan and every pattern the companion commands (climb-out, hold circles) are checked with these, not with what
+the scenario file assumed: on ArduPlane SITL the scenario's 45° bank and 15° climb were neither what the autopilot
+flew (65° roll limit, TECS climb 5 m/s) nor what its loiter circle was (WP_LOITER_RAD 80 m, not the scenario's).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+
+from planner.world.config import G0, VehicleLimits
+
+# name → (what it is, scale to SI). Only what the companion uses; the names are those of the firmware we fly
+# (ArduPilot 4.7, PX4 1.17): parameters the autopilot does not answer simply keep the scenario's value.
+ARDUPLANE = {
+    "ROLL_LIMIT_DEG": ("max_bank_deg", 1.0),
+    "AIRSPEED_CRUISE": ("cruise_speed", 1.0),
+    "WP_RADIUS": ("acceptance_radius", 1.0),
+    "WP_LOITER_RAD": ("loiter_radius", 1.0),
+    "TECS_CLMB_MAX": ("climb_rate", 1.0),
+    "TECS_SINK_MAX": ("sink_rate", 1.0),
+    "NAVL1_PERIOD": ("l1_period_s", 1.0),
+    "NAVL1_DAMPING": ("l1_damping", 1.0),
+}
+ARDUCOPTER = {
+    "WPNAV_SPEED": ("cruise_speed", 0.01),  # cm/s
+    "WPNAV_RADIUS": ("acceptance_radius", 0.01),  # cm
+    "WPNAV_ACCEL": ("accel", 0.01),  # cm/s²
+    "WPNAV_SPEED_UP": ("climb_rate", 0.01),
+    "WPNAV_SPEED_DN": ("sink_rate", 0.01),
+}
+PX4_FIXED_WING = {
+    "NAV_ACC_RAD": ("acceptance_radius", 1.0),
+    "NAV_LOITER_RAD": ("loiter_radius", 1.0),
+    "FW_R_LIM": ("max_bank_deg", 1.0),
+    "FW_AIRSPD_TRIM": ("cruise_speed", 1.0),
+    "FW_T_CLMB_MAX": ("climb_rate", 1.0),
+    "FW_T_SINK_MAX": ("sink_rate", 1.0),
+}
+PX4_MULTICOPTER = {
+    "NAV_ACC_RAD": ("acceptance_radius", 1.0),
+    "MPC_XY_CRUISE": ("cruise_speed", 1.0),
+    "MPC_ACC_HOR": ("accel", 1.0),
+    "MPC_Z_V_AUTO_UP": ("climb_rate", 1.0),
+    "MPC_Z_V_AUTO_DN": ("sink_rate", 1.0),
+}
+ARDUPLANE_L1_PERIOD_S, ARDUPLANE_L1_DAMPING = 17.0, 0.75  # ArduPlane's defaults when they are not read
+COPTER_ACCEL = 2.5  # m/s², a copter's braking when the autopilot does not say (WPNAV_ACCEL default)
+
+
+def parameter_names(autopilot: str, vehicle_type: str) -> Mapping[str, tuple[str, float]]:
+    """The parameters to read for an autopilot layout ("ardupilot", "px4") and vehicle type."""
+    if autopilot == "px4":
+        return PX4_FIXED_WING if vehicle_type == "plane" else PX4_MULTICOPTER
+    return ARDUPLANE if vehicle_type == "plane" else ARDUCOPTER
+
+
+@dataclass(frozen=True)
+class AutopilotLimits:
+    """What the vehicle will really do: speeds in m/s, angles in degrees, distances in metres."""
+
+    vehicle_type: str
+    cruise_speed: float
+    max_bank_deg: float
+    acceptance_radius: float
+    loiter_radius: float
+    climb_rate: float
+    sink_rate: float
+    accel: float
+    l1_period_s: float
+    l1_damping: float
+    read: dict[str, float] = field(default_factory=dict)  # the parameters the autopilot answered, as it sent them
+
+    @property
+    def turn_radius(self) -> float:
+        """Tightest level turn at cruise speed, v²/(g tan φ_max) (docs/method.md §11.2)."""
+        return self.cruise_speed**2 / (G0 * math.tan(math.radians(min(self.max_bank_deg, 85.0))))
+
+    def wide_turn_radius(self, speed: float | None = None) -> float:
+        """How wide a plane's path-follower really turns onto a new track: ArduPlane's L1 distance
+        (1/π)·damping·period·v, never less than the tightest turn. A copter turns on the spot (0)."""
+        if self.vehicle_type != "plane":
+            return 0.0
+        v = self.cruise_speed if speed is None else speed
+        return max(self.l1_damping * self.l1_period_s * v / math.pi, self.turn_radius)
+
+    @property
+    def climb_angle_deg(self) -> float:
+        """A plane's steady climb angle at cruise speed from its climb-rate limit."""
+        return math.degrees(math.asin(min(self.climb_rate / max(self.cruise_speed, 1e-6), 1.0)))
+
+    @property
+    def stopping_distance(self) -> float:
+        """A copter's braking distance from cruise speed, v²/(2a)."""
+        return self.cruise_speed**2 / (2.0 * max(self.accel, 0.1))
+
+    def summary(self) -> dict[str, float | str | dict[str, float]]:
+        """flight.json's ``vehicle_limits``: what was used, and what was read."""
+        d: dict[str, float | str | dict[str, float]] = {
+            k: round(v, 3) for k, v in self.__dict__.items() if isinstance(v, float)}
+        d["turn_radius_m"] = round(self.turn_radius, 1)
+        d["vehicle_type"] = self.vehicle_type
+        d["read"] = dict(self.read)
+        return d
+
+
+def limits_from(params: Mapping[str, float], autopilot: str, vehicle: VehicleLimits,
+                loiter_fallback: float) -> AutopilotLimits:
+    """The vehicle's limits from the parameters read (``params``: name → value as the autopilot sent it), each
+    missing one from the scenario's ``vehicle`` (``loiter_fallback``: the loiter radius when neither says)."""
+    names = parameter_names(autopilot, vehicle.type)
+    values: dict[str, float] = {
+        "cruise_speed": vehicle.cruise_speed, "max_bank_deg": vehicle.max_bank_deg,
+        "acceptance_radius": vehicle.acceptance_radius, "loiter_radius": loiter_fallback,
+        "climb_rate": vehicle.cruise_speed * math.sin(vehicle.max_climb),
+        "sink_rate": vehicle.cruise_speed * math.sin(vehicle.max_climb),
+        "accel": COPTER_ACCEL, "l1_period_s": ARDUPLANE_L1_PERIOD_S, "l1_damping": ARDUPLANE_L1_DAMPING}
+    read = {}
+    for name, (key, scale) in names.items():
+        v = params.get(name)
+        if v is not None and math.isfinite(v) and v > 0:
+            values[key] = float(v) * scale
+            read[name] = float(v)
+    return AutopilotLimits(vehicle.type, read=read, **values)

@@ -1,0 +1,133 @@
+"""Hold patterns checked like routes (docs/design.md, "Checked holds").
+
+ArduPlane's LOITER circles the point where it was when the mode changed, at WP_LOITER_RAD: entered 60 m from a
+no-fly cylinder on SITL, the 80 m circle ran 40–64 m into it. So a plane's hold is a circle we choose: a centre
+and radius whose approach and circle clear every static obstacle by d_coll plus a tracking margin and keep known
+traffic at d_coll over the time it may circle, commanded with MAV_CMD_DO_REPOSITION (GUIDED, its own radius).
+Candidates start with the circle tangent to the vehicle's track (it turns straight onto it) on either side, then
+centres further along the track. A copter brakes and hovers; its stopping distance is checked the same way.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from planner.trajectory.checks import obstacle_distances
+from planner.world.environment import Environment, Threats
+
+HOLD_MARGIN_M = 10.0  # beyond d_coll: the path-follower captures and tracks the circle a little wide
+CIRCLE_POINTS = 72
+AHEAD_STEP_M = 40.0  # centres tried this far apart along the track
+AHEAD_STEPS = 8
+HOLD_HORIZON_S = 60.0  # vehicle seconds of circling checked against traffic
+TRAFFIC_DT_S = 1.0
+
+
+@dataclass(frozen=True)
+class HoldPattern:
+    """A checked hold. ``kind``: "circle" (plane: centre, radius, clockwise) or "brake" (copter). ``path`` is what was
+    checked (approach and one circle, or the stopping run); clearances are from its worst point."""
+
+    kind: str
+    centre: np.ndarray
+    radius: float
+    clockwise: bool
+    path: np.ndarray
+    clearance_m: float
+    nearest_obstacle: str | None
+    traffic_separation_m: float
+
+    def summary(self) -> dict[str, object]:
+        return {"kind": self.kind, "centre": np.round(self.centre, 1).tolist(), "radius_m": round(self.radius, 1),
+                "clockwise": self.clockwise, "clearance_m": round(self.clearance_m, 1),
+                "nearest_obstacle": self.nearest_obstacle,
+                "traffic_separation_m": None if not math.isfinite(self.traffic_separation_m)
+                else round(self.traffic_separation_m, 1)}
+
+
+def _circle_path(p: np.ndarray, centre: np.ndarray, radius: float, clockwise: bool) -> np.ndarray:
+    """The approach from ``p`` (straight towards the circle, as the path-follower captures it) and one whole circle,
+    (M, 3) at the vehicle's altitude, in flying order."""
+    c2, p2 = centre[:2], p[:2]
+    d = float(np.linalg.norm(p2 - c2))
+    a0 = math.atan2(p2[1] - c2[1], p2[0] - c2[0]) if d > 1e-6 else 0.0
+    entry = c2 + radius * np.array([math.cos(a0), math.sin(a0)])
+    approach = np.linspace(p2, entry, max(int(abs(d - radius) / 5.0), 1) + 1)
+    sign = -1.0 if clockwise else 1.0  # counter-clockwise is increasing angle
+    ang = a0 + sign * np.linspace(0.0, 2 * math.pi, CIRCLE_POINTS + 1)
+    ring = c2 + radius * np.stack([np.cos(ang), np.sin(ang)], axis=1)
+    flat = np.vstack([approach, ring[1:]])
+    return np.column_stack([flat, np.full(len(flat), p[2])])
+
+
+def _traffic_separation(path: np.ndarray, speed: float, t0: float, threats: Threats | None,
+                        horizon_s: float) -> float:
+    """Least separation (distance − radius) from ``threats`` while flying ``path`` from time ``t0`` at ``speed``,
+    round and round (its last point back to the start of the circle) for ``horizon_s``."""
+    if threats is None or not len(threats) or len(path) < 2:
+        return math.inf
+    seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
+    s = np.concatenate([[0.0], np.cumsum(seg)])
+    times = np.arange(0.0, horizon_s + TRAFFIC_DT_S, TRAFFIC_DT_S)
+    along = np.minimum(times * max(speed, 0.1), s[-1])
+    if s[-1] > 0:  # the circle repeats: wrap the arc length past the end back over the circle part
+        approach_len = s[max(len(path) - CIRCLE_POINTS - 1, 0)]
+        lap = s[-1] - approach_len
+        over = times * max(speed, 0.1) - approach_len
+        along = np.where(over > 0, approach_len + np.mod(over, max(lap, 1e-6)), times * max(speed, 0.1))
+    pts = np.stack([np.interp(along, s, path[:, k]) for k in range(3)], axis=1)
+    centres = threats.positions(t0 + times)  # (k, T, 3)
+    sep = np.linalg.norm(centres - pts[None], axis=-1) - threats.radii(t0 + times)
+    return float(sep.min())
+
+
+def _worst(path: np.ndarray, env: Environment) -> tuple[float, str | None]:
+    per = {k: float(v.min()) for k, v in obstacle_distances(path, env).items()}
+    nearest = min(per, key=per.__getitem__, default=None)
+    return (per[nearest] if nearest is not None else math.inf), nearest
+
+
+def plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: Environment, d_coll: float,
+               speed: float, threats: Threats | None = None, t_now: float = 0.0) -> HoldPattern | None:
+    """The first circle of ``radius`` (tangent to the track on the right, then the left, then centres further
+    along the track) whose approach and circle clear every static obstacle by d_coll + :data:`HOLD_MARGIN_M` and
+    keep ``threats`` (timed from ``t_now``) at d_coll or more for :data:`HOLD_HORIZON_S`; None when there is none.
+    The circle stays inside the region and the altitude band is the vehicle's own (it holds its altitude)."""
+    p = np.asarray(position, dtype=float)
+    v = np.asarray(velocity, dtype=float)[:2]
+    heading = v / n if (n := float(np.linalg.norm(v))) > 0.5 else np.array([0.0, 1.0])
+    right = np.array([heading[1], -heading[0]])
+    need = d_coll + HOLD_MARGIN_M
+    for k in range(AHEAD_STEPS + 1):
+        base = p[:2] + k * AHEAD_STEP_M * heading
+        for side, clockwise in ((right, True), (-right, False)):
+            centre2 = base + radius * side
+            if not (radius <= centre2[0] <= env.size_x - radius and radius <= centre2[1] <= env.size_y - radius):
+                continue
+            centre = np.array([*centre2, p[2]])
+            path = _circle_path(p, centre, radius, clockwise)
+            clearance, nearest = _worst(path, env)
+            if clearance < need:
+                continue
+            sep = _traffic_separation(path, speed, t_now, threats, HOLD_HORIZON_S)
+            pattern = HoldPattern("circle", centre, radius, clockwise, path, clearance, nearest, sep)
+            if sep >= d_coll:
+                return pattern
+    return None
+
+
+def copter_hold(position: np.ndarray, velocity: np.ndarray, stopping_distance: float, env: Environment,
+                d_coll: float) -> HoldPattern:
+    """A copter's brake-and-hover: the run from ``position`` along its ``velocity`` to where it stops (at least
+    ``stopping_distance`` scaled to its speed), checked against the static world (it is flown whatever the
+    verdict: stopping is a copter's safest move; the clearance says whether it was clear)."""
+    p = np.asarray(position, dtype=float)
+    v2 = np.asarray(velocity, dtype=float)[:2]
+    n = float(np.linalg.norm(v2))
+    direction = np.array([*(v2 / n), 0.0]) if n > 0.1 else np.zeros(3)
+    run = np.linspace(p, p + direction * stopping_distance, 20)
+    clearance, nearest = _worst(run, env)
+    return HoldPattern("brake", run[-1], 0.0, True, run, clearance, nearest, math.inf)
