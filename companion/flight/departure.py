@@ -25,6 +25,7 @@ PLANE_STEEPEST_CLIMB_DEG = 25.0  # a full-throttle take-off climb (SITL: 10 m/s 
 PLANE_TAKEOFF_SPEED_M_S = 27.0  # ground speed in the take-off climb and the first turn (SITL)
 DEPARTURE_MARGIN_M = 5.0  # beyond d_coll: the envelope is a model, not a measurement
 SAMPLE_M = 5.0  # spacing of the checked points
+REGION_TOLERANCE_M = 25.0  # a vehicle this close outside the region (GPS noise at a corner home) is inside
 HOME_ALT_TOLERANCE_M = 10.0  # the autopilot's home this far above or below the scenario's: the altitudes are off
 
 
@@ -129,7 +130,8 @@ def check_departure(fix: VehicleFix, start: np.ndarray, takeoff_alt: float, limi
     if fix.home is not None and abs(float(fix.home[2])) > HOME_ALT_TOLERANCE_M:
         return Departure([], math.nan, None, f"the autopilot's home is {fix.home[2]:+.0f} m from the scenario's "
                          "home altitude: every mission altitude would be off by that; set its home or the scenario's")
-    if not (0.0 <= p[0] <= env.size_x and 0.0 <= p[1] <= env.size_y):
+    tol = REGION_TOLERANCE_M
+    if not (-tol <= p[0] <= env.size_x + tol and -tol <= p[1] <= env.size_y + tol):
         return Departure([], math.nan, None, f"the vehicle is {where}, outside the scenario's region "
                          f"(0..{env.size_x:g} × 0..{env.size_y:g} m): it cannot be flown from there")
     paths = departure_paths(fix, start, takeoff_alt, limits) if on_ground else [_densify(np.stack([p, start]))]
@@ -142,6 +144,7 @@ def check_departure(fix: VehicleFix, start: np.ndarray, takeoff_alt: float, limi
         how = (f"take off on heading {fix.heading_deg or 0.0:.0f}° and climb out" if on_ground and
                limits.vehicle_type == "plane" else "climb out" if on_ground else "fly")
         return Departure(paths, clearance, nearest, (
-            f"the vehicle {where} would {how} to the route's start within {max(clearance, -999):.0f} m of {nearest} "
-            f"(needs {need:g} m): nothing uploaded; move the vehicle (or turn it) or start the route elsewhere"))
+            f"the vehicle {where} would {how} to the route's start "
+            + (f"{-clearance:.0f} m inside {nearest}" if clearance < 0 else f"{clearance:.0f} m from {nearest}")
+            + f" (needs {need:g} m): nothing uploaded; move the vehicle (or turn it) or start the route elsewhere"))
     return Departure(paths, clearance, nearest, None)

@@ -435,5 +435,27 @@ class MissionClient:
                 raise CommandError(command, ack.result, command_result_name(ack.result))
         raise CommandError(command, None, command_name(command))
 
+    async def command_int(self, command: int, frame: int, *params: float, x: int = 0, y: int = 0, z: float = 0.0,
+                          timeout: float = 1.0, retries: int = 3) -> int:
+        """Send COMMAND_INT (``params`` are param1–4; ``x``/``y`` degrees × 1e7, ``z`` in ``frame``'s altitude)
+        until its COMMAND_ACK; results as :meth:`command_long`. ArduPlane takes MAV_CMD_DO_REPOSITION only so."""
+        p = [float(v) for v in params] + [0.0] * (4 - len(params))
+        ts, tc = self._target()
+
+        def is_ack(m: Message) -> bool:
+            return m.command == command and self._to_us(m)
+
+        with self.link.subscribe("COMMAND_ACK", predicate=is_ack) as sub:
+            for _ in range(retries + 1):
+                self.link.send(mavlink.MAVLink_command_int_message(ts, tc, frame, command, 0, 0, *p, x, y, z))
+                try:
+                    ack = await sub.get(timeout)
+                except TimeoutError:
+                    continue
+                if ack.result in _CMD_OK:
+                    return ack.result
+                raise CommandError(command, ack.result, command_result_name(ack.result))
+        raise CommandError(command, None, command_name(command))
+
 
 __all__ = ["MissionClient", "command_result_name", "command_name"]

@@ -46,7 +46,7 @@ from companion.mavlink.vehicle_limits import AutopilotLimits
 from companion.mission import picture
 from companion.mission.builder import MissionSpec
 from companion.mission.events import EventLog
-from companion.mission.geo import enu_to_geodetic, geodetic_to_enu
+from companion.mission.geo import enu_to_geodetic, geodetic_to_enu, to_int_e7
 from companion.mission.restore import restore_mission
 from companion.replanning.holds import (
     HOLD_MARGIN_M,
@@ -762,8 +762,19 @@ class LiveReplanner:
                             "flying its current, already-cleared leg")
             return
         if pattern.kind == "circle":
-            await self._circle(pattern)
-            self.held_in = "GUIDED"
+            try:
+                await self._circle(pattern)
+                self.held_in = "GUIDED"
+            except (CommandError, AttributeError) as e:  # refused, or a backend without COMMAND_INT
+                self.events.log("hold_circle_refused", error=str(e), pattern=pattern.summary())
+                loiter = self._loiter_here()
+                if loiter is None:
+                    self.events.log("hold_refused", reason=reason, decision="LOITER's own circle is not clear "
+                                    "either: the vehicle keeps flying its current, already-cleared leg")
+                    return
+                pattern = loiter
+                await self._mode(self.hold_mode)
+                self.held_in = self.hold_mode
         else:
             await self._mode(self.hold_mode)
             self.held_in = self.hold_mode
@@ -794,13 +805,28 @@ class LiveReplanner:
         return pattern
 
     async def _circle(self, pattern: HoldPattern) -> None:
-        """ArduPlane: MAV_CMD_DO_REPOSITION with MAV_DO_REPOSITION_FLAGS_CHANGE_MODE (GUIDED) at the pattern's
-        centre and radius (param3), clockwise unless param4 is set; altitude above home (COMMAND_LONG's frame)."""
+        """ArduPlane: MAV_CMD_DO_REPOSITION (COMMAND_INT: ArduPlane answers it UNSUPPORTED as COMMAND_LONG) with
+        MAV_DO_REPOSITION_FLAGS_CHANGE_MODE (GUIDED) at the pattern's centre, altitude above home, and radius
+        (param3), clockwise unless param4 is set."""
         lat, lon, _ = enu_to_geodetic(np.array([pattern.centre[0], pattern.centre[1], 0.0]), self.scenario.home)
-        await self.client.command_long(mavlink.MAV_CMD_DO_REPOSITION, -1.0, 1.0, float(pattern.radius),
-                                       0.0 if pattern.clockwise else 1.0, float(lat), float(lon),
-                                       float(pattern.centre[2]))
+        await self.client.command_int(mavlink.MAV_CMD_DO_REPOSITION, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT,
+                                      -1.0, 1.0, float(pattern.radius), 0.0 if pattern.clockwise else 1.0,
+                                      x=to_int_e7(float(lat)), y=to_int_e7(float(lon)), z=float(pattern.centre[2]))
         self.custom_mode = self._number("GUIDED")
+
+    def _loiter_here(self) -> HoldPattern | None:
+        """The autopilot's own LOITER (a circle of the loiter radius around where the mode changes), when that
+        circle is clear of the obstacles: the fallback when our circle cannot be commanded."""
+        assert self.position is not None
+        centre = self.position.copy()
+        a = np.linspace(0.0, 2 * math.pi, 73)
+        circle = centre + self.loiter_radius * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
+        per = {k: float(v.min()) for k, v in obstacle_distances(circle, self.scenario.environment).items()}
+        worst = min(per, key=per.__getitem__, default=None)
+        clearance = per[worst] if worst is not None else math.inf
+        if clearance < self.scenario.hazard.d_coll + HOLD_MARGIN_M:
+            return None
+        return HoldPattern("circle", centre, self.loiter_radius, True, circle, clearance, worst, math.inf)
 
     def leg_blocked(self, seq: int) -> tuple[float, str | None] | None:
         """(clearance, obstacle) when the straight leg from the vehicle to item ``seq`` (what AUTO flies on

@@ -93,6 +93,7 @@ def vehicle_params(limits: VehicleLimits) -> dict[str, float]:
     return {"WPNAV_SPEED": limits.cruise_speed * 100.0, "WPNAV_RADIUS": 200.0, "WPNAV_ACCEL": 250.0}
 
 
+COMMAND_INT_ONLY = frozenset({mavlink.MAV_CMD_DO_REPOSITION})  # ArduPlane SITL: UNSUPPORTED as COMMAND_LONG
 PHYSICS_DT = 0.05  # s of sim time per physics step
 TRUTH_DT = 0.1  # s of sim time between truth samples
 MAX_CATCH_UP_S = 0.25  # wall s simulated per tick at most (a stalled loop does not make time jump)
@@ -697,6 +698,9 @@ class SimAutopilot:
 
     def _command(self, msg: mavlink.MAVLink_message) -> None:
         if msg.get_type() == "COMMAND_LONG":
+            if msg.command in COMMAND_INT_ONLY:  # as ArduPlane SITL answers them
+                self._ack(msg, msg.command, mavlink.MAV_RESULT_UNSUPPORTED)
+                return
             p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.param5, msg.param6, msg.param7)
         else:
             p = (msg.param1, msg.param2, msg.param3, msg.param4, msg.x / 1e7, msg.y / 1e7, msg.z)

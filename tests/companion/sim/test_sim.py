@@ -7,6 +7,7 @@ import math
 from collections.abc import Callable
 from pathlib import Path
 
+import numpy as np
 import pymap3d
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
@@ -112,6 +113,15 @@ class Client:
         mark = self.mark()
         p = list(params) + [0.0] * (7 - len(params))
         self.send(mavlink.MAVLink_command_long_message(1, 1, command, 0, *p))
+        ack = await self.expect("COMMAND_ACK", timeout, lambda m: m.command == command, after=mark)
+        return ack.result
+
+    async def command_int(self, command: int, p1: float, p2: float, p3: float, p4: float, lat: float, lon: float,
+                          alt: float, timeout: float = 2.0) -> int:
+        """COMMAND_INT in MAV_FRAME_GLOBAL_RELATIVE_ALT_INT; the result of its COMMAND_ACK."""
+        mark = self.mark()
+        self.send(mavlink.MAVLink_command_int_message(1, 1, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT, command, 0, 0,
+                                                      p1, p2, p3, p4, round(lat * 1e7), round(lon * 1e7), alt))
         ack = await self.expect("COMMAND_ACK", timeout, lambda m: m.command == command, after=mark)
         return ack.result
 
@@ -534,3 +544,63 @@ async def test_intruders_are_reported_as_adsb_vehicles(dynamic: Scenario) -> Non
         mission_t0 = sim.sim_time - sim.mission_time
         assert track and track[0][0] - mission_t0 >= intruder.start_time
         assert math.dist(track[0][1:], intruder.waypoints[0]) < intruder.speed * 0.5
+
+
+def _radius_flown(sim: SimAutopilot, centre: tuple[float, float], since: float) -> tuple[float, float]:
+    """(median, max) distance of the truth track from ``centre`` after sim time ``since``."""
+    d = [math.hypot(t[4] - centre[0], t[5] - centre[1]) for t in sim.truth if t[0] >= since]
+    return float(np.median(d)), max(d)
+
+
+@pytest.mark.asyncio
+async def test_plane_loiter_circles_its_entry_point_at_wp_loiter_rad_as_set(static: Scenario) -> None:
+    """ArduPlane's LOITER circles the point where the mode changed at |WP_LOITER_RAD| (SITL: 80 m); a PARAM_SET
+    of WP_LOITER_RAD changes the circle, and PARAM_REQUEST_READ answers the flight parameters."""
+    items = route(static, [(0.0, 900.0, 60.0), (900.0, 900.0, 60.0)])
+    async with SimAutopilot(static, "udpin:127.0.0.1:0", speedup=20.0) as sim, Client(sim.port) as gcs:
+        gcs.send(mavlink.MAVLink_param_request_read_message(1, 1, b"ROLL_LIMIT_DEG", -1))
+        roll = await gcs.expect("PARAM_VALUE", where=lambda m: m.param_id == "ROLL_LIMIT_DEG", after=0)
+        assert roll.param_value == static.vehicle.max_bank_deg
+        gcs.send(mavlink.MAVLink_param_set_message(1, 1, b"WP_LOITER_RAD", 120.0, mavlink.MAV_PARAM_TYPE_INT16))
+        await gcs.expect("PARAM_VALUE", where=lambda m: m.param_id == "WP_LOITER_RAD" and m.param_value == 120.0)
+        assert await gcs.upload(items) == MISSION_ACCEPTED
+        await gcs.wait_ready()
+        assert await gcs.set_mode(PLANE_MODES["AUTO"]) == ACCEPTED
+        assert await gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACCEPTED
+        await gcs.expect("MISSION_CURRENT", timeout=8.0, where=lambda m: m.seq == 3, after=0)
+        x, y, _ = sim.position
+        t0 = sim.sim_time
+        assert await gcs.set_mode(PLANE_MODES["LOITER"]) == ACCEPTED
+        await sim.run_until(t0 + 60.0)
+        median, _ = _radius_flown(sim, (x, y), t0 + 25.0)
+        assert abs(median - 120.0) < 12.0, median
+
+
+@pytest.mark.asyncio
+async def test_plane_do_reposition_circles_the_given_centre_at_the_given_radius(static: Scenario) -> None:
+    """MAV_CMD_DO_REPOSITION as ArduPlane takes it: refused outside GUIDED without the change-mode flag; with it,
+    GUIDED and a circle of param3 around lat/lon (counter-clockwise with param4 set)."""
+    items = route(static, [(0.0, 900.0, 60.0), (900.0, 900.0, 60.0)])
+    centre = (300.0, 500.0)
+    lat, lon, _ = pymap3d.enu2geodetic(*centre, 0.0, static.home.lat, static.home.lon, static.home.alt)
+    async with SimAutopilot(static, "udpin:127.0.0.1:0", speedup=20.0) as sim, Client(sim.port) as gcs:
+        assert await gcs.upload(items) == MISSION_ACCEPTED
+        await gcs.wait_ready()
+        assert await gcs.set_mode(PLANE_MODES["AUTO"]) == ACCEPTED
+        assert await gcs.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1) == ACCEPTED
+        await gcs.expect("MISSION_CURRENT", timeout=8.0, where=lambda m: m.seq == 3, after=0)
+        assert await gcs.command(mavlink.MAV_CMD_DO_REPOSITION, -1, 1, 50.0, 1, lat, lon, 70.0) == \
+            mavlink.MAV_RESULT_UNSUPPORTED  # as COMMAND_LONG (ArduPlane SITL)
+        assert await gcs.command_int(mavlink.MAV_CMD_DO_REPOSITION, -1, 0, 50.0, 0, lat, lon, 70.0) == \
+            mavlink.MAV_RESULT_FAILED  # in AUTO, without MAV_DO_REPOSITION_FLAGS_CHANGE_MODE
+        t0 = sim.sim_time
+        assert await gcs.command_int(mavlink.MAV_CMD_DO_REPOSITION, -1, 1, 50.0, 1, lat, lon, 70.0) == ACCEPTED
+        assert sim.mode == "GUIDED"
+        await sim.run_until(t0 + 70.0)
+        median, worst = _radius_flown(sim, centre, t0 + 45.0)
+        assert abs(median - 50.0) < 6.0 and worst < 65.0, (median, worst)
+        assert abs(sim.position[2] - 70.0) < 5.0
+        # counter-clockwise: the bearing from the centre increases anticlockwise (ENU angle grows)
+        late = [t for t in sim.truth if t[0] >= t0 + 45.0][:20]
+        ang = np.unwrap([math.atan2(t[5] - centre[1], t[4] - centre[0]) for t in late])
+        assert ang[-1] > ang[0]

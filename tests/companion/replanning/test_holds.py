@@ -1,0 +1,65 @@
+"""Hold patterns checked like routes: a plane's circle of our choosing clear of the obstacles and the traffic, where
+ArduPlane's LOITER around its entry point would not be."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from companion.replanning.holds import HOLD_MARGIN_M, copter_hold, plane_hold
+from planner.trajectory.checks import obstacle_distances
+from planner.world.environment import Threat, Threats
+from planner.world.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[3]
+SC = load_scenario(ROOT / "sitl_scenarios" / "rescue_dynamic.toml")
+ENV, D_COLL = SC.environment, SC.hazard.d_coll
+
+
+def _ring(centre, radius) -> np.ndarray:
+    a = np.linspace(0, 2 * math.pi, 361)
+    return np.stack([centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a), np.full(a.size, 60.0)], axis=1)
+
+
+def _clearance(points) -> float:
+    return min(float(v.min()) for v in obstacle_distances(points, ENV).values())
+
+
+def test_where_loiter_at_the_entry_point_runs_into_a_cylinder_the_chosen_circle_clears_it() -> None:
+    """The SITL flight: the plane 60 m from cylinders[3], flying north; LOITER's 80 m circle around it breaks in."""
+    here = np.array([252.0, 202.0, 60.0])
+    assert _clearance(_ring(here, 80.0)) < 0  # ArduPlane's LOITER: the circle runs into the cylinder
+    hold = plane_hold(here, np.array([0.0, 20.0]), 80.0, ENV, D_COLL, 20.0)
+    assert hold is not None and hold.kind == "circle" and hold.radius == 80.0
+    assert hold.clearance_m >= D_COLL + HOLD_MARGIN_M
+    assert _clearance(_ring(hold.centre, 80.0)) >= D_COLL + HOLD_MARGIN_M  # the whole circle, independently
+    assert np.allclose(hold.path[0], here)  # the approach from the vehicle is part of what was checked
+    # tangent to its track: the vehicle is on the circle already, no turn back across anything
+    assert abs(np.linalg.norm(hold.centre[:2] - here[:2]) - 80.0) < 1e-6
+
+
+def test_a_circle_that_traffic_will_cross_is_not_chosen() -> None:
+    here = np.array([200.0, 500.0, 100.0])
+    free = plane_hold(here, np.array([0.0, 20.0]), 80.0, ENV, D_COLL, 20.0)
+    assert free is not None
+    # an intruder parked on that circle, half way round, for the next minute
+    spot = tuple(float(v) for v in free.path[-len(free.path) // 2])
+    parked = Threats((Threat("parked", "track", 40.0, spot, (0.0, 0.0, 0.0)),))
+    other = plane_hold(here, np.array([0.0, 20.0]), 80.0, ENV, D_COLL, 20.0, parked, 0.0)
+    assert other is None or (np.linalg.norm(other.centre - free.centre) > 1.0 and
+                             other.traffic_separation_m >= D_COLL)
+
+
+def test_no_room_anywhere_gives_no_circle() -> None:
+    """Between cylinders[4] and [5] (a 56 m gap) no 80 m circle fits: the caller keeps the cleared leg."""
+    here = np.array([680.0, 652.0, 150.0])
+    assert plane_hold(here, np.array([0.0, 1.0]), 400.0, ENV, D_COLL, 20.0) is None
+
+
+def test_a_copters_stopping_run_is_checked() -> None:
+    at = np.array([260.0, 200.0, 60.0])  # 20 m west of cylinders[3], flying east at 10 m/s
+    stop = copter_hold(at, np.array([10.0, 0.0]), 20.0, ENV, D_COLL)
+    assert stop.kind == "brake" and np.allclose(stop.centre, (280.0, 200.0, 60.0))
+    assert stop.clearance_m == 0.0 and stop.nearest_obstacle == "cylinders[3]"
