@@ -1,7 +1,8 @@
 """Reading named parameters from the autopilot (MAVLink parameter protocol, PARAM_REQUEST_READ by name).
 
 Each name is asked for on its own and the answers are gathered as they come; a name the autopilot does not have is
-simply not answered (ArduPilot and PX4 stay silent), so after a few resends it is left out rather than failing.
+simply not answered (ArduPilot and PX4 stay silent), so once a resend brings nothing new the rest are left out
+rather than failing (about 0.6 s; a silent autopilot costs :data:`READ_TIMEOUT_S`).
 """
 
 from __future__ import annotations
@@ -31,7 +32,11 @@ async def read_params(link: Link, names: Iterable[str], timeout: float = READ_TI
     ts, tc = link.target_system or 1, link.target_component or 1
     deadline = time.monotonic() + timeout
     with link.subscribe("PARAM_VALUE") as sub:
+        rounds, answered = 0, -1
         while (missing := [n for n in wanted if n not in got]) and time.monotonic() < deadline:
+            if rounds >= 2 and len(got) == answered:
+                break  # a whole resend round brought nothing new: the rest are names this autopilot lacks
+            answered, rounds = len(got), rounds + 1
             for n in missing:
                 link.send(mavlink.MAVLink_param_request_read_message(ts, tc, n.encode(), -1))
             round_end = min(time.monotonic() + RESEND_S, deadline)

@@ -787,11 +787,14 @@ class LiveReplanner:
         """The hold pattern for where the vehicle is now, checked against the static world and the traffic
         (:mod:`companion.replanning.holds`): a plane on ArduPilot circles a centre and radius of ours; any other
         vehicle stops (its stopping run checked, and flown whatever the verdict: stopping is a copter's safest
-        move). None: no circle is clear."""
-        assert self.position is not None
+        move). None: no circle is clear (or, for a plane, no position to check one from)."""
+        circles = self.link.profile.hold_circles and self.link.profile.layout == "ardupilot"
+        if self.position is None:
+            return None if circles else HoldPattern("brake", np.zeros(3), 0.0, True, np.zeros((1, 3)), math.inf,
+                                                    None, math.inf)
         d_coll = self.scenario.hazard.d_coll
         env = self.scenario.environment
-        if self.link.profile.hold_circles and self.link.profile.layout == "ardupilot":
+        if circles:
             now = self.now()
             return plane_hold(self.position, self.velocity, self.loiter_radius, env, d_coll,
                               max(self.groundspeed, self.scenario.vehicle.cruise_speed), self.threats(now), now)
