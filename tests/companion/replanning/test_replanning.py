@@ -108,7 +108,7 @@ def test_two_intruders_in_a_static_field(crossing_plan: Path, tmp_path: Path, re
     # 9.7 m from a cylinder, d_coll 10 m, in 2 of 5 fresh CI runs on 2 December; 12-36 m in every run by hand)
     code, fl, _ = _fly(crossing_plan, tmp_path / "rep", *([] if replan else ["--no-replan"]),
                        speedup=5.0 if replan else 10.0)
-    assert code == 0 and fl["completed"] is True
+    assert code == (0 if replan else 6) and fl["completed"] is True  # 6: completed, but it lost separation
     seps = [fl["min_separation_m"][t] for t in sorted(_intruder_ids(CROSSING))]
     assert len(seps) == 2 and None not in seps  # both flew (None: never in the air)
     if replan:
@@ -250,7 +250,7 @@ def test_refused_replan_upload_restores_a_verified_mission(dynamic_plan: Path, d
         assert len(sim.refusals) == attempts and len(restores) == attempts
         assert not out.completed and out.holding
         assert "no verified upload" in out.reason and "restored (readback matches)" in out.reason
-        assert "replan_verified" not in names and sim.mode == "LOITER"
+        assert "replan_verified" not in names and sim.mode == "GUIDED"  # the checked circle
         assert same_mission(sim.mission, initial)  # the verified mission is what is stored, the vehicle holding
 
 
@@ -444,6 +444,6 @@ def test_a_stale_auto_heartbeat_between_hold_and_resume_does_not_leave_the_vehic
     out, records, _verified, _flown, sim = asyncio.run(
         _harness(sc, doc, 20.0, ReplanConfig(), during=hold_then_resume, flight_timeout=60.0))
     names = [r["event"] for r in records]
-    assert seen["held"] == "LOITER" and "hold" in names  # the hold really happened on the vehicle
+    assert seen["held"] == "GUIDED" and "hold" in names  # the hold really happened on the vehicle
     assert "resume" in names and "not_resuming" not in names, names
     assert out is not None and out.completed, out and out.reason
