@@ -53,8 +53,9 @@ def test_a_plane_300_m_east_of_the_scenario_home_is_refused_before_anything_is_u
         gcs.close()
 
 
-def _set_params(url: str, values: dict[str, float]) -> mavutil.mavfile:
-    """A ground station on ``url`` that sets ``values`` (each confirmed by PARAM_VALUE); left open."""
+def _set_params(url: str, values: dict[str, float]) -> None:
+    """A ground station on ``url`` sets ``values`` (each confirmed by PARAM_VALUE) and hangs up (a client that stays
+    connected without reading stalls SITL's serial port)."""
     gcs = mavutil.mavlink_connection(url, source_system=255, source_component=190)
     gcs.wait_heartbeat(timeout=30)
     for name, value in values.items():
@@ -66,8 +67,9 @@ def _set_params(url: str, values: dict[str, float]) -> mavutil.mavfile:
             if msg is not None and msg.param_id == name and abs(msg.param_value - value) < 1e-3:
                 break
         else:
+            gcs.close()
             raise AssertionError(f"SITL did not confirm {name} = {value}")
-    return gcs
+    gcs.close()
 
 
 def test_the_plan_and_the_hold_follow_roll_limit_and_wp_loiter_rad(sitl_factory_fn, tmp_path: Path) -> None:
@@ -76,20 +78,19 @@ def test_the_plan_and_the_hold_follow_roll_limit_and_wp_loiter_rad(sitl_factory_
     scenario = SCENARIOS / "rescue_dynamic.toml"
     sc = load_scenario(scenario)
     sitl = sitl_factory_fn("plane", sc.home, speedup=10.0)
-    gcs = _set_params(sitl.serial0_url, {"ROLL_LIMIT_DEG": 30.0, "WP_LOITER_RAD": 120.0})
-    try:
-        report = tmp_path / "rep"
+    _set_params(sitl.serial0_url, {"ROLL_LIMIT_DEG": 30.0, "WP_LOITER_RAD": 120.0})
+    report = tmp_path / "rep"
+    with sitl.hold_serial0():
         code = main(["fly", str(scenario), "--connect", sitl.serial1_url, "--arm", "--report", str(report), "-q",
                      "--traffic", sitl.serial2_url])
-    finally:
-        gcs.close()
     events = _events(report)
     limits = next(e for e in events if e["event"] == "vehicle_limits")
     assert limits["read"]["ROLL_LIMIT_DEG"] == 30.0 and limits["loiter_radius"] == 120.0
     again = next(e for e in events if e["event"] == "planned_again")
     assert "vehicle.max_bank_deg=30" in again["overrides"]
     plan = json.loads((report / "PLAN.json").read_text())
-    assert plan["vehicle"]["max_bank_deg"] == 30.0  # the plan flown is the one within the vehicle's limits
+    # the plan flown is the one within the vehicle's limits: 18 m/s at 30° turns no tighter than 57 m (45°: 33 m)
+    assert abs(plan["vehicle"]["min_turn_radius_m"] - 18.0**2 / (9.80665 * np.tan(np.radians(30.0)))) < 0.1
     flight = json.loads((report / "flight.json").read_text())
     assert flight["vehicle_limits"]["read"]["WP_LOITER_RAD"] == 120.0
     holds = [e for e in events if e["event"] == "hold"]
