@@ -131,7 +131,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                     feed = await stack.enter_async_context(
                         TrafficFeed(opts.traffic, scenario, plan_doc["waypoints"], system=link.target_system or 1))
                     events.log("traffic", url=opts.traffic, intruders=[i.id for i in scenario.intruders])
-                if opts.replan and (len(scenario.environment.threats) or scenario.intruders or opts.connect):
+                if opts.replan:  # moving threats, ADS-B, and the flown-safety guard on every flight
                     replanner = await stack.enter_async_context(LiveReplanner(
                         link, client, events, scenario, spec, items, opts.replan_config,
                         rate=opts.speedup if sim is not None else None, seed=int(plan_doc.get("seed") or 0),

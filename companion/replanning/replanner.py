@@ -48,6 +48,7 @@ from companion.mission.builder import MissionSpec
 from companion.mission.events import EventLog
 from companion.mission.geo import enu_to_geodetic, geodetic_to_enu, to_int_e7
 from companion.mission.restore import restore_mission
+from companion.replanning.guard import first_breach, predict_own_path
 from companion.replanning.holds import (
     HOLD_MARGIN_M,
     HoldPattern,
@@ -74,6 +75,7 @@ from companion.replanning.threats import (
 from planner import kernel
 from planner.plan import PlanStatus, plan
 from planner.trajectory.checks import obstacle_distances
+from planner.world.config import G0
 from planner.world.environment import Threats
 from planner.world.scenario import Scenario
 
@@ -87,6 +89,11 @@ GOOD = (PlanStatus.EXACT.value, PlanStatus.APPROXIMATE.value)
 CONTACTS_EVERY_S = 0.25  # wall seconds between two ``contacts`` records (the status page's traffic picture)
 CONTACT_PATH_S = 60.0  # vehicle seconds of each contact's predicted path in a ``contacts`` record
 PACE_TAU_S = 8.0  # vehicle seconds over which the ground speed along the route is smoothed
+GUARD_MIN_ALT_M = 10.0  # m above home: below it the vehicle is taking off or landing, which the guard leaves be
+GUARD_REPEAT_WALL_S = 1.0  # wall seconds between two guard actions
+# the guard acts on a predicted clearance below this share of d_coll: its path model is a few metres off in a turn
+# (the demo's plane: predicted 9.9 m, flown 15.4 m), and a hold that was not needed turns the plane off its route
+GUARD_SHARE_OF_D_COLL = 0.5
 
 
 def watch(link: Link) -> Subscription:
@@ -242,10 +249,22 @@ class LiveReplanner:
         self._seen: dict[str, float] = {"GLOBAL_POSITION_INT": 0.0}
         self._sub: Any = None
         self._contacts_at = -math.inf  # wall time of the last ``contacts`` record
-        # started now, and warmed up on the whole route, so the first conflict finds it ready
-        self._worker = PlanWorker(
-            replan_problem(scenario, self.route.points[0], self.route.goal, scenario.environment.threats, 0.0),
-            replan_settings(scenario.planner, self.cfg))
+        # started now, and warmed up on the whole route, so the first conflict finds it ready; a flight with nothing
+        # moving (the flown-safety guard may still need a static replan) starts it only when it is first needed
+        self._worker: PlanWorker | None = None
+        self._expect_traffic = bool(len(scenario.environment.threats) or scenario.intruders or rate is None)
+        if self._expect_traffic:
+            self._start_worker()
+        self.guard_enabled = True  # the flown-safety guard (companion/replanning/guard.py)
+        self._guard_at = -math.inf  # wall time of the last guard action
+
+    def _start_worker(self) -> PlanWorker:
+        if self._worker is None:
+            self._worker = PlanWorker(
+                replan_problem(self.scenario, self.route.points[0], self.route.goal,
+                               self.scenario.environment.threats, 0.0),
+                replan_settings(self.scenario.planner, self.cfg))
+        return self._worker
 
     # -- picture ------------------------------------------------------------------------------------
     @property
@@ -255,6 +274,8 @@ class LiveReplanner:
     async def ready(self) -> None:
         """Wait until the planner is warm (call before the flight starts: a replan made while the planner
         process is still starting takes seconds instead of its budget)."""
+        if self._worker is None:
+            return
         waited = await self._worker.ready()
         self.events.log("planner_ready", waited_s=round(waited, 3))
 
@@ -433,7 +454,8 @@ class LiveReplanner:
 
     async def aclose(self) -> None:
         """Stop the planner process (waits for a plan in progress to end, at most its budget)."""
-        await asyncio.to_thread(self._worker.close)
+        if self._worker is not None:
+            await asyncio.to_thread(self._worker.close)
 
     async def __aenter__(self) -> LiveReplanner:
         return self
@@ -454,6 +476,8 @@ class LiveReplanner:
         self._log_contacts(now, threats)
         if not self.in_control():
             return
+        if self.holding is None and await self._guard(now):
+            return
         if self.holding is not None:
             if now - self._last_replan >= self.cfg.hold_retry_s:
                 await self._retry_from_hold(now, threats)
@@ -466,6 +490,32 @@ class LiveReplanner:
         if now - self._last_replan < self.cfg.min_interval_s:
             return
         await self.replan(conflicts[0], now, threats)
+
+    async def _guard(self, now: float) -> bool:
+        """The flown-safety guard: predict the vehicle's own path (:func:`predict_own_path`) and, if it will come
+        within d_coll of a static obstacle, hold it on a checked pattern before it gets there (a static route from
+        where it is is then planned by the retries from the hold). True when it acted."""
+        if not self.guard_enabled or self.position is None or not self.on_route() or self.position[2] < GUARD_MIN_ALT_M \
+                or time.monotonic() - self._guard_at < GUARD_REPEAT_WALL_S:
+            return False
+        route, seqs = self.remaining()
+        bank = math.radians(self.limits.max_bank_deg if self.limits is not None else self.scenario.vehicle.max_bank_deg)
+        radius = (self.groundspeed ** 2 / (G0 * math.tan(bank))) if self.link.profile.hold_circles else 0.0
+        before = np.flatnonzero(self.route.seqs < seqs[1]) if len(seqs) > 1 else np.zeros(0, dtype=int)
+        origin = self.route.points[before[-1]] if before.size else self.position
+        path = predict_own_path(self.position, self.velocity, origin, route[1:], radius,
+                                self.scenario.vehicle.acceptance_radius)
+        breach = first_breach(path, self.scenario.environment, GUARD_SHARE_OF_D_COLL * self.scenario.hazard.d_coll)
+        if breach is None:
+            return False
+        self._guard_at = time.monotonic()
+        self.events.log("guard", obstacle=breach.obstacle, clearance_m=round(breach.clearance_m, 1),
+                        in_s=round(breach.in_s, 1), at=[round(c, 1) for c in breach.point])
+        await self.hold(f"flown-safety guard: predicted {breach.clearance_m:.0f} m from {breach.obstacle} in "
+                        f"{breach.in_s:.1f} s (d_coll {self.scenario.hazard.d_coll:g} m)")
+        if self.holding is not None:
+            self._last_replan = -math.inf  # plan from the hold at once
+        return True
 
     def _log_contacts(self, now: float, threats: Threats) -> None:
         """A ``contacts`` record (every threat, where it is and where it is predicted to go), at most every
@@ -516,7 +566,7 @@ class LiveReplanner:
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
         # a plan that overruns (a loaded machine, a planner process still starting) must not let the vehicle fly
         # on into the rewritten items and the conflict while it waits: the swap's guard applies already
-        plan = asyncio.create_task(self._worker.plan(problem, settings, [self.seed, rec.n], seeds, cfg.budget_s),
+        plan = asyncio.create_task(self._start_worker().plan(problem, settings, [self.seed, rec.n], seeds, cfg.budget_s),
                                    name="replan-plan")
         await self._guarded(plan, cp.first_new_seq, self._guard_threshold_s(),
                             "the plan is late: the vehicle could reach the commit point before it is ready", rec)
@@ -831,6 +881,21 @@ class LiveReplanner:
             return None
         return HoldPattern("circle", centre, self.loiter_radius, True, circle, clearance, worst, math.inf)
 
+    def route_blocked(self, seq: int) -> tuple[float, str | None] | None:
+        """(clearance, obstacle) when a leg of the mission from item ``seq`` on comes within d_coll of a static
+        obstacle (a route that was never checked: an edited PLAN.json, a ground station's mission); else None."""
+        ahead = self.route.points[self.route.seqs >= seq]
+        if len(ahead) < 2:
+            return None
+        seg = np.diff(ahead, axis=0)
+        n = np.maximum(np.ceil(np.linalg.norm(seg, axis=1) / 5.0).astype(int), 1)
+        pts = np.vstack([a + np.outer(np.arange(k + 1) / k, s) for a, s, k in zip(ahead[:-1], seg, n, strict=True)])
+        per = {k: float(v.min()) for k, v in obstacle_distances(pts, self.scenario.environment).items()}
+        worst = min(per, key=per.__getitem__, default=None)
+        if worst is None or per[worst] >= self.scenario.hazard.d_coll:
+            return None
+        return per[worst], worst
+
     def leg_blocked(self, seq: int) -> tuple[float, str | None] | None:
         """(clearance, obstacle) when the straight leg from the vehicle to item ``seq`` (what AUTO flies on
         resuming) comes within d_coll + the hold margin of a static obstacle; None when it is clear."""
@@ -867,7 +932,7 @@ class LiveReplanner:
         self._last_replan = now
         conflicts = self.predict(now, threats) if len(threats) else []
         seq = max(self.current_seq, int(self.route.seqs[0]))
-        if not conflicts and (blocked := self.leg_blocked(seq)) is not None:
+        if not conflicts and (blocked := self.leg_blocked(seq) or self.route_blocked(seq)) is not None:
             # resuming would fly straight from here through an obstacle: a route from here first
             clearance, obstacle = blocked
             self.events.log("resume_blocked", seq=seq, obstacle=obstacle, clearance_m=round(clearance, 1))

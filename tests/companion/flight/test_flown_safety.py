@@ -43,8 +43,9 @@ def test_traffic_below_d_coll_is_a_breach_of_its_own_and_ground_samples_do_not_c
 
 
 def test_fly_exits_6_with_one_line_when_the_flown_track_breaks_d_coll(tmp_path, capsys) -> None:
-    """A plan whose middle waypoint was moved into a cylinder (a PLAN.json edited by hand): the simulated plane
-    flies into it, the mission completes, and `fly` says UNSAFE and exits 6, not 0."""
+    """A plan whose middle waypoint was moved into a cylinder (a PLAN.json edited by hand), flown without the
+    replanner (so without the flown-safety guard): the simulated plane flies into it, the mission completes, and
+    `fly` says UNSAFE and exits 6, not 0. With the guard, the same plan is flown clear (next test)."""
     first = tmp_path / "first"
     assert main(["fly", str(STATIC), "--sim", "--speedup", "30", "--report", str(first), "-q", *FAST]) == 0
     doc = json.loads((first / "PLAN.json").read_text())
@@ -60,10 +61,23 @@ def test_fly_exits_6_with_one_line_when_the_flown_track_breaks_d_coll(tmp_path, 
     capsys.readouterr()
     report = tmp_path / "unsafe"
     code = main(["fly", str(edited), "--scenario-file", str(STATIC), "--sim", "--speedup", "30", "--no-fence",
-                 "--report", str(report), "-q"])
+                 "--report", str(report), "-q", "--no-replan"])
     err = capsys.readouterr().err.strip().splitlines()
     fl = json.loads((report / "flight.json").read_text())
     assert code == EXIT_UNSAFE == 6
     assert fl["flown_safe"] is False and fl["min_static_clearance_m"] < 0
     assert fl["nearest_obstacle"] == f"cylinders[{inside}]"
     assert len(err) == 1 and err[0].startswith("fuseplan: UNSAFE flight") and f"cylinders[{inside}]" in err[0]
+    # the guard: predicted the breach, held on a checked circle, found the way back blocked, planned a static route
+    # from where the vehicle was and flew it clear
+    guarded = tmp_path / "guarded"
+    code = main(["fly", str(edited), "--scenario-file", str(STATIC), "--sim", "--speedup", "20", "--no-fence",
+                 "--report", str(guarded), "-q"])
+    fl = json.loads((guarded / "flight.json").read_text())
+    events = [json.loads(line) for line in (guarded / "events.jsonl").read_text().splitlines()]
+    names = [e["event"] for e in events]
+    assert code == 0 and fl["completed"] and fl["flown_safe"], fl
+    assert fl["min_static_clearance_m"] >= fl["d_coll_m"] and fl["replans"] >= 1
+    guard = next(e for e in events if e["event"] == "guard")
+    assert guard["obstacle"] == f"cylinders[{inside}]" and guard["clearance_m"] < fl["d_coll_m"]
+    assert names.index("guard") < names.index("hold") < names.index("resume_blocked") < names.index("replanned")

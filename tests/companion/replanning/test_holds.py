@@ -63,3 +63,19 @@ def test_a_copters_stopping_run_is_checked() -> None:
     stop = copter_hold(at, np.array([10.0, 0.0]), 20.0, ENV, D_COLL)
     assert stop.kind == "brake" and np.allclose(stop.centre, (280.0, 200.0, 60.0))
     assert stop.clearance_m == 0.0 and stop.nearest_obstacle == "cylinders[3]"
+
+
+def test_the_guard_predicts_a_breach_ahead_and_not_on_a_clear_turn() -> None:
+    from companion.replanning.guard import first_breach, predict_own_path
+
+    # flying east at 20 m/s at y = 200 towards cylinders[3] (x 350, r 70), its next item inside the cylinder
+    path = predict_own_path(np.array([200.0, 200.0, 60.0]), np.array([20.0, 0.0]), np.array([150.0, 200.0, 60.0]),
+                            np.array([[350.0, 200.0, 60.0]]), 33.0, 20.0)
+    assert abs(path[-1, 1] - 320.0) < 1.0 and np.allclose(path[:, 3], 60.0)  # 6 s at 20 m/s along the leg
+    breach = first_breach(path, ENV, D_COLL)
+    assert breach is not None and breach.obstacle == "cylinders[3]" and 0 < breach.in_s < 6.0
+    # the same vehicle turning north at (200, 200) towards (200, 400): west of every cylinder, no breach
+    turn = predict_own_path(np.array([180.0, 200.0, 60.0]), np.array([20.0, 0.0]), np.array([100.0, 200.0, 60.0]),
+                            np.array([[200.0, 200.0, 60.0], [200.0, 400.0, 60.0]]), 33.0, 20.0)
+    assert first_breach(turn, ENV, D_COLL) is None
+    assert turn[-1, 2] > 250.0 and turn[:, 1].max() < 200.0 + 2 * 33.0  # round the corner, no wider than a turn
