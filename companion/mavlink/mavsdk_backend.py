@@ -22,6 +22,7 @@ import contextlib
 import json
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import replace
 from typing import Any
 
@@ -330,6 +331,13 @@ class MavsdkMissionClient(MissionClient):
             asyncio.get_running_loop().create_task(raw.cancel_mission_upload()).add_done_callback(_log_send_failure)
             raise
         return None  # the caller reads it back
+
+    async def upload_changed_verified(self, items: Sequence[MissionItem], previous: Sequence[MissionItem],
+                                      mission_type: int = MISSION) -> str:
+        """The whole list, verified (:meth:`upload_verified`): ``mission_raw`` has no partial write. Returns
+        ``"whole"``, the path :meth:`MissionClient.upload_changed_verified` names so."""
+        await self.upload_verified(items, mission_type)
+        return "whole"
 
     async def _download(self, mission_type: int) -> list[MissionItem]:
         raw = self.link.mission_raw

@@ -119,6 +119,10 @@ class AutopilotProfile:
     home_at_zero: bool  # replaces mission item 0 by its home (upload and readback compare from seq 1)
     min_fence_items: int  # a fence upload of fewer items needs a cleared fence first (0: never)
     error_may_be_transfer_fault: bool  # its MAV_MISSION_ERROR may stand for its own transfer trouble
+    # takes MISSION_WRITE_PARTIAL_LIST (overwrites a range in place, requesting it item by item) and answers a
+    # single MISSION_REQUEST_INT outside a transfer, so a changed tail is written and read back alone
+    # (MissionClient.upload_changed_verified); PX4 ignores a partial list without an answer
+    partial_write: bool
 
     # -- start
     modes: Mapping[str, int]  # mode name → HEARTBEAT custom_mode
@@ -213,6 +217,10 @@ ARDUPLANE = AutopilotProfile(
     # (seen on 4.7 SITL: one circle over six)
     min_fence_items=3,
     error_may_be_transfer_fault=False,
+    # MissionItemProtocol::handle_mission_write_partial_list: DENIED during an upload, ERROR unless
+    # start <= end <= count; the range is requested with the legacy MISSION_REQUEST, written in place (seq ==
+    # count appends one, nothing is truncated) and ACKed ACCEPTED (seen on 4.7 SITL, plane and copter)
+    partial_write=True,
     modes=ARDUPLANE_MODES,
     set_mode_fields=ARDUPILOT_SET_MODE,
     start_sequence=("mode:AUTO", "arm", "start"),
@@ -259,6 +267,7 @@ PX4_MULTICOPTER = AutopilotProfile(
     min_fence_items=0,
     # PX4 answers MAV_MISSION_ERROR for its own transfer trouble too (busy, a sync timeout)
     error_may_be_transfer_fault=True,
+    partial_write=False,  # mavlink_mission.cpp ignores MISSION_WRITE_PARTIAL_LIST (no ACK at all)
     modes=PX4_MODES,
     set_mode_fields=PX4_SET_MODE,
     start_sequence=("arm", "mode:AUTO", "start"),  # arm, then mission mode
@@ -283,7 +292,7 @@ PX4_FIXED_WING = replace(PX4_MULTICOPTER, name="PX4 fixed-wing")  # nothing the 
 # Other MAVLink autopilots (MAVSDK's MissionRawServer says MAV_AUTOPILOT_GENERIC) store items as sent and are
 # commanded with ArduPilot's conventions for their vehicle type: ArduPlane's for a fixed-wing, ArduCopter's else.
 _NOT_ARDUPILOT = dict(booting_modes=frozenset(), boot_needs_status=False, storage=Firmware.GENERIC,
-                      home_at_zero=False, min_fence_items=0, data_streams=False)
+                      home_at_zero=False, min_fence_items=0, partial_write=False, data_streams=False)
 GENERIC = replace(ARDUCOPTER, name="generic", **_NOT_ARDUPILOT)
 GENERIC_FIXED_WING = replace(ARDUPLANE, name="generic fixed-wing", **_NOT_ARDUPILOT)
 

@@ -15,6 +15,10 @@ Follows https://mavlink.io/en/services/mission.html and what real autopilots do 
   transfer continues; it still counts against ``retries``.
 * Download: MISSION_REQUEST_LIST → MISSION_COUNT → MISSION_REQUEST_INT per item (MISSION_ITEM_INT or legacy
   MISSION_ITEM accepted) → our MISSION_ACK.
+* Changed tail (:meth:`MissionClient.upload_changed_verified`, where the profile has ``partial_write``):
+  MISSION_WRITE_PARTIAL_LIST(first, last) in place of MISSION_COUNT, then the item phase as above for
+  first…last only; verified by MISSION_REQUEST_LIST → MISSION_COUNT and MISSION_REQUEST_INT for first…last
+  (ArduPilot keeps no download state, so single items may be asked for at any time outside a transfer).
 * Only the target autopilot's messages addressed to us (or broadcast) and of the operation's mission type count.
 
 One operation at a time per client (an internal lock serialises callers).
@@ -152,13 +156,19 @@ class MissionClient:
         log.info("uploaded %d items (mission type %d; confirmed by readback)", len(items), mission_type)
         return got
 
-    async def _transfer(self, items: list[MissionItem], mission_type: int) -> tuple[int | None, int] | None:
+    async def _transfer(self, items: list[MissionItem], mission_type: int,
+                        first: int | None = None) -> tuple[int | None, int] | None:
         """The upload exchange: None once the autopilot ACKs it; ``(result or None, seq)`` when the outcome is
-        ambiguous because the final ACK went missing."""
+        ambiguous because the final ACK went missing. ``first``: write only ``items[first:]`` over the stored
+        list (MISSION_WRITE_PARTIAL_LIST, the same length) instead of the whole list (MISSION_COUNT)."""
         link = self.link
         ts, tc = self._target()
         count = len(items)
-        count_msg = mavlink.MAVLink_mission_count_message(ts, tc, count, mission_type)
+        lowest = 0 if first is None else first  # the first seq the autopilot may ask for
+        if first is None:
+            count_msg = mavlink.MAVLink_mission_count_message(ts, tc, count, mission_type)
+        else:
+            count_msg = mavlink.MAVLink_mission_write_partial_list_message(ts, tc, first, count - 1, mission_type)
         with link.subscribe("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK",
                             predicate=self._for(mission_type)) as sub:
             link.send(count_msg)
@@ -193,7 +203,7 @@ class MissionClient:
                             return None, count - 1
                         raise MissionTimeout("upload", requested) from None
                     if last_sent is None:
-                        log.debug("no request for MISSION_COUNT(%d); resending (%d)", count, misses)
+                        log.debug("no request for %s; resending (%d)", count_msg.get_type(), misses)
                         link.send(count_msg)
                     else:
                         log.debug("no request after item %d for %.2f s; resending it", last_sent, silent)
@@ -204,7 +214,8 @@ class MissionClient:
                 if msg.get_type() == "MISSION_ACK":
                     if msg.type == ACCEPTED:
                         if count == 0 or last_sent == count - 1:
-                            log.info("uploaded %d items (mission type %d)", count, mission_type)
+                            log.info("uploaded items %d-%d of %d (mission type %d)", lowest, count - 1, count,
+                                     mission_type)
                             return None
                         log.debug("ignoring early MISSION_ACK ACCEPTED (stale?) at item %s", requested)
                         continue
@@ -225,8 +236,8 @@ class MissionClient:
                     fault = msg.type == mavlink.MAV_MISSION_ERROR and self.link.profile.error_may_be_transfer_fault
                     raise MissionUploadError(msg.type, requested, transfer_fault=fault)
                 seq = msg.seq
-                if not 0 <= seq < count:
-                    log.warning("autopilot requested item %d of %d; ignored", seq, count)
+                if not lowest <= seq < count:
+                    log.warning("autopilot requested item %d of %d-%d; ignored", seq, lowest, count - 1)
                     continue
                 answered += 1
                 if answered > max_answers:
@@ -251,6 +262,84 @@ class MissionClient:
             if got is None:  # (else the upload was already confirmed by a readback)
                 got = await self._download(mission_type)
         return _matching(sent, got, home_at_zero, self.firmware)
+
+    async def upload_changed_verified(self, items: Sequence[MissionItem], previous: Sequence[MissionItem],
+                                      mission_type: int = MISSION) -> str:
+        """Replace the stored list ``previous`` (the one last verified on the vehicle) by ``items``, writing only
+        what changed where the autopilot allows it; returns the path taken, for the log:
+
+        * ``"partial FIRST-LAST"``: the profile has ``partial_write`` (ArduPilot) and both lists have the same
+          length: items FIRST…LAST (from the first that differs as the autopilot stores it, to the end) went
+          with MISSION_WRITE_PARTIAL_LIST and were verified by reading back the count and those items only;
+        * ``"unchanged"``: as above, but no item differs: nothing is sent, nothing read back;
+        * ``"whole"``: otherwise (PX4 and other autopilots, a change of length, or an autopilot that refused the
+          partial list with MAV_MISSION_ERROR before writing anything: the stored list is not ``previous``'s
+          length), :meth:`upload_verified`.
+
+        The items before FIRST are not read back: ``previous`` is taken to be what the vehicle holds. Raises what
+        :meth:`upload_verified` raises: :class:`MissionUploadError`, :class:`MissionTimeout`,
+        :class:`MissionVerifyError`. Like a whole upload, a partial one that fails part-way leaves new items
+        before the failure and old ones after it (docs/autopilots.md §3.7)."""
+        sent = _numbered(items, mission_type)
+        if not self.link.profile.partial_write or len(sent) != len(previous):
+            await self.upload_verified(sent, mission_type)
+            return "whole"
+        diff = mission_difference(sent, _numbered(previous, mission_type), self.home_at_zero(mission_type),
+                                  self.firmware)
+        if diff is None:
+            return "unchanged"
+        first, last = diff[0], len(sent) - 1
+        try:
+            async with self._lock:
+                await self._upload_range(sent, first, mission_type)
+        except MissionUploadError as exc:
+            if exc.seq is not None or exc.operation != "upload" or exc.result != mavlink.MAV_MISSION_ERROR:
+                raise
+            # refused before any item was requested (ArduPilot: the range is past its count), so nothing written
+            log.info("partial write of items %d-%d refused (%s); uploading the whole list", first, last, exc)
+            await self.upload_verified(sent, mission_type)
+            return "whole"
+        return f"partial {first}-{last}"
+
+    async def _upload_range(self, items: list[MissionItem], first: int, mission_type: int) -> list[MissionItem]:
+        """Write ``items[first:]`` in place and read them back (:meth:`_verify_range`); the readback. A final ACK
+        that went missing is settled by that readback, as :meth:`_upload` does with a whole one."""
+        ambiguous = await self._transfer(items, mission_type, first)
+        if ambiguous is None:
+            return await self._verify_range(items, first, mission_type)
+        log.info("final MISSION_ACK of the partial write not seen; checking by readback")
+        try:
+            return await self._verify_range(items, first, mission_type)
+        except (MissionTimeout, MissionUploadError, MissionVerifyError):
+            result, seq = ambiguous
+            if result is None:
+                raise MissionTimeout("upload", seq) from None
+            raise MissionUploadError(result, seq, transfer_fault=True) from None
+
+    async def _verify_range(self, items: list[MissionItem], first: int, mission_type: int) -> list[MissionItem]:
+        """The stored count (MISSION_REQUEST_LIST → MISSION_COUNT) and items ``first``… (one MISSION_REQUEST_INT
+        each), compared with ``items`` as :meth:`upload_verified` compares; the items read back, else
+        :class:`MissionVerifyError`."""
+        link = self.link
+        ts, tc = self._target()
+        pred = self._for(mission_type)
+        with link.subscribe("MISSION_COUNT", "MISSION_ACK", predicate=pred) as sub:
+            count_msg = await self._request(
+                sub, mavlink.MAVLink_mission_request_list_message(ts, tc, mission_type), "MISSION_COUNT",
+                self.timeout, "download", None)
+        if count_msg.count != len(items):
+            raise MissionVerifyError(min(count_msg.count, len(items)), "count", len(items), count_msg.count)
+        got: list[MissionItem] = []
+        with link.subscribe("MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_ACK", predicate=pred) as sub:
+            for seq in range(first, len(items)):
+                msg = await self._request(
+                    sub, mavlink.MAVLink_mission_request_int_message(ts, tc, seq, mission_type),
+                    ("MISSION_ITEM_INT", "MISSION_ITEM"), self.item_timeout, "download", seq,
+                    match=lambda m, seq=seq: m.seq == seq)
+                got.append(replace(MissionItem.from_message(msg), mission_type=mission_type))
+        link.send(mavlink.MAVLink_mission_ack_message(ts, tc, ACCEPTED, mission_type))
+        log.info("read back items %d-%d of %d (mission type %d)", first, len(items) - 1, len(items), mission_type)
+        return _matching(items[first:], got, self.home_at_zero(mission_type), self.firmware)
 
     async def verify(self, items: Sequence[MissionItem], mission_type: int = MISSION) -> list[MissionItem]:
         """Download ``mission_type`` and compare it with ``items`` as :meth:`upload_verified` does; returns the

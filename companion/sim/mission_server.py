@@ -25,7 +25,12 @@ ArduPilot behaviour reproduced (docs/autopilots.md §1.3, §3–5, ``libraries/G
   commands without a location; anything else → MAV_MISSION_UNSUPPORTED_FRAME. NaN only in param4 of NAV
   commands (NaN in param n → MAV_MISSION_INVALID_PARAMn, in z → INVALID_PARAM7); latitude/longitude range →
   INVALID_PARAM5_X / INVALID_PARAM6_Y; unknown commands → MAV_MISSION_UNSUPPORTED. A failed item ends the upload.
-- MISSION_WRITE_PARTIAL_LIST (start ≤ end ≤ count) re-requests and overwrites that range in place.
+- MISSION_WRITE_PARTIAL_LIST(start, end): DENIED while any upload of that list runs; MISSION_ACK
+  MAV_MISSION_ERROR and STATUSTEXT "Flight plan update rejected" unless start ≤ end ≤ count; otherwise the range
+  is requested item by item with the legacy MISSION_REQUEST and written in place (seq == count appends one,
+  nothing is truncated), then MISSION_ACK ACCEPTED (4.7 SITL, tests/conformance/test_partial_write.py).
+- Downloads keep no state: a single MISSION_REQUEST_INT is answered at any time outside an upload; one past the
+  end gets MISSION_COUNT (the real count) and then MISSION_ACK MAV_MISSION_INVALID_SEQUENCE, as SITL answers.
 - MISSION_CLEAR_ALL is refused (MAV_MISSION_ERROR) during an upload or while the mission is running.
 - Items are kept as ArduPilot stores them: :func:`companion.mavlink.storage.stored` for the vehicle's firmware (fence
   points in frame GLOBAL with autocontinue 0 and only param1, NAV_WAYPOINT's radii on a plane / hold time on a
@@ -282,8 +287,11 @@ class MissionServer:
         mission_type = msg.mission_type
         if not self._supported(msg, mission_type):
             return
+        if mission_type in self._uploads:  # whoever is uploading, the same sender included
+            self._ack(msg, mavlink.MAV_MISSION_DENIED, mission_type)
+            return
         count = len(self.lists[mission_type])
-        if mission_type in self._uploads or not 0 <= msg.start_index <= msg.end_index <= count:
+        if not 0 <= msg.start_index <= msg.end_index <= count:
             self._text(mavlink.MAV_SEVERITY_WARNING, "Flight plan update rejected")
             self._ack(msg, mavlink.MAV_MISSION_ERROR, mission_type)
             return
@@ -365,6 +373,9 @@ class MissionServer:
             return
         items = self.lists[mission_type]
         if not 0 <= msg.seq < len(items):
+            if msg.get_type() == "MISSION_REQUEST_INT":  # ArduPilot tells the client the real count first
+                self._send(mavlink.MAVLink_mission_count_message(
+                    msg.get_srcSystem(), msg.get_srcComponent(), self._count_of(mission_type), mission_type))
             self._ack(msg, mavlink.MAV_MISSION_INVALID_SEQUENCE, mission_type)
             return
         item = self._home_item() if (mission_type == MISSION and msg.seq == 0) else items[msg.seq]

@@ -17,9 +17,14 @@ from pathlib import Path
 import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
-from readback import same_item
+from readback import same_item, same_mission
 
-from companion.mavlink.errors import CommandError, MissionTimeout, MissionUploadError
+from companion.mavlink.errors import (
+    CommandError,
+    MissionTimeout,
+    MissionUploadError,
+    MissionVerifyError,
+)
 from companion.mavlink.items import (
     FENCE,
     FRAME_GLOBAL_INT,
@@ -475,3 +480,212 @@ async def test_sim_upload_survives_loss(sim_cls, speedup):
             await link.wait_heartbeat(5.0)
             got = await MissionClient(link, retries=10).upload_verified(mission)
             assert len(got) == len(mission)
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# upload_changed_verified: only the changed tail, where the autopilot takes MISSION_WRITE_PARTIAL_LIST
+# ---------------------------------------------------------------------------------------------------------------
+
+MISSION_MESSAGES = ("MISSION_COUNT", "MISSION_WRITE_PARTIAL_LIST", "MISSION_REQUEST_LIST", "MISSION_REQUEST_INT",
+                    "MISSION_REQUEST", "MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_CLEAR_ALL")
+
+
+class Sent:
+    """Records the mission-protocol messages a :class:`Link` sends (its ``send`` wrapped)."""
+
+    def __init__(self, link: Link) -> None:
+        self.messages: list = []
+        send = link.send
+
+        def recording(msg) -> None:
+            if msg.get_type() in MISSION_MESSAGES:
+                self.messages.append(msg)
+            send(msg)
+        link.send = recording
+
+    def of(self, mtype: str) -> list:
+        return [m for m in self.messages if m.get_type() == mtype]
+
+    def clear(self) -> None:
+        self.messages.clear()
+
+
+def moved_tail(mission: list[MissionItem], n: int, dz: float = 10.0) -> list[MissionItem]:
+    """``mission`` with its last ``n`` items ``dz`` metres higher."""
+    return mission[:-n] + [replace(it, z=it.z + dz) for it in mission[-n:]]
+
+
+async def test_partial_write_only_where_the_autopilot_takes_it() -> None:
+    """ArduPilot takes MISSION_WRITE_PARTIAL_LIST (MissionItemProtocol.cpp); PX4 ignores it without an answer;
+    other autopilots are not assumed to."""
+    from companion.mavlink.profiles import PROFILES
+
+    takes = {p.name for p in PROFILES if p.partial_write}
+    assert takes == {"ArduPlane", "ArduCopter", "ArduPilot VTOL"}
+
+
+@pytest.mark.parametrize("vehicle", ["plane", "copter"])
+async def test_sim_changed_tail_is_written_and_read_back_alone(sim_cls, vehicle):
+    """Same length, the last two items changed: MISSION_WRITE_PARTIAL_LIST(n-2, n-1), the simulator requests
+    only those two (legacy MISSION_REQUEST) and they alone are read back (MISSION_REQUEST_INT each, after the
+    count); the stored mission is the new one. Nothing changed: nothing sent. Another length: the whole list."""
+    scenario, mission, _ = rescue_static_mission()
+    new = moved_tail(mission, 2)
+    n = len(mission)
+    async with (sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0, vehicle=vehicle) as sim,
+                Link(f"udpout:127.0.0.1:{sim.port}") as link):
+        await link.wait_heartbeat(5.0)
+        client = MissionClient(link)
+        await client.upload_verified(mission)
+        sent = Sent(link)
+        with link.subscribe("MISSION_REQUEST", "MISSION_REQUEST_INT") as requests:
+            assert await client.upload_changed_verified(new, mission) == f"partial {n - 2}-{n - 1}"
+            asked = requests.drain()
+        assert [(r.get_type(), r.seq) for r in asked] == [("MISSION_REQUEST", n - 2), ("MISSION_REQUEST", n - 1)]
+        partial = sent.of("MISSION_WRITE_PARTIAL_LIST")
+        assert [(m.start_index, m.end_index) for m in partial] == [(n - 2, n - 1)]
+        assert not sent.of("MISSION_COUNT") and len(sent.of("MISSION_REQUEST_LIST")) == 1
+        assert [m.seq for m in sent.of("MISSION_REQUEST_INT")] == [n - 2, n - 1]
+        assert [m.seq for m in sent.of("MISSION_ITEM_INT")] == [n - 2, n - 1]
+        assert same_mission(new, await client.download())
+        assert same_mission(new, sim.mission)
+
+        sent.clear()
+        assert await client.upload_changed_verified(new, new) == "unchanged"
+        assert sent.messages == []
+
+        longer = new + [replace(new[-2], seq=n, z=123.0)]
+        assert await client.upload_changed_verified(longer, new) == "whole"
+        assert len(sent.of("MISSION_COUNT")) == 1 and not sent.of("MISSION_WRITE_PARTIAL_LIST")
+        assert same_mission(longer, await client.download())
+
+
+async def test_sim_a_change_at_item_0_alone_is_no_change_on_ardupilot(sim_cls):
+    """ArduPilot ignores an uploaded item 0 (its home) and the readback never compares it: a mission that differs
+    only there is unchanged; the first item that differs beyond it starts the range."""
+    scenario, mission, _ = rescue_static_mission()
+    other_home = [replace(mission[0], z=mission[0].z + 50.0)] + mission[1:]
+    changed = [mission[0], replace(mission[1], z=mission[1].z + 5.0)] + mission[2:]
+    async with (sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0) as sim,
+                Link(f"udpout:127.0.0.1:{sim.port}") as link):
+        await link.wait_heartbeat(5.0)
+        client = MissionClient(link)
+        await client.upload_verified(mission)
+        assert await client.upload_changed_verified(other_home, mission) == "unchanged"
+        assert await client.upload_changed_verified(changed, mission) == f"partial 1-{len(mission) - 1}"
+        assert same_mission(changed, await client.download())
+
+
+async def test_sim_partial_write_checks_what_the_vehicle_holds(sim_cls):
+    """``previous`` is not what the vehicle holds. Shorter there: ArduPilot refuses the range (MAV_MISSION_ERROR,
+    nothing written) and the whole list goes up, verified. Longer there: the range is written, but the count read
+    back differs: MissionVerifyError, as a whole upload's readback would raise."""
+    scenario, mission, _ = rescue_static_mission()
+    n = len(mission)
+    new = moved_tail(mission, 2)
+    async with (sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0) as sim,
+                Link(f"udpout:127.0.0.1:{sim.port}") as link):
+        await link.wait_heartbeat(5.0)
+        client = MissionClient(link)
+        await client.upload_verified(mission[:3])
+        assert await client.upload_changed_verified(new, mission) == "whole"
+        assert same_mission(new, await client.download())
+
+        await client.upload_verified(mission + [mission[-1], mission[-1]])
+        with pytest.raises(MissionVerifyError) as err:
+            await client.upload_changed_verified(new, mission)
+        assert (err.value.seq, err.value.field, err.value.sent, err.value.got) == (n, "count", n, n + 2)
+
+
+async def test_sim_refused_item_in_a_partial_write_is_a_refusal(sim_cls):
+    """An item of the range refused: MissionUploadError naming it, a refusal (not retried by the supervisor);
+    the items of the range before it are written, as in a whole upload (docs/autopilots.md §3.7)."""
+    scenario, mission, _ = rescue_static_mission()
+    n = len(mission)
+    new = moved_tail(mission, 3)
+    async with (sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0) as sim,
+                Link(f"udpout:127.0.0.1:{sim.port}") as link):
+        await link.wait_heartbeat(5.0)
+        client = MissionClient(link)
+        await client.upload_verified(mission)
+        sim.inject_item_refusal(n - 2, mavlink.MAV_MISSION_INVALID_PARAM1)
+        with pytest.raises(MissionUploadError) as err:
+            await client.upload_changed_verified(new, mission)
+        assert err.value.seq == n - 2 and err.value.refused
+        left = sim.mission
+        assert same_item(new[n - 3], left[n - 3]) and same_item(mission[n - 1], left[n - 1])
+
+
+async def test_lost_final_ack_of_a_partial_write_is_settled_by_reading_the_range(raw_peer):
+    """The final ACK of a partial write lost, the resent last item answered MAV_MISSION_ERROR (ArduPilot's
+    answer to an item outside a transfer): the count and the range are read back, and they match."""
+    link, client = await _linked(raw_peer, timeout=0.1, item_giveup_s=30.0)
+    old = sample_mission()
+    new = moved_tail(old, 2)
+    try:
+        upload = asyncio.create_task(client.upload_changed_verified(new, old))
+        partial = await raw_peer.recv_type("MISSION_WRITE_PARTIAL_LIST")
+        assert (partial.start_index, partial.end_index, partial.mission_type) == (4, 5, MISSION)
+        for seq in (4, 5):
+            raw_peer.send(mavlink.MAVLink_mission_request_message(1, 191, seq, MISSION))
+            assert (await raw_peer.recv_type("MISSION_ITEM_INT")).seq == seq
+        raw_peer.send(mavlink.MAVLink_mission_ack_message(1, 191, mavlink.MAV_MISSION_ERROR, MISSION))
+        await raw_peer.recv_type("MISSION_REQUEST_LIST")
+        raw_peer.send(mavlink.MAVLink_mission_count_message(1, 191, len(new), MISSION))
+        for seq in (4, 5):
+            req = await raw_peer.recv_type("MISSION_REQUEST_INT")
+            assert req.seq == seq
+            raw_peer.send(_item_int(new[seq]))
+        assert await asyncio.wait_for(upload, 2.0) == "partial 4-5"
+    finally:
+        await link.close()
+
+
+async def test_px4_gets_the_whole_list(raw_peer):
+    """PX4 ignores MISSION_WRITE_PARTIAL_LIST: the changed mission goes as a whole upload (MISSION_COUNT)."""
+    link = Link(f"udpout:127.0.0.1:{raw_peer.port}")
+    await link.open()
+    try:
+        await raw_peer.recv_type("HEARTBEAT")
+        raw_peer.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, mavlink.MAV_AUTOPILOT_PX4,
+                                                        0, 0, mavlink.MAV_STATE_STANDBY, 3))
+        await link.wait_heartbeat(2.0)
+        assert not link.profile.partial_write
+        old = sample_mission()
+        new = moved_tail(old, 2)
+        upload = asyncio.create_task(MissionClient(link).upload_changed_verified(new, old))
+        assert (await raw_peer.recv_type("MISSION_COUNT")).count == len(new)
+        for seq in range(len(new)):
+            raw_peer.send(mavlink.MAVLink_mission_request_int_message(1, 191, seq, MISSION))
+            await raw_peer.recv_type("MISSION_ITEM_INT")
+        raw_peer.send(mavlink.MAVLink_mission_ack_message(1, 191, mavlink.MAV_MISSION_ACCEPTED, MISSION))
+        await raw_peer.recv_type("MISSION_REQUEST_LIST")
+        raw_peer.send(mavlink.MAVLink_mission_count_message(1, 191, len(new), MISSION))
+        for _ in range(len(new)):
+            req = await raw_peer.recv_type("MISSION_REQUEST_INT")
+            raw_peer.send(_item_int(new[req.seq]))
+        assert await asyncio.wait_for(upload, 2.0) == "whole"
+    finally:
+        await link.close()
+
+
+async def test_mavsdk_backend_uploads_the_whole_list(sim_cls):
+    """MAVSDK's mission_raw has no partial write: the MAVSDK backend's client does the whole verified upload, also
+    on an ArduPilot vehicle."""
+    from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
+
+    scenario, mission, _ = rescue_static_mission()
+    new = moved_tail(mission, 2)
+    async with sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0) as sim:
+        link = MavsdkLink(f"udpout:127.0.0.1:{sim.port}")
+        try:
+            await link.open()
+            await link.wait_heartbeat(5.0)
+            client = MavsdkMissionClient(link)
+            await client.upload_verified(mission)
+            assert await client.upload_changed_verified(new, mission) == "whole"
+            assert same_mission(new, sim.mission)
+        finally:
+            await link.close()
+            # MAVSDK's async wrapper runs blocking calls on the loop's default executor: end its threads here
+            await asyncio.get_running_loop().shutdown_default_executor()
