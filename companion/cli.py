@@ -99,6 +99,17 @@ def _parser() -> argparse.ArgumentParser:
     bn.add_argument("--cpu-hog", type=int, default=0, metavar="N",
                     help="bench replan only: N busy processes beside the flights (deadlines under load, issue 16; "
                          "default 0)")
+    bn.add_argument("--backend", choices=("sim", "sitl-plane", "sitl-copter", "px4"), default="sim",
+                    help="bench flights only: what flies: the built-in simulator (20x), ArduPilot SITL plane or "
+                         "copter (10x), PX4 SITL quadrotor (10x) (default sim)")
+    bn.add_argument("--scenarios", default=None, metavar="A,B",
+                    help="bench flights only: comma-separated subset of the shipped scenarios with moving threats "
+                         "(default: all of them)")
+    bn.add_argument("--no-replan-too", action="store_true",
+                    help="bench flights only: fly every flight again without replanning")
+    bn.add_argument("--sitl-dir", type=Path, default=None, metavar="DIR",
+                    help="bench flights only: the autopilot's folder (default $FUSEPLAN_SITL_DIR for ArduPilot, "
+                         "$FUSEPLAN_PX4_DIR for PX4)")
     dm = sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated "
                         "autopilot at 20x, replanning around an intruder")
     _status_options(dm)
@@ -170,6 +181,43 @@ def cmd_bench_replan(args: argparse.Namespace) -> int:
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
     console.show_markdown((args.output / ("replan_flights.md" if whole else "replan.md")).read_text())
+    return EXIT_OK
+
+
+def cmd_bench_flights(args: argparse.Namespace) -> int:
+    """Whole flights of the scenarios with moving threats on one backend (companion.flight.flights_bench)."""
+    from companion.flight import flights_bench as fb
+    from planner.world.scenario import load_scenario
+
+    planner_cli.local_only(args, "bench flights")
+    runs = fb.DEFAULT_RUNS if args.runs is None else args.runs
+    if runs < 1:
+        raise FuseplanError("--runs must be >= 1")
+    folder = fb.autopilot_folder(args.backend, args.sitl_dir)
+    why = fb.missing(args.backend, folder)
+    if why:
+        raise FuseplanError(f"bench flights --backend {args.backend}: {why}")
+    shipped = fb.moving_threat_scenarios(SCENARIOS)
+    names = [n.strip().removesuffix(".toml") for n in (args.scenarios or ",".join(shipped)).split(",") if n.strip()]
+    unknown = [n for n in names if n not in shipped]
+    if unknown or not names:
+        raise FuseplanError(f"--scenarios: {', '.join(unknown) or 'none named'}: choose from the scenarios with "
+                            f"moving threats: {', '.join(shipped)}")
+    settings = fb.FlightsSettings(args.backend, runs, tuple(shipped[n] for n in dict.fromkeys(names)),
+                                  args.no_replan_too, args.output, tuple(args.overrides), folder)
+    for path in settings.scenarios:  # bad --set fails here, once, not in every flight
+        load_scenario(path, list(settings.fly_overrides))
+    planner_cli.make_output_dir(args.output)
+    say = (lambda _t: None) if args.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
+    try:
+        _records, reused = fb.run_flights_bench(settings, main, progress=say)
+    except KeyboardInterrupt:
+        return planner_cli._interrupted(args.output / "flights.jsonl", "flights")
+    except OSError as e:
+        raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
+    console.show_markdown((args.output / "flights.md").read_text())
+    print(f"wrote {args.output / 'flights.md'}, flights.csv, flights_runs.csv, flights.jsonl ({reused} flights "
+          "reused)")
     return EXIT_OK
 
 
@@ -465,7 +513,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.command == "bench":
             if args.name == "replan":
                 return cmd_bench_replan(args)
-            return planner_cli.cmd_bench(args, other_benches=("replan",))
+            if args.name == "flights":
+                return cmd_bench_flights(args)
+            return planner_cli.cmd_bench(args, other_benches=("replan", "flights"))
         return cmd_demo(args)
     except FuseplanError as e:
         print(f"fuseplan: error: {e}", file=sys.stderr)
