@@ -18,7 +18,10 @@ import numpy as np
 from planner.trajectory.checks import obstacle_distances
 from planner.world.environment import Environment, Threats
 
-HOLD_MARGIN_M = 10.0  # beyond d_coll: the path-follower captures and tracks the circle a little wide
+HOLD_MARGIN_M = 10.0  # beyond d_coll: the path-follower captures the circle a little wide
+# ArduPlane flies its circles wider than asked (SITL: 80 m flown at 96.7 m, 120 m at 135.5 m;
+# tests/conformance/test_hold_turn.py): the check covers the ring out to this much beyond the radius
+FLOWN_WIDER_M = 20.0
 CIRCLE_POINTS = 72
 AHEAD_STEP_M = 40.0  # centres tried this far apart along the track
 AHEAD_STEPS = 8
@@ -63,6 +66,13 @@ def _circle_path(p: np.ndarray, centre: np.ndarray, radius: float, clockwise: bo
     return np.column_stack([flat, np.full(len(flat), p[2])])
 
 
+def _flown_ring(centre: np.ndarray, radius: float, z: float) -> np.ndarray:
+    """The circle as the autopilot will fly it, :data:`FLOWN_WIDER_M` wider than asked."""
+    a = np.linspace(0.0, 2 * math.pi, CIRCLE_POINTS + 1)
+    r = radius + FLOWN_WIDER_M
+    return np.stack([centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), np.full(a.size, z)], axis=1)
+
+
 def _traffic_separation(path: np.ndarray, speed: float, t0: float, threats: Threats | None,
                         horizon_s: float) -> float:
     """Least separation (distance − radius) from ``threats`` while flying ``path`` from time ``t0`` at ``speed``,
@@ -91,11 +101,25 @@ def _worst(path: np.ndarray, env: Environment) -> tuple[float, str | None]:
 
 
 def plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: Environment, d_coll: float,
-               speed: float, threats: Threats | None = None, t_now: float = 0.0) -> HoldPattern | None:
+               speed: float, threats: Threats | None = None, t_now: float = 0.0,
+               min_radius: float | None = None) -> HoldPattern | None:
     """The first circle of ``radius`` (tangent to the track on the right, then the left, then centres further
     along the track) whose approach and circle clear every static obstacle by d_coll + :data:`HOLD_MARGIN_M` and
-    keep ``threats`` (timed from ``t_now``) at d_coll or more for :data:`HOLD_HORIZON_S`; None when there is none.
-    The circle stays inside the region and the altitude band is the vehicle's own (it holds its altitude)."""
+    keep ``threats`` (timed from ``t_now``) at d_coll or more for :data:`HOLD_HORIZON_S`; then the same with smaller
+    circles, down to ``min_radius`` (the radius is ours to command); None when there is none. The centre stays
+    inside the region and the altitude is the vehicle's own (it holds its altitude)."""
+    radii = [radius]
+    if min_radius is not None:
+        radii += [r for r in (0.75 * radius, 0.5 * radius, min_radius) if min_radius <= r < radius]
+    for r in radii:
+        found = _plane_hold(position, velocity, r, env, d_coll, speed, threats, t_now)
+        if found is not None:
+            return found
+    return None
+
+
+def _plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: Environment, d_coll: float,
+                speed: float, threats: Threats | None, t_now: float) -> HoldPattern | None:
     p = np.asarray(position, dtype=float)
     v = np.asarray(velocity, dtype=float)[:2]
     heading = v / n if (n := float(np.linalg.norm(v))) > 0.5 else np.array([0.0, 1.0])
@@ -105,11 +129,12 @@ def plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: E
         base = p[:2] + k * AHEAD_STEP_M * heading
         for side, clockwise in ((right, True), (-right, False)):
             centre2 = base + radius * side
-            if not (radius <= centre2[0] <= env.size_x - radius and radius <= centre2[1] <= env.size_y - radius):
+            if not (0.0 <= centre2[0] <= env.size_x and 0.0 <= centre2[1] <= env.size_y):  # (the region's edge
+                # is the planner's, not a hazard: a circle may cross it; its obstacles are what it must clear)
                 continue
             centre = np.array([*centre2, p[2]])
             path = _circle_path(p, centre, radius, clockwise)
-            clearance, nearest = _worst(path, env)
+            clearance, nearest = _worst(np.vstack([path, _flown_ring(centre, radius, p[2])]), env)
             if clearance < need:
                 continue
             sep = _traffic_separation(path, speed, t_now, threats, HOLD_HORIZON_S)

@@ -50,6 +50,7 @@ from companion.mission.geo import enu_to_geodetic, geodetic_to_enu, to_int_e7
 from companion.mission.restore import restore_mission
 from companion.replanning.guard import first_breach, predict_own_path
 from companion.replanning.holds import (
+    FLOWN_WIDER_M,
     HOLD_MARGIN_M,
     HoldPattern,
     copter_hold,
@@ -91,6 +92,7 @@ CONTACT_PATH_S = 60.0  # vehicle seconds of each contact's predicted path in a `
 PACE_TAU_S = 8.0  # vehicle seconds over which the ground speed along the route is smoothed
 GUARD_MIN_ALT_M = 10.0  # m above home: below it the vehicle is taking off or landing, which the guard leaves be
 GUARD_REPEAT_WALL_S = 1.0  # wall seconds between two guard actions
+MIN_HOLD_RADIUS_TURNS = 2.0  # the smallest hold circle commanded, in tightest turns (ArduPlane flies it wider)
 # the guard acts on a predicted clearance below this share of d_coll: its path model is a few metres off in a turn
 # (the demo's plane: predicted 9.9 m, flown 15.4 m), and a hold that was not needed turns the plane off its route
 GUARD_SHARE_OF_D_COLL = 0.5
@@ -499,8 +501,7 @@ class LiveReplanner:
                 or time.monotonic() - self._guard_at < GUARD_REPEAT_WALL_S:
             return False
         route, seqs = self.remaining()
-        bank = math.radians(self.limits.max_bank_deg if self.limits is not None else self.scenario.vehicle.max_bank_deg)
-        radius = (self.groundspeed ** 2 / (G0 * math.tan(bank))) if self.link.profile.hold_circles else 0.0
+        radius = self._turn_radius() if self.link.profile.hold_circles else 0.0
         before = np.flatnonzero(self.route.seqs < seqs[1]) if len(seqs) > 1 else np.zeros(0, dtype=int)
         origin = self.route.points[before[-1]] if before.size else self.position
         path = predict_own_path(self.position, self.velocity, origin, route[1:], radius,
@@ -556,11 +557,11 @@ class LiveReplanner:
                                                   ground + env.z_max - BAND_INSET_M)
         rec.commit = [round(float(v), 1) for v in cp.point]
         rec.old_route = cp.old_tail.round(1).tolist()
-        # cp.heading (the way the vehicle flies through the commit point) is not passed yet: with it the first
-        # replans failed more often, and the guard's LOITER hold that followed took the simulated plane into a
-        # cylinder (docs/design.md, "The start heading"); a hold that keeps clear of obstacles comes first
+        # the way the vehicle will fly through the commit point (along the old route; held: its own track), so the
+        # new route cannot begin with a turn it cannot fly (a hairpin there carried SITL's plane 29-38 m into a
+        # cylinder); now that holds are checked, a plan that fails for it holds safely (docs/design.md)
         problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed,
-                                 threat_margin=cfg.margin_m)
+                                 heading=self._start_heading(cp), threat_margin=cfg.margin_m)
         settings = replan_settings(self.scenario.planner, cfg)
         t0 = time.monotonic()
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
@@ -616,6 +617,29 @@ class LiveReplanner:
         rec.outcome = "new mission current"
         self.events.log("replanned", **rec.summary())
         return True
+
+    def _turn_radius(self) -> float:
+        """The vehicle's tightest turn at its ground speed (its roll limit when read, else the scenario's bank)."""
+        bank = math.radians(self.limits.max_bank_deg if self.limits is not None else self.scenario.vehicle.max_bank_deg)
+        v = max(self.groundspeed, self.scenario.vehicle.cruise_speed)
+        return v * v / (G0 * math.tan(bank))
+
+    def _start_heading(self, cp: CommitPoint) -> np.ndarray | None:
+        """Unit (3,) direction the vehicle flies through the commit point: the old route's there, or its own
+        velocity when the commit point is where it is (a replan from a hold); None while climbing out (a copter's
+        too: it turns on the spot)."""
+        if not self.link.profile.hold_circles:
+            return None
+        if float(np.linalg.norm(cp.point[:2] - (self.position[:2] if self.position is not None else cp.point[:2]))) \
+                < 1.0 and float(np.linalg.norm(self.velocity)) > 1.0:
+            v = np.array([*self.velocity, 0.0])
+        elif cp.heading is not None:
+            v = np.array(cp.heading, dtype=float)
+            v[2] = 0.0
+        else:
+            return None
+        n = float(np.linalg.norm(v))
+        return v / n if n > 1e-6 else None
 
     async def _guarded(self, task: asyncio.Task, first_new_seq: int, threshold_s: float, reason: str,
                        rec: ReplanRecord) -> None:
@@ -847,7 +871,8 @@ class LiveReplanner:
         if circles:
             now = self.now()
             return plane_hold(self.position, self.velocity, self.loiter_radius, env, d_coll,
-                              max(self.groundspeed, self.scenario.vehicle.cruise_speed), self.threats(now), now)
+                              max(self.groundspeed, self.scenario.vehicle.cruise_speed), self.threats(now), now,
+                              min_radius=MIN_HOLD_RADIUS_TURNS * self._turn_radius())
         stop = self.limits.stopping_distance if self.limits is not None else \
             self.scenario.vehicle.cruise_speed ** 2 / 5.0
         speed_share = min(self.groundspeed / max(self.scenario.vehicle.cruise_speed, 0.1), 1.0) ** 2
@@ -873,7 +898,9 @@ class LiveReplanner:
         assert self.position is not None
         centre = self.position.copy()
         a = np.linspace(0.0, 2 * math.pi, 73)
-        circle = centre + self.loiter_radius * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
+        circle = centre + np.concatenate([  # as asked, and as ArduPlane flies it (wider)
+            r * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
+            for r in (self.loiter_radius, self.loiter_radius + FLOWN_WIDER_M)])
         per = {k: float(v.min()) for k, v in obstacle_distances(circle, self.scenario.environment).items()}
         worst = min(per, key=per.__getitem__, default=None)
         clearance = per[worst] if worst is not None else math.inf

@@ -28,7 +28,13 @@ from companion.mavlink.items import FENCE, FRAME_GLOBAL, MISSION, RALLY, Mission
 from companion.mavlink.signing import SigningKey
 from companion.mavlink.storage import Firmware
 from companion.sim import streams
-from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, wrap_pi
+from companion.sim.flight_model import (
+    PLANE_L1_DAMPING,
+    PLANE_L1_PERIOD_S,
+    PLANE_LOITER_RADIUS,
+    FlightModel,
+    wrap_pi,
+)
 from companion.sim.intruders import IntruderTrack, adsb_report
 from companion.sim.mission_server import MAX_ITEMS, MissionServer, is_nav
 from companion.sim.navigator import (
@@ -82,6 +88,7 @@ PARAMS = {"FENCE_ENABLE": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
           "RALLY_TOTAL": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
           "RALLY_LIMIT_KM": ((5.0, 0.3), mavlink.MAV_PARAM_TYPE_REAL32)}
 PLANE_DEFAULT_LOITER_RAD = PLANE_LOITER_RADIUS  # WP_LOITER_RAD of SITL's plane.parm, settable with PARAM_SET
+PLANE_ROLL_LIMIT_DEG = 65.0  # ROLL_LIMIT_DEG of SITL's plane.parm: how far the simulated plane banks
 
 
 def vehicle_params(limits: VehicleLimits) -> dict[str, float]:
@@ -89,7 +96,8 @@ def vehicle_params(limits: VehicleLimits) -> dict[str, float]:
     (the scenario's vehicle) and its loiter radius (SITL's WP_LOITER_RAD, which LOITER and GUIDED circle at)."""
     if limits.type == "plane":
         return {"ROLL_LIMIT_DEG": limits.max_bank_deg, "AIRSPEED_CRUISE": limits.cruise_speed,
-                "WP_RADIUS": limits.acceptance_radius, "WP_LOITER_RAD": PLANE_DEFAULT_LOITER_RAD}
+                "WP_RADIUS": limits.acceptance_radius, "WP_LOITER_RAD": PLANE_DEFAULT_LOITER_RAD,
+                "NAVL1_PERIOD": PLANE_L1_PERIOD_S, "NAVL1_DAMPING": PLANE_L1_DAMPING}
     return {"WPNAV_SPEED": limits.cruise_speed * 100.0, "WPNAV_RADIUS": 200.0, "WPNAV_ACCEL": 250.0}
 
 
@@ -167,6 +175,8 @@ class SimAutopilot:
         limits = scenario.vehicle
         if vehicle is not None and vehicle != limits.type:
             limits = dataclasses.replace(limits, type=vehicle)
+        if limits.type == "plane":  # the simulated plane banks as SITL's does (the planner keeps its own limit)
+            limits = dataclasses.replace(limits, max_bank_deg=PLANE_ROLL_LIMIT_DEG)
         self.scenario = scenario
         self.vehicle = limits
         self.is_plane = limits.type == "plane"

@@ -560,7 +560,7 @@ async def test_plane_loiter_circles_its_entry_point_at_wp_loiter_rad_as_set(stat
     async with SimAutopilot(static, "udpin:127.0.0.1:0", speedup=20.0) as sim, Client(sim.port) as gcs:
         gcs.send(mavlink.MAVLink_param_request_read_message(1, 1, b"ROLL_LIMIT_DEG", -1))
         roll = await gcs.expect("PARAM_VALUE", where=lambda m: m.param_id == "ROLL_LIMIT_DEG", after=0)
-        assert roll.param_value == static.vehicle.max_bank_deg
+        assert roll.param_value == 65.0  # what the simulated plane banks to: SITL's ROLL_LIMIT_DEG (the plan keeps 45)
         gcs.send(mavlink.MAVLink_param_set_message(1, 1, b"WP_LOITER_RAD", 120.0, mavlink.MAV_PARAM_TYPE_INT16))
         await gcs.expect("PARAM_VALUE", where=lambda m: m.param_id == "WP_LOITER_RAD" and m.param_value == 120.0)
         assert await gcs.upload(items) == MISSION_ACCEPTED
@@ -573,7 +573,7 @@ async def test_plane_loiter_circles_its_entry_point_at_wp_loiter_rad_as_set(stat
         assert await gcs.set_mode(PLANE_MODES["LOITER"]) == ACCEPTED
         await sim.run_until(t0 + 60.0)
         median, _ = _radius_flown(sim, (x, y), t0 + 25.0)
-        assert abs(median - 120.0) < 12.0, median
+        assert abs(median - 136.0) < 8.0, median  # ArduPlane flies its circles ~16 m wider (test_hold_turn.py)
 
 
 @pytest.mark.asyncio
@@ -598,7 +598,7 @@ async def test_plane_do_reposition_circles_the_given_centre_at_the_given_radius(
         assert sim.mode == "GUIDED"
         await sim.run_until(t0 + 70.0)
         median, worst = _radius_flown(sim, centre, t0 + 45.0)
-        assert abs(median - 50.0) < 6.0 and worst < 65.0, (median, worst)
+        assert abs(median - 66.0) < 6.0 and worst < 80.0, (median, worst)  # 16 m wider than asked, as ArduPlane
         assert abs(sim.position[2] - 70.0) < 5.0
         # counter-clockwise: the bearing from the centre increases anticlockwise (ENU angle grows)
         late = [t for t in sim.truth if t[0] >= t0 + 45.0][:20]
