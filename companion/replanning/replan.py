@@ -9,6 +9,7 @@ threats run on; ADS-B tracks are put on it too.
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -209,15 +210,34 @@ def replan_settings(settings: PlannerSettings, cfg: ReplanConfig) -> PlannerSett
     return out
 
 
+def padded(route: np.ndarray, n: int, min_leg_m: float) -> np.ndarray:
+    """``route`` (K, 3) with points added, each at the middle of the then longest leg, until it has ``n`` points
+    (fewer when no leg is longer than ``min_leg_m``): the same path, flown the same way (a point on a straight leg
+    is no turn), so that a replanned mission can keep the flying one's length and be written in part."""
+    pts = [np.asarray(p, dtype=float) for p in np.asarray(route, dtype=float)]
+    while len(pts) < n:
+        legs = [float(np.linalg.norm(b - a)) for a, b in itertools.pairwise(pts)]
+        k = int(np.argmax(legs))
+        if legs[k] <= min_leg_m:
+            break
+        pts.insert(k + 1, 0.5 * (pts[k] + pts[k + 1]))
+    return np.array(pts)
+
+
 def splice(items: Sequence[MissionItem], first_new_seq: int, new_route: np.ndarray, goal_seq: int,
-           spec: MissionSpec) -> list[MissionItem]:
+           spec: MissionSpec, length: int | None = None) -> list[MissionItem]:
     """``items[:first_new_seq]`` unchanged, then a waypoint per point of ``new_route`` (commit point first,
-    goal last), then the old items after the goal (the end action), renumbered.
+    goal last), then the old items after the goal (the end action), renumbered. With ``length`` (the flying
+    mission's), a shorter result gets points on its longest legs (:func:`padded`) up to that length, so that only
+    its changed part needs writing (MISSION_WRITE_PARTIAL_LIST, docs/autopilots.md §8).
 
     Keeping the prefix identical means an upload in flight rewrites those slots with what they already hold,
     so the vehicle, still on one of them, never reads a half-written item before the new part is verified.
     """
     if not 0 < first_new_seq <= goal_seq:
         raise ValueError(f"first new item {first_new_seq} must be in 1..{goal_seq}")
+    if length is not None:
+        want = length - first_new_seq - (len(items) - goal_seq - 1)
+        new_route = padded(new_route, want, 3.0 * spec.vehicle.acceptance_radius)
     new = list(items[:first_new_seq]) + waypoint_items(new_route, spec) + list(items[goal_seq + 1:])
     return [it.with_seq(seq) for seq, it in enumerate(new)]

@@ -195,6 +195,7 @@ class ReplanRecord:
     upload_s: float = 0.0
     latency_s: float | None = None  # conflict detected → new mission current (wall)
     held: bool = False
+    upload_path: str = ""  # "partial FIRST-LAST", "whole" or "unchanged" (MissionClient.upload_changed_verified)
     outcome: str = ""
     commit: list[float] = field(default_factory=list)
     old_route: list[list[float]] = field(default_factory=list)
@@ -605,7 +606,7 @@ class LiveReplanner:
             rec.held = True
             return False
         items = splice(self.route.items, cp.first_new_seq, new_route[1:] if departing else new_route,
-                       self.goal_seq, self.spec)
+                       self.goal_seq, self.spec, length=len(self.verified[-1][1]))
         t_up = time.monotonic()
         live = await self.swap(items, cp.first_new_seq, rec)
         rec.upload_s = round(time.monotonic() - t_up, 3)
@@ -672,7 +673,9 @@ class LiveReplanner:
             rec.held = True
         for attempt in range(1, cfg.upload_attempts + 1):
             t0 = time.monotonic()
-            upload = asyncio.create_task(self.client.upload_verified(items), name="replan-upload")
+            # only what changed where the autopilot takes a partial write (ArduPilot), else the whole mission
+            upload = asyncio.create_task(self.client.upload_changed_verified(items, self.verified[-1][1]),
+                                         name="replan-upload")
             try:
                 await self._guarded(upload, first_new_seq, cfg.guard_s,
                                     "upload not verified yet and the vehicle is about to leave its item", rec)
@@ -682,7 +685,7 @@ class LiveReplanner:
                     await asyncio.shield(self.hold("cancelled during an upload: the stored mission may be mixed"))
                 raise
             try:
-                upload.result()
+                rec.upload_path = upload.result()
             except (CompanionError, TimeoutError) as e:
                 self.events.log("replan_upload_failed", n=rec.n, attempt=attempt, error=str(e))
                 if self.holding is None:  # the stored mission may now be part old, part new

@@ -31,17 +31,9 @@ COPTER_CLIMB_ACCEL = 1.0  # m/s², vertical acceleration of a copter climb (SITL
 COPTER_CLIMB_DECEL = 0.55  # m/s², the slow-down before the target altitude (SITL: 2.15 m/s 4 m below it)
 COPTER_MIN_CLIMB = 0.3  # m/s, the slowest final approach of a climb
 PLANE_LOITER_RADIUS = 80.0  # m, WP_LOITER_RAD of SITL's plane.parm (ArduPlane's own default is 60)
-# ArduPlane's L1 path-follower (AP_L1_Control), as SITL's plane.parm sets it: the look-ahead distance is
-# (1/π)·damping·period·V and the lateral acceleration K·V²/L1·sin η with K = 4·damping², within the bank limit. A 90°
-# turn at a waypoint then carries SITL's plane 39 m past the new leg (tests/conformance/test_hold_turn.py).
-PLANE_L1_PERIOD_S = 15.0  # NAVL1_PERIOD
-PLANE_L1_DAMPING = 0.75  # NAVL1_DAMPING
 # ArduPlane flies its loiter circles wider than asked: WP_LOITER_RAD 80 m was flown at 96.7 m and a DO_REPOSITION
 # radius of 120 m at 135.5 m on SITL (test_hold_turn.py)
 PLANE_CIRCLE_WIDENING_M = 16.0
-# s, the turn rate's first-order lag behind the L1 demand: with it a 90° turn at 20 m/s overshoots the new leg by 32 m
-# (SITL: 34.0 and 39.2 m in two runs) and settles within 4 m of it (SITL: 1.8-2.9 m)
-PLANE_ROLL_TAU_S = 1.7
 ALT_GAIN = 0.5  # 1/s, altitude error → commanded vertical rate (then limited)
 PLANE_SPEED_ACCEL = 2.0  # m/s², SITL: 27.4 → 21.0 m/s in 3.3 s, once over the top of the take-off overshoot
 PLANE_CLIMBING_VZ = 1.0  # m/s: still climbing this fast after take-off, a plane does not slow down yet
@@ -115,25 +107,6 @@ class FlightModel:
         turn = max(-rate * dt, min(rate * dt, err))
         s.heading = wrap_pi(s.heading + turn)
         s.turn_rate = turn / dt
-
-    @property
-    def l1_distance(self) -> float:
-        """ArduPlane's L1 look-ahead, (1/π)·damping·period·V (m)."""
-        return max(PLANE_L1_DAMPING * PLANE_L1_PERIOD_S * max(self.state.speed, 1.0) / math.pi, 1.0)
-
-    def _l1_turn(self, aim: float, l1: float, dt: float) -> None:
-        """Turn as ArduPlane's L1 controller: lateral acceleration 4·damping²·V²/L1·sin η towards the aim point
-        (η capped at 90°), within the bank limit."""
-        s = self.state
-        v = max(s.speed, 1.0)
-        eta = max(-math.pi / 2, min(math.pi / 2, wrap_pi(aim - s.heading)))
-        accel = 4.0 * PLANE_L1_DAMPING**2 * v * v / l1 * math.sin(eta)
-        limit = G0 * math.tan(self.vehicle.max_bank)
-        demand = max(-limit, min(limit, accel)) / v
-        # the roll (and so the turn rate) follows the demand with a lag, as SITL's roll controller does
-        rate = s.turn_rate + (demand - s.turn_rate) * (1.0 - math.exp(-dt / PLANE_ROLL_TAU_S))
-        s.heading = wrap_pi(s.heading + rate * dt)
-        s.turn_rate = rate
 
     def _hold_altitude(self, z_target: float, dt: float) -> None:
         s = self.state
@@ -226,18 +199,18 @@ class FlightModel:
         if self.is_plane:
             self._cruise(dt)
             aim_x, aim_y = tx, ty
-            l1 = self.l1_distance
             if origin is not None:
                 ox, oy = origin
                 lx, ly = tx - ox, ty - oy
                 length = math.hypot(lx, ly)
-                if length > 1.0:  # the point on the track L1 ahead of the vehicle (the track's nearest if beyond)
+                if length > 1.0:
                     ux, uy = lx / length, ly / length
                     along = (s.x - ox) * ux + (s.y - oy) * uy
-                    cross = (s.x - ox) * uy - (s.y - oy) * ux
-                    ahead = min(max(along + math.sqrt(max(l1 * l1 - cross * cross, 0.0)), 0.0), length)
+                    lookahead = max(2.0 * self.vehicle.cruise_speed**2 / (G0 * math.tan(self.vehicle.max_bank)),
+                                    2.0 * s.speed)
+                    ahead = min(max(along, 0.0) + lookahead, length)
                     aim_x, aim_y = ox + ux * ahead, oy + uy * ahead
-            self._l1_turn(bearing(aim_x - s.x, aim_y - s.y), l1, dt)
+            self._turn_towards(bearing(aim_x - s.x, aim_y - s.y), dt)
             self._hold_altitude(tz, dt)
             self._advance(dt, turning=True)
             return

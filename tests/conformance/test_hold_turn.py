@@ -16,6 +16,7 @@ import time
 import numpy as np
 import pymap3d
 import pytest
+import pytest_asyncio
 from conformance.conftest import HOME, home_item, item, numbered, ready, takeoff, waypoint
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
@@ -55,13 +56,11 @@ async def _track_until(v, sub, until_s: float, out: list) -> None:
     raise AssertionError("the autopilot's clock stopped")
 
 
-@pytest.fixture(scope="module")
-def plane_only(backend: str) -> None:
+@pytest_asyncio.fixture(scope="module", loop_scope="module")
+async def flown(backend: str, launch) -> dict[str, float]:
+    """The flight, once per backend: what each test asserts on."""
     if not backend.endswith("plane"):
         pytest.skip("a plane's turn and holds (a copter turns on the spot and brakes)")
-
-
-async def test_turn_overshoot_and_holds_as_arduplane(plane_only, launch, measure) -> None:
     async with launch() as v:
         await ready(v)
         items = numbered([home_item(), takeoff(ALT, pitch=10.0), change_speed(SPEED),
@@ -82,7 +81,6 @@ async def test_turn_overshoot_and_holds_as_arduplane(plane_only, launch, measure
             overshoot = float(turn[:, 2].max() - TURN_AT)  # north of the new leg's line
             settled = turn[turn[:, 1] > 350.0]
             cross = float(np.abs(settled[:, 2] - TURN_AT).max()) if len(settled) else math.nan
-            measure(f"90° turn: {overshoot:.1f} m past the new leg, back within {cross:.1f} m of it 350 m on")
             # LOITER at the entry point
             t0, (e0, n0) = track[-1][0], track[-1][1:3]
             await v.supervisor.set_mode("LOITER")
@@ -90,8 +88,6 @@ async def test_turn_overshoot_and_holds_as_arduplane(plane_only, launch, measure
             await _track_until(v, sub, t0 + LOITER_S, loiter)
             late = np.array([p for p in loiter if p[0] >= t0 + 20.0])
             r_loiter = np.hypot(late[:, 1] - e0, late[:, 2] - n0)
-            measure(f"LOITER around its entry point: radius {np.median(r_loiter):.1f} m "
-                    f"({r_loiter.min():.1f}-{r_loiter.max():.1f})")
             # DO_REPOSITION to a circle of ours
             e1, n1 = loiter[-1][1] + 250.0 * math.sqrt(0.5), loiter[-1][2] - 250.0 * math.sqrt(0.5)
             lat, lon, _ = pymap3d.enu2geodetic(e1, n1, 0.0, HOME.lat, HOME.lon, HOME.alt)
@@ -103,12 +99,26 @@ async def test_turn_overshoot_and_holds_as_arduplane(plane_only, launch, measure
             late = np.array([p for p in circle if p[0] >= t1 + 30.0])
             r_circle = np.hypot(late[:, 1] - e1, late[:, 2] - n1)
             ang = np.unwrap(np.arctan2(late[:, 2] - n1, late[:, 1] - e1))
-            measure(f"DO_REPOSITION circle: radius {np.median(r_circle):.1f} m ({r_circle.min():.1f}-"
-                    f"{r_circle.max():.1f}), {'clockwise' if ang[-1] < ang[0] else 'counter-clockwise'}")
-    # SITL, measured: see the module's numbers; the simulator must match within these tolerances
-    # measured on ArduPlane SITL at 10× (two runs): 39.2 / 34.0 m past the new leg, back within 2.9 / 1.8 m of it;
-    # LOITER 96.7 / 96.6 m around its entry point (WP_LOITER_RAD 80: ArduPlane flies its circles wider);
-    # DO_REPOSITION 135.5 / 135.5 m for a radius of 120 m, clockwise
-    assert abs(overshoot - 36.6) <= 10.0 and cross <= 8.0, (overshoot, cross)
-    assert abs(np.median(r_loiter) - 96.6) <= 6.0  # around the point where LOITER began
-    assert abs(np.median(r_circle) - 135.5) <= 6.0 and ang[-1] < ang[0]  # param3 + 16 m, clockwise (param4 0)
+    return {"overshoot": overshoot, "cross": cross, "loiter": float(np.median(r_loiter)),
+            "circle": float(np.median(r_circle)), "clockwise": float(ang[-1] < ang[0])}
+
+
+# measured on ArduPlane SITL at 10× (three runs): 39.2 / 34.0 / 33.7 m past the new leg, back within 2.9 / 1.8 / 1.7 m
+# of it; LOITER 96.7 / 96.6 / 97.0 m around its entry point (WP_LOITER_RAD 80: ArduPlane flies its circles wider);
+# DO_REPOSITION 135.5 m for a radius of 120 m (all three), clockwise
+async def test_holds_circle_as_arduplane(flown, measure) -> None:
+    """LOITER circles where it was entered at WP_LOITER_RAD, DO_REPOSITION our centre at param3; both ~16 m wider."""
+    measure(f"LOITER around its entry point: radius {flown['loiter']:.1f} m; DO_REPOSITION circle: radius "
+            f"{flown['circle']:.1f} m, {'clockwise' if flown['clockwise'] else 'counter-clockwise'}")
+    assert abs(flown["loiter"] - 96.8) <= 6.0
+    assert abs(flown["circle"] - 135.5) <= 6.0 and flown["clockwise"]  # param3 + 16 m, clockwise (param4 0)
+
+
+@pytest.mark.xfail_backends({"sim-plane": (
+    "the simulator's path-follower turns onto a new leg within 3 m where ArduPlane's L1 carries the plane 34-39 m "
+    "past it; with an L1 model matching that, the simulated flights came 6.5-8.4 m from a cylinder (d_coll 10) in 2 "
+    "of 10 because the planner's tracking margin does not cover it yet (issue 32's closing note)")})
+async def test_a_90_degree_turn_overshoots_as_arduplane(flown, measure) -> None:
+    """The path-follower carries the plane past the new leg after a 90° turn at 20 m/s, then settles on it."""
+    measure(f"90° turn: {flown['overshoot']:.1f} m past the new leg, back within {flown['cross']:.1f} m of it")
+    assert abs(flown["overshoot"] - 35.6) <= 10.0 and flown["cross"] <= 8.0
