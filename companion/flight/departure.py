@@ -2,11 +2,11 @@
 any other leg before anything is uploaded (docs/design.md, "Departure").
 
 ArduPlane takes off where it stands, straight ahead on its heading, and only after the take-off altitude turns
-towards the first waypoint, as wide as its path-follower turns (L1). On SITL, from the region's corner, that
+towards the first waypoint, as its path-follower (L1) turns. On SITL, from the region's corner, that
 climb-out ran 270 m north before the turn; started 300 m east, it went straight through a no-fly cylinder. A
 copter climbs vertically and then flies straight to the start. Where the plane really climbs and turns is not
-known to the metre, so the check covers an envelope: the steepest and the shallowest climb, the tightest and
-the widest turn.
+known to the metre, so the check covers an envelope: the steepest and the shallowest take-off climb, the tightest
+turn, and the path-follower's turn after the roll-in.
 """
 
 from __future__ import annotations
@@ -21,8 +21,12 @@ from planner.trajectory.checks import obstacle_distances
 from planner.world.environment import Environment
 
 PLANE_GROUND_ROLL_M = 30.0  # ArduPlane SITL: lift-off about 30 m down the runway
-PLANE_STEEPEST_CLIMB_DEG = 25.0  # a full-throttle take-off climb (SITL: 10 m/s at 27 m/s, 22°)
+# ArduPlane's take-off climbs at full throttle to the take-off altitude, not at its TECS limit (SITL: 10 m/s at
+# 27 m/s, 21.7°); the envelope spans 18-25° around that
+PLANE_STEEPEST_CLIMB_DEG = 25.0
+PLANE_SHALLOWEST_CLIMB_DEG = 18.0
 PLANE_TAKEOFF_SPEED_M_S = 27.0  # ground speed in the take-off climb and the first turn (SITL)
+PLANE_ROLL_IN_S = 2.0  # s flown straight on while the plane rolls into its first turn (the wide case)
 DEPARTURE_MARGIN_M = 5.0  # beyond d_coll: the envelope is a model, not a measurement
 SAMPLE_M = 5.0  # spacing of the checked points
 REGION_TOLERANCE_M = 25.0  # a vehicle this close outside the region (GPS noise at a corner home) is inside
@@ -108,14 +112,15 @@ def departure_paths(fix: VehicleFix, start: np.ndarray, takeoff_alt: float,
         return [_densify(np.stack([p0, up, start]))]
     heading = _unit(fix.heading_deg or 0.0)
     paths = []
-    shallow = min(limits.climb_angle_deg, PLANE_STEEPEST_CLIMB_DEG)
-    for climb_deg in (PLANE_STEEPEST_CLIMB_DEG, shallow):
+    for climb_deg in (PLANE_STEEPEST_CLIMB_DEG, PLANE_SHALLOWEST_CLIMB_DEG):
         run = PLANE_GROUND_ROLL_M + alt / math.tan(math.radians(climb_deg))
-        top = p0[:2] + run * heading
-        for radius in (limits.turn_radius, limits.wide_turn_radius(PLANE_TAKEOFF_SPEED_M_S)):
+        for radius, roll_in in ((limits.turn_radius, 0.0),
+                                (limits.wide_turn_radius(PLANE_TAKEOFF_SPEED_M_S), PLANE_ROLL_IN_S)):
+            top = p0[:2] + (run + roll_in * PLANE_TAKEOFF_SPEED_M_S) * heading
             flat = turn_then_straight(top, heading, start[:2], radius)
             z = np.concatenate([[alt] * (len(flat) - 1), [start[2]]])
-            climb = np.stack([p0, [*(p0[:2] + PLANE_GROUND_ROLL_M * heading), p0[2]], [*top, alt]])
+            climb = np.stack([p0, [*(p0[:2] + PLANE_GROUND_ROLL_M * heading), p0[2]], [*(p0[:2] + run * heading), alt],
+                              [*top, alt]])
             paths.append(_densify(np.vstack([climb, np.column_stack([flat, z])[1:]])))
     return paths
 

@@ -81,12 +81,14 @@ class AutopilotLimits:
         return self.cruise_speed**2 / (G0 * math.tan(math.radians(min(self.max_bank_deg, 85.0))))
 
     def wide_turn_radius(self, speed: float | None = None) -> float:
-        """How wide a plane's path-follower really turns onto a new track: ArduPlane's L1 distance
-        (1/π)·damping·period·v, never less than the tightest turn. A copter turns on the spot (0)."""
+        """How wide a plane's path-follower turns onto a track far off its heading: ArduPlane's L1 law commands
+        4·damping²·v²/L1 at most, a circle of L1/(4·damping²) with L1 = (1/π)·damping·period·v; never less than the
+        tightest turn. A copter turns on the spot (0)."""
         if self.vehicle_type != "plane":
             return 0.0
         v = self.cruise_speed if speed is None else speed
-        return max(self.l1_damping * self.l1_period_s * v / math.pi, self.turn_radius)
+        l1 = self.l1_damping * self.l1_period_s * v / math.pi
+        return max(l1 / (4.0 * self.l1_damping**2), self.turn_radius)
 
     @property
     def climb_angle_deg(self) -> float:

@@ -1,5 +1,5 @@
-"""The flown-safety guard: where the vehicle itself will be in the next seconds, against the static world (docs/design.md,
-"The flown-safety guard").
+"""The flown-safety guard: where the vehicle itself will be in the next seconds, against the static world
+(docs/design.md, "The flown-safety guard").
 
 A route is checked when it is planned; the vehicle then flies it with its own path-follower, and a turn flown wider
 than planned, a join from off the route or a plan that was never ours can still carry it into an obstacle. The

@@ -498,8 +498,8 @@ class LiveReplanner:
         """The flown-safety guard: predict the vehicle's own path (:func:`predict_own_path`) and, if it will come
         within d_coll of a static obstacle, hold it on a checked pattern before it gets there (a static route from
         where it is is then planned by the retries from the hold). True when it acted."""
-        if not self.guard_enabled or self.position is None or not self.on_route() or self.position[2] < GUARD_MIN_ALT_M \
-                or time.monotonic() - self._guard_at < GUARD_REPEAT_WALL_S:
+        if not self.guard_enabled or self.position is None or not self.on_route() \
+                or self.position[2] < GUARD_MIN_ALT_M or time.monotonic() - self._guard_at < GUARD_REPEAT_WALL_S:
             return False
         route, seqs = self.remaining()
         radius = self._turn_radius() if self.link.profile.hold_circles else 0.0
@@ -568,7 +568,8 @@ class LiveReplanner:
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
         # a plan that overruns (a loaded machine, a planner process still starting) must not let the vehicle fly
         # on into the rewritten items and the conflict while it waits: the swap's guard applies already
-        plan = asyncio.create_task(self._start_worker().plan(problem, settings, [self.seed, rec.n], seeds, cfg.budget_s),
+        worker = self._start_worker()
+        plan = asyncio.create_task(worker.plan(problem, settings, [self.seed, rec.n], seeds, cfg.budget_s),
                                    name="replan-plan")
         await self._guarded(plan, cp.first_new_seq, self._guard_threshold_s(),
                             "the plan is late: the vehicle could reach the commit point before it is ready", rec)

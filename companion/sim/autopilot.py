@@ -82,7 +82,6 @@ PARAMS = {"FENCE_ENABLE": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
           "RALLY_TOTAL": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
           "RALLY_LIMIT_KM": ((5.0, 0.3), mavlink.MAV_PARAM_TYPE_REAL32)}
 PLANE_DEFAULT_LOITER_RAD = PLANE_LOITER_RADIUS  # WP_LOITER_RAD of SITL's plane.parm, settable with PARAM_SET
-PLANE_ROLL_LIMIT_DEG = 65.0  # ROLL_LIMIT_DEG of SITL's plane.parm: how far the simulated plane banks
 
 
 def vehicle_params(limits: VehicleLimits) -> dict[str, float]:
@@ -168,8 +167,6 @@ class SimAutopilot:
         limits = scenario.vehicle
         if vehicle is not None and vehicle != limits.type:
             limits = dataclasses.replace(limits, type=vehicle)
-        if limits.type == "plane":  # the simulated plane banks as SITL's does (the planner keeps its own limit)
-            limits = dataclasses.replace(limits, max_bank_deg=PLANE_ROLL_LIMIT_DEG)
         self.scenario = scenario
         self.vehicle = limits
         self.is_plane = limits.type == "plane"

@@ -31,8 +31,8 @@ CIRCLE_RADIUS = 120.0
 
 
 def change_speed(speed: float):
-    return item(mavlink.MAV_CMD_DO_CHANGE_SPEED, located=False, frame=mavlink.MAV_FRAME_MISSION, param1=0.0, param2=speed,
-                param3=-1.0)
+    return item(mavlink.MAV_CMD_DO_CHANGE_SPEED, located=False, frame=mavlink.MAV_FRAME_MISSION, param1=0.0,
+                param2=speed, param3=-1.0)
 
 
 def _enu(lat: float, lon: float) -> tuple[float, float]:

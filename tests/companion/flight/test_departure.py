@@ -35,7 +35,7 @@ def test_limits_come_from_the_parameters_read_and_the_scenario_fills_the_rest(dy
     assert (lim.max_bank_deg, lim.cruise_speed, lim.loiter_radius) == (65.0, 22.0, 80.0)
     assert lim.read == SITL_PLANE
     assert abs(lim.turn_radius - 22.0**2 / (9.80665 * np.tan(np.radians(65.0)))) < 1e-9
-    assert abs(lim.wide_turn_radius(27.0) - 0.75 * 15.0 * 27.0 / np.pi) < 1e-9  # L1 distance
+    assert abs(lim.wide_turn_radius(27.0) - 0.75 * 15.0 * 27.0 / np.pi / 2.25) < 1e-9  # L1 / (4 damping²)
     none = limits_from({}, "ardupilot", dynamic.vehicle, 60.0)
     assert (none.max_bank_deg, none.cruise_speed, none.loiter_radius, none.read) == (45.0, 18.0, 60.0, {})
     copter = limits_from({"WPNAV_SPEED": 1000.0, "WPNAV_ACCEL": 250.0}, "ardupilot", VehicleLimits(type="copter"), 60.0)

@@ -14,6 +14,7 @@ from companion.replanning.replan import (
     ReplanConfig,
     VehicleClock,
     commit_point,
+    padded,
     replan_problem,
     replan_settings,
     splice,
@@ -103,6 +104,27 @@ def test_splice_keeps_the_prefix_and_the_end_action() -> None:
     assert out[-1].command == items[-1].command and compare_items(items[-1].with_seq(out[-1].seq), out[-1]) is None
     with pytest.raises(ValueError):
         splice(items, 0, new_route, r.goal_seq, _spec())
+
+
+def test_a_shorter_replan_is_padded_to_the_flying_missions_length_on_the_same_path() -> None:
+    """So that only its changed part needs writing (MISSION_WRITE_PARTIAL_LIST): points in the middle of the
+    longest legs, never a turn; a longer route is left as it is (the whole list is uploaded)."""
+    items = _items()
+    r = MissionRoute.of(items, SC.home)
+    first = int(r.seqs[2])
+    short = np.array([[300.0, 300, 70], [800, 800, 150]])
+    out = splice(items, first, short, r.goal_seq, _spec(), length=len(items) + 3)
+    assert len(out) == len(items) + 3
+    pts = MissionRoute.of(out, SC.home).points[2:]
+    assert np.allclose(pts[0], short[0], atol=0.05) and np.allclose(pts[-1], short[-1], atol=0.05)
+    d = (short[1] - short[0]) / np.linalg.norm(short[1] - short[0])
+    off = pts - short[0]
+    assert np.allclose(off - np.outer(off @ d, d), 0.0, atol=0.05)  # every added point on the one straight leg
+    assert np.all(np.diff(off @ d) > 0)  # in order along it
+    assert len(splice(items, first, short, r.goal_seq, _spec(), length=2)) == len(splice(
+        items, first, short, r.goal_seq, _spec()))  # already longer: nothing added
+    tiny = np.array([[300.0, 300, 70], [310, 300, 70]])
+    assert len(padded(tiny, 10, 30.0)) == 2  # no leg long enough to split
 
 
 def test_warm_starts_bend_the_old_route_both_ways_and_keep_its_ends() -> None:

@@ -560,7 +560,7 @@ async def test_plane_loiter_circles_its_entry_point_at_wp_loiter_rad_as_set(stat
     async with SimAutopilot(static, "udpin:127.0.0.1:0", speedup=20.0) as sim, Client(sim.port) as gcs:
         gcs.send(mavlink.MAVLink_param_request_read_message(1, 1, b"ROLL_LIMIT_DEG", -1))
         roll = await gcs.expect("PARAM_VALUE", where=lambda m: m.param_id == "ROLL_LIMIT_DEG", after=0)
-        assert roll.param_value == 65.0  # what the simulated plane banks to: SITL's ROLL_LIMIT_DEG (the plan keeps 45)
+        assert roll.param_value == static.vehicle.max_bank_deg  # what the simulated plane banks to
         gcs.send(mavlink.MAVLink_param_set_message(1, 1, b"WP_LOITER_RAD", 120.0, mavlink.MAV_PARAM_TYPE_INT16))
         await gcs.expect("PARAM_VALUE", where=lambda m: m.param_id == "WP_LOITER_RAD" and m.param_value == 120.0)
         assert await gcs.upload(items) == MISSION_ACCEPTED
