@@ -211,8 +211,9 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     """flight.json and track.png; the flown track is the simulator's truth when we ran it, else telemetry.
     Separations: the simulator's truth tracks, or a traffic feed's (the autopilot's positions against the
     intruders' scripted tracks)."""
+    until = truth_until(sim, out)
     if sim is not None and sim.truth:
-        flown = np.array([(x, y, z) for _t, _lat, _lon, _alt, x, y, z in sim.truth])
+        flown = np.array([(x, y, z) for t, _lat, _lon, _alt, x, y, z in sim.truth if t <= until])
         source = "simulator truth"
     elif out.track:
         tr = np.array(out.track)
@@ -220,7 +221,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         source = "GLOBAL_POSITION_INT"
     else:
         flown, source = np.zeros((0, 3)), "none"
-    seps = truth_separations(sim, scenario) if feed is None else feed.separations()
+    seps = truth_separations(sim, scenario, until) if feed is None else feed.separations()
     safety = flown_safety(flown, scenario.environment, scenario.hazard.d_coll,
                           {k: v.separation for k, v in seps.items()})
     records = replanner.records if replanner is not None else []
@@ -272,11 +273,22 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     return doc
 
 
-def truth_separations(sim: Any, scenario: Scenario) -> dict:
-    """Truth-track minimum separation to every intruder and scripted threat (simulator runs only)."""
+def truth_until(sim: Any, out: FlightOutcome) -> float:
+    """Sim time up to which the simulator's truth track is the flight's: when the goal was reached, if the mission
+    completed. The companion lets go there (a telemetry track ends there too); what follows is the autopilot's end
+    action (ArduPlane's RTL home, straight over whatever lies between), flown for as long as the process takes to
+    stop the simulator, which under load was long enough to cross a cylinder."""
+    if sim is None or not out.completed or not out.items_reached:
+        return math.inf
+    return sim.reached_at.get(max(out.items_reached), math.inf)
+
+
+def truth_separations(sim: Any, scenario: Scenario, until: float = math.inf) -> dict:
+    """Truth-track minimum separation to every intruder and scripted threat up to sim time ``until`` (simulator
+    runs only)."""
     if sim is None or not sim.truth:
         return {}
-    vehicle = np.array([(t, x, y, z) for t, _lat, _lon, _alt, x, y, z in sim.truth])
+    vehicle = np.array([(t, x, y, z) for t, _lat, _lon, _alt, x, y, z in sim.truth if t <= until])
     radius = {i.id: i.radius for i in scenario.intruders}
     tracks = {k: (np.array(v).reshape(-1, 4), radius[k]) for k, v in sim.intruder_truth.items()}
     return min_separations(vehicle, tracks, scenario.environment.threats, sim.mission_start_time)

@@ -92,6 +92,9 @@ CONTACT_PATH_S = 60.0  # vehicle seconds of each contact's predicted path in a `
 PACE_TAU_S = 8.0  # vehicle seconds over which the ground speed along the route is smoothed
 GUARD_MIN_ALT_M = 10.0  # m above home: below it the vehicle is taking off or landing, which the guard leaves be
 GUARD_REPEAT_WALL_S = 1.0  # wall seconds between two guard actions
+FLOWN_CHECK_DT_S = 0.5  # vehicle seconds between the points of a plan's flown path
+HOLD_REFUSED_WALL_S = 0.5  # wall seconds after finding no checked hold pattern before looking again
+RESUME_HORIZON_S = 20.0  # vehicle seconds of the path flown on resuming that are checked
 MIN_HOLD_RADIUS_TURNS = 2.0  # the smallest hold circle commanded, in tightest turns (ArduPlane flies it wider)
 # the guard acts on a predicted clearance below this share of d_coll: its path model is a few metres off in a turn
 # (the demo's plane: predicted 9.9 m, flown 15.4 m), and a hold that was not needed turns the plane off its route
@@ -238,6 +241,8 @@ class LiveReplanner:
         self.velocity = np.zeros(2)  # ENU m/s over the ground, from GLOBAL_POSITION_INT
         self._held_since: float | None = None  # mission time the current hold began
         self._last_replan = -math.inf  # mission time
+        self._hold_refused_at = -math.inf  # wall time no checked hold pattern was found
+        self._failed_plans = 0  # plans in a row that were not safe enough to use (each next one gets more budget)
         self._last_check = -math.inf  # wall
         self._upload_wall_s = 0.05  # running estimate of one verified upload (wall s)
         self._announced: set[int] = set()
@@ -489,6 +494,7 @@ class LiveReplanner:
             return
         conflicts = self.predict(now, threats)
         if not conflicts:
+            self._failed_plans = 0
             return
         if now - self._last_replan < self.cfg.min_interval_s:
             return
@@ -542,8 +548,9 @@ class LiveReplanner:
         self.events.log("conflict", n=rec.n, threat=rec.threat, in_s=rec.conflict_in_s,
                         separation_m=rec.sep_before_m, d_coll_m=self.scenario.hazard.d_coll)
         route, seqs = self.remaining()
+        budget = self._budget(conflict, now)
         if lead_m is None:
-            lead_m = self._commit_lead_m(conflict, now)
+            lead_m = self._commit_lead_m(conflict, now, budget)
         current = max(self.current_seq, int(self.route.seqs[0]))
         departing = not self.on_route()
         if departing:  # still climbing out: the new route starts at the planned start, which stays as it is
@@ -569,7 +576,7 @@ class LiveReplanner:
         # a plan that overruns (a loaded machine, a planner process still starting) must not let the vehicle fly
         # on into the rewritten items and the conflict while it waits: the swap's guard applies already
         worker = self._start_worker()
-        plan = asyncio.create_task(worker.plan(problem, settings, [self.seed, rec.n], seeds, cfg.budget_s),
+        plan = asyncio.create_task(worker.plan(problem, settings, [self.seed, rec.n], seeds, budget),
                                    name="replan-plan")
         await self._guarded(plan, cp.first_new_seq, self._guard_threshold_s(),
                             "the plan is late: the vehicle could reach the commit point before it is ready", rec)
@@ -593,7 +600,15 @@ class LiveReplanner:
         # good: clear by the margin; else still used if it is safe and better than the route being flown
         safe = status in GOOD and (rec.sep_after_m >= d_coll + cfg.margin_m
                                    or rec.sep_after_m >= max(d_coll, conflict.separation))
-        self.events.log("replan_planned", n=rec.n, status=rec.plan_status, plan_s=rec.plan_s,
+        if not safe and job.violations and set(job.violations) <= {"turn"}:
+            # turns tighter than the vehicle's: what matters is the path it will fly through them (the
+            # waypoints are its mission items), checked as flown against the obstacles and the traffic
+            flown = self._flown_separation(cp, new_route, threats)
+            if flown is not None:
+                safe = flown >= d_coll + cfg.margin_m or flown >= max(d_coll, conflict.separation)
+                self.events.log("replan_flown_check", n=rec.n, separation_m=round(flown, 1), used=safe)
+        self._failed_plans = 0 if safe else self._failed_plans + 1
+        self.events.log("replan_planned", n=rec.n, status=rec.plan_status, budget_s=budget, plan_s=rec.plan_s,
                         separation_after_m=rec.sep_after_m, commit=rec.commit, waypoints=len(new_route),
                         violations=job.violations, old_route=rec.old_route, new_route=rec.new_route)
         if not safe and self.holding is None and conflict.separation >= d_coll:
@@ -602,7 +617,7 @@ class LiveReplanner:
             return False
         if not safe:
             rec.outcome = "no safe plan: holding"
-            await self.hold(f"no safe plan within {cfg.budget_s:g} s ({rec.plan_status}, predicted separation "
+            await self.hold(f"no safe plan within {budget:g} s ({rec.plan_status}, predicted separation "
                             f"{rec.sep_after_m:.0f} m)")
             rec.held = True
             return False
@@ -619,6 +634,27 @@ class LiveReplanner:
         rec.outcome = "new mission current"
         self.events.log("replanned", **rec.summary())
         return True
+
+    def _flown_separation(self, cp: CommitPoint, route: np.ndarray, threats: Threats) -> float | None:
+        """The least traffic separation along ``route`` as the vehicle will fly it from the commit point
+        (:func:`predict_own_path` at its wide turn radius, to the route's end), or None when that path comes within
+        d_coll of a static obstacle."""
+        heading = self._start_heading(cp)
+        if heading is None:
+            first = route[1] - route[0] if len(route) > 1 else np.array([0.0, 1.0, 0.0])
+            heading = first / max(float(np.linalg.norm(first[:2])), 1e-6)
+        turn = self._turn_radius()
+        radius = turn if not self.link.profile.hold_circles else max(
+            self.limits.wide_turn_radius(self.speed) if self.limits is not None else 2.0 * turn, turn)
+        length = float(np.linalg.norm(np.diff(route, axis=0), axis=1).sum())
+        path = predict_own_path(route[0], heading[:2] * self.speed, route[0], route[1:], radius,
+                                self.scenario.vehicle.acceptance_radius,
+                                horizon_s=min(length / self.speed + 10.0, self.cfg.horizon_s), dt=FLOWN_CHECK_DT_S)
+        if first_breach(path, self.scenario.environment, self.scenario.hazard.d_coll) is not None:
+            return None
+        seps = route_separations(path[:, 1:4], self.speed, 0.0, cp.t, threats, self.cfg.horizon_s,
+                                 self.cfg.sample_dt_s)
+        return min((c.separation for c in seps), default=math.inf)
 
     def _turn_radius(self) -> float:
         """The vehicle's tightest turn at its ground speed (its roll limit when read, else the scenario's bank)."""
@@ -711,8 +747,11 @@ class LiveReplanner:
         self.events.log("mission", **picture.mission(items, self.scenario.home))
         self._pump()
         target = self.current_seq
-        if self.current_seq >= first_new_seq:  # its active item was replaced: join the new route
+        replaced = self.current_seq >= first_new_seq
+        if replaced:  # its active item was replaced: join the new route
             target = self._join_seq(first_new_seq)
+        if self.holding is not None:  # a held plane has circled on: never turn it back for an item behind it
+            target = self.ahead_seq(target)
         if not self._clear_from(target):
             reason = "no safe plan: the new route is no longer clear from where the vehicle is"
             await self.hold(reason)
@@ -729,7 +768,10 @@ class LiveReplanner:
                 await self.set_current(target)
             rec.held = True
             return False
-        if target != self.current_seq:  # else AUTO resumes (restarts) the current, unchanged item by itself
+        if target != self.current_seq or (replaced and self.holding is None):
+            # ArduPlane keeps flying its own copy of a replaced active item until that item is restarted (on the
+            # simulator at 5x under load, towards the old item 12 through the intruder: -8.2 m); a held vehicle
+            # restarts it on re-entering AUTO
             await self.set_current(target)
         if self.holding is not None:
             await self.resume()
@@ -743,7 +785,25 @@ class LiveReplanner:
         """How far before a waypoint the vehicle may count it reached (ArduPlane switches early)."""
         return max(self.scenario.vehicle.acceptance_radius, self.link.profile.early_switch_m)
 
-    def _commit_lead_m(self, conflict: Conflict, now: float) -> float:
+    def _budget(self, conflict: Conflict, now: float) -> float:
+        """Wall seconds for this plan: the configured budget, doubled for each plan in a row that was not safe (a
+        loaded machine gives the planner less of a core: under a CPU hog at 5x the simulated plane flew into an
+        intruder after two 0.15 s plans timed out), up to ``max_budget_s`` and only while the commit lead it needs
+        still fits in the first half of the way to the conflict."""
+        cfg = self.cfg
+        budget = min(cfg.budget_s * 2.0 ** self._failed_plans, max(cfg.max_budget_s, cfg.budget_s))
+        room = (conflict.t - now) * self.speed * 0.5
+        while budget > cfg.budget_s and self._short_lead_m(budget) > room:
+            budget = max(budget / 2.0, cfg.budget_s)
+        return budget
+
+    def _short_lead_m(self, budget_s: float) -> float:
+        """The commit lead that covers planning within ``budget_s``, the upload and the lead margin alone."""
+        cfg = self.cfg
+        plan_s = (budget_s + cfg.check_interval_wall_s) * self.clock.rate
+        return (plan_s + self._upload_wall_s * self.clock.rate + cfg.lead_margin_s) * self.speed
+
+    def _commit_lead_m(self, conflict: Conflict, now: float, budget_s: float | None = None) -> float:
         """How far ahead of the vehicle the new route starts. Far enough that the vehicle, flying on while the
         plan is made, cannot reach the first new item before the upload is verified: the swap's guard then
         has no reason to hold it. A plane held in LOITER for a guard turns off its route for seconds (at SITL's
@@ -752,9 +812,10 @@ class LiveReplanner:
         switching it counts. Shortened to the planning-and-upload time alone when the conflict is too close
         for that (the guard then holds if it must)."""
         cfg = self.cfg
-        plan_s = (cfg.budget_s + cfg.check_interval_wall_s) * self.clock.rate
+        budget_s = cfg.budget_s if budget_s is None else budget_s
+        plan_s = (budget_s + cfg.check_interval_wall_s) * self.clock.rate
         full = (plan_s + self._guard_threshold_s() + cfg.lead_margin_s) * self.speed + self._switch_m()
-        short = (plan_s + self._upload_wall_s * self.clock.rate + cfg.lead_margin_s) * self.speed
+        short = self._short_lead_m(budget_s)
         room = (conflict.t - now) * self.speed * 0.5  # keep the first half of the way to the conflict for the detour
         return full if full <= room else short
 
@@ -833,9 +894,12 @@ class LiveReplanner:
             # not flying the mission (a failsafe, the pilot): it cannot step into a mixed item; leave it be
             self.events.log("not_holding", reason=reason, mode=self._name(self.custom_mode))
             return
+        if time.monotonic() - self._hold_refused_at < HOLD_REFUSED_WALL_S:
+            return  # just refused: checking again takes the CPU the planner needs (under load, 30 checks a second)
         pattern = self._checked_hold()
         if pattern is None:
             # no circle clear of the obstacles and the traffic: the leg it flies was cleared when it was planned
+            self._hold_refused_at = time.monotonic()
             self.events.log("hold_refused", reason=reason, decision="no checked hold pattern: the vehicle keeps "
                             "flying its current, already-cleared leg")
             return
@@ -927,9 +991,27 @@ class LiveReplanner:
             return None
         return per[worst], worst
 
+    def ahead_seq(self, seq: int) -> int:
+        """The first route item from ``seq`` on that a plane has not yet passed along the route (it is past item k
+        when it is beyond it along the leg k -> k+1): resumed towards an item it has passed, ArduPlane turns back
+        round through whatever is beside it (on SITL, 30 m into a cylinder after a hold). A copter keeps ``seq``."""
+        if self.position is None or not self.link.profile.hold_circles:
+            return seq
+        seqs, pts = self.route.seqs, self.route.points
+        target = seq
+        for k in np.flatnonzero((seqs >= seq) & (seqs < self.goal_seq)):
+            if k + 1 >= len(seqs) or float(np.dot(self.position[:2] - pts[k, :2], pts[k + 1, :2] - pts[k, :2])) <= 0:
+                break
+            target = int(seqs[k + 1])
+        if target != seq:
+            self.events.log("join_ahead", behind=seq, joining=target)
+        return target
+
     def leg_blocked(self, seq: int) -> tuple[float, str | None] | None:
-        """(clearance, obstacle) when the straight leg from the vehicle to item ``seq`` (what AUTO flies on
-        resuming) comes within d_coll + the hold margin of a static obstacle; None when it is clear."""
+        """(clearance, obstacle) when what AUTO flies on resuming at item ``seq`` comes too close to a static
+        obstacle: the straight leg from the vehicle to the item within d_coll + the hold margin, or the path the
+        vehicle itself flies onto it and on (:func:`predict_own_path`, 20 s, as wide as its path-follower turns)
+        within d_coll; None when both are clear."""
         if self.position is None:
             return None
         hit = np.flatnonzero(self.route.seqs >= seq)
@@ -937,11 +1019,21 @@ class LiveReplanner:
             return None
         target = self.route.points[hit[0]]
         leg = np.linspace(self.position, target, max(int(np.linalg.norm(target - self.position) / 5.0), 1) + 1)
-        per = {k: float(v.min()) for k, v in obstacle_distances(leg, self.scenario.environment).items()}
+        env, d_coll = self.scenario.environment, self.scenario.hazard.d_coll
+        per = {k: float(v.min()) for k, v in obstacle_distances(leg, env).items()}
         worst = min(per, key=per.__getitem__, default=None)
-        if worst is None or per[worst] >= self.scenario.hazard.d_coll + HOLD_MARGIN_M:
-            return None
-        return per[worst], worst
+        if worst is not None and per[worst] < d_coll + HOLD_MARGIN_M:
+            return per[worst], worst
+        if self.link.profile.hold_circles and float(np.linalg.norm(self.velocity)) > 1.0:
+            wide = self.limits.wide_turn_radius(self.groundspeed) if self.limits is not None else \
+                2.0 * self._turn_radius()
+            path = predict_own_path(self.position, self.velocity, self.position, self.route.points[hit[0]:],
+                                    max(wide, self._turn_radius()), self.scenario.vehicle.acceptance_radius,
+                                    horizon_s=RESUME_HORIZON_S)
+            breach = first_breach(path, env, d_coll)
+            if breach is not None:
+                return breach.clearance_m, breach.obstacle
+        return None
 
     async def resume(self) -> None:
         """Back to AUTO at the current item, unless someone else has changed the mode meanwhile. AUTO is not
@@ -962,7 +1054,7 @@ class LiveReplanner:
         """While holding: resume if the old route is clear again, else plan from here."""
         self._last_replan = now
         conflicts = self.predict(now, threats) if len(threats) else []
-        seq = max(self.current_seq, int(self.route.seqs[0]))
+        seq = self.ahead_seq(max(self.current_seq, int(self.route.seqs[0])))
         if not conflicts and (blocked := self.leg_blocked(seq) or self.route_blocked(seq)) is not None:
             # resuming would fly straight from here through an obstacle: a route from here first
             clearance, obstacle = blocked
@@ -971,6 +1063,8 @@ class LiveReplanner:
             conflicts = [Conflict(f"static {obstacle}", now, clearance, tuple(self.position), 0, 0.0)]
         if not conflicts:
             self.events.log("threat_cleared", rejoin_s=float(self.rejoin_delays()[-1]))
+            if seq != self.current_seq:
+                await self.set_current(seq)
             await self.resume()
             return
         await self.replan(conflicts[0], now, threats, lead_m=0.0)

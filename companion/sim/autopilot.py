@@ -118,6 +118,7 @@ class _Events:
 
     def reached(self, seq: int, report: bool = True) -> None:
         self._ap._reached.append(seq)
+        self._ap._reached_at[seq] = self._ap._sim_time
         if report:
             self._ap._send(mavlink.MAVLink_mission_item_reached_message(seq))
 
@@ -209,6 +210,7 @@ class SimAutopilot:
         self._intruder_truth: dict[str, list[tuple[float, float, float, float]]] = {
             i.id: [] for i in scenario.intruders}
         self._reached: list[int] = []
+        self._reached_at: dict[int, float] = {}  # sim time each item was last reached
         self._flown: list[tuple[float, float, MissionItem]] = []
         self._stall: tuple[int, int] | None = None  # (upload number, first item lost) for inject_upload_stall
         self._uploads_started = 0
@@ -276,6 +278,11 @@ class SimAutopilot:
     @property
     def reached(self) -> list[int]:
         return list(self._reached)
+
+    @property
+    def reached_at(self) -> dict[int, float]:
+        """Sim time at which each item was last reached."""
+        return dict(self._reached_at)
 
     @property
     def ready(self) -> bool:

@@ -41,6 +41,7 @@ COPTER_WP_RADIUS = 2.0  # m, WPNAV_RADIUS: ArduCopter does not store a waypoint'
 PLANE_TAKEOFF_DELAY_S = 0.6  # s from arming to the ground roll (TKOFF_THR_DELAY 0.2 s, then throttle up)
 COPTER_SPOOL_S = 1.0  # s from the start of a take-off to lift-off (motor spool-up), ArduCopter SITL
 COPTER_TAKEOFF_DONE_M = 0.3  # m below the take-off altitude at which ArduCopter counts it reached
+GLIDE_SLOPE_MIN_ALT_M = 20.0  # m above home: ArduPlane glides between waypoint altitudes above it (or descending)
 # AP_Mission's short names for the STATUSTEXT "Mission: <seq> <name>" (WP, Takeoff, ChangeSpeed seen on SITL)
 COMMAND_NAMES = {
     mavlink.MAV_CMD_NAV_WAYPOINT: "WP", mavlink.MAV_CMD_NAV_TAKEOFF: "Takeoff",
@@ -99,15 +100,37 @@ class Waypoint(NavTask):
     """Fly to a point; done within ``radius`` (plane: horizontal distance, or past the finish line through the
     waypoint at right angles to the track; copter: 3-D distance, then ``hold`` seconds)."""
 
-    def __init__(self, seq: int, target: Point, origin: tuple[float, float], radius: float, hold: float = 0.0):
+    def __init__(self, seq: int, target: Point, origin: tuple[float, float], radius: float, hold: float = 0.0,
+                 origin_z: float | None = None):
         self.seq, self.target, self.origin, self.radius, self.hold = seq, target, origin, radius, hold
+        self.origin_z = origin_z  # the leg's starting altitude (the previous target's, or where it was)
+        self._glide: bool | None = None
         self._held = 0.0
+
+    def _glide_z(self, model: FlightModel) -> float:
+        """ArduPlane's altitude target in AUTO (setup_glide_slope): above 20 m, or when descending, it is
+        interpolated along the leg from the origin's altitude to the target's, not the target's at once (a
+        descent flown as fast as the sink limit allows came 6 m from a sphere that the leg itself clears by
+        15 m)."""
+        s = model.state
+        tx, ty, tz = self.target
+        if self._glide is None:
+            self._glide = self.origin_z is not None and (s.z > GLIDE_SLOPE_MIN_ALT_M or tz < s.z)
+        if not self._glide or self.origin_z is None:
+            return tz
+        ox, oy = self.origin
+        lx, ly = tx - ox, ty - oy
+        length2 = lx * lx + ly * ly
+        if length2 <= 1.0:
+            return tz
+        share = min(max(((s.x - ox) * lx + (s.y - oy) * ly) / length2, 0.0), 1.0)
+        return self.origin_z + (tz - self.origin_z) * share
 
     def step(self, model: FlightModel, dt: float) -> bool:
         s = model.state
         tx, ty, tz = self.target
         if model.is_plane:
-            model.fly_to(self.target, self.origin, dt)
+            model.fly_to((tx, ty, self._glide_z(model)), self.origin, dt)
             dist = math.hypot(tx - s.x, ty - s.y)
             if dist <= self.radius:
                 self.note = f"Reached waypoint #{self.seq} dist {dist:.0f}m"
@@ -233,7 +256,7 @@ class Navigator:
         self.task: NavTask | None = None
         self.active: MissionItem | None = None  # the copy being flown
         self._jumps: dict[int, int] = {}
-        self._last_target: tuple[float, float] | None = None
+        self._last_target: tuple[float, float, float] | None = None
 
     # --- control --------------------------------------------------------------------------------------------
 
@@ -272,7 +295,7 @@ class Navigator:
             self._events.landed()
             return
         if isinstance(task, Waypoint):
-            self._last_target = (task.target[0], task.target[1])
+            self._last_target = (task.target[0], task.target[1], task.target[2])
         self._begin(mission, done.seq + 1)
 
     # --- internals ------------------------------------------------------------------------------------------
@@ -329,7 +352,8 @@ class Navigator:
     def _task_for(self, item: MissionItem) -> NavTask:
         s = self.model.state
         here = (s.x, s.y)
-        origin = self._last_target or here
+        origin = self._last_target[:2] if self._last_target is not None else here
+        origin_z = self._last_target[2] if self._last_target is not None else s.z
         x, y, z = self._to_enu(item)
         if self.model.is_plane:  # the item's own radius (whole metres, ≤ 255), else WP_RADIUS
             radius = item.param2 if item.param2 > 0.0 else self.model.vehicle.acceptance_radius
@@ -340,7 +364,7 @@ class Navigator:
         if cmd == mavlink.MAV_CMD_NAV_TAKEOFF:
             return Takeoff(z)
         if cmd in (mavlink.MAV_CMD_NAV_WAYPOINT, mavlink.MAV_CMD_NAV_SPLINE_WAYPOINT):
-            return Waypoint(item.seq, (x, y, z), origin, radius, hold=max(item.param1, 0.0))
+            return Waypoint(item.seq, (x, y, z), origin, radius, hold=max(item.param1, 0.0), origin_z=origin_z)
         if cmd in (mavlink.MAV_CMD_NAV_LOITER_UNLIM, mavlink.MAV_CMD_NAV_LOITER_TIME,
                    mavlink.MAV_CMD_NAV_LOITER_TURNS):
             loiter_radius = abs(item.param3) if item.param3 else PLANE_LOITER_RADIUS
@@ -355,4 +379,4 @@ class Navigator:
                               for_ever=False)
         if cmd == mavlink.MAV_CMD_NAV_LAND:
             return Land((x, y), origin)
-        return Waypoint(item.seq, (x, y, z), origin, radius)
+        return Waypoint(item.seq, (x, y, z), origin, radius, origin_z=origin_z)

@@ -77,7 +77,10 @@ def test_fly_exits_6_with_one_line_when_the_flown_track_breaks_d_coll(tmp_path, 
     events = [json.loads(line) for line in (guarded / "events.jsonl").read_text().splitlines()]
     names = [e["event"] for e in events]
     assert code == 0 and fl["completed"] and fl["flown_safe"], fl
-    assert fl["min_static_clearance_m"] >= fl["d_coll_m"] and fl["replans"] >= 1
+    # the static route from the hold is verified on the vehicle; whether its swap counts as a replan made live or
+    # (the way back judged blocked at that moment, then clear a retry later) is resumed from the hold, it is flown
+    assert fl["min_static_clearance_m"] >= fl["d_coll_m"] and fl["replan_attempts"] >= 1
     guard = next(e for e in events if e["event"] == "guard")
     assert guard["obstacle"] == f"cylinders[{inside}]" and guard["clearance_m"] < fl["d_coll_m"]
-    assert names.index("guard") < names.index("hold") < names.index("resume_blocked") < names.index("replanned")
+    assert names.index("guard") < names.index("hold") < names.index("resume_blocked") < names.index("replan_verified")
+    assert names.index("replan_verified") < len(names) - 1 - names[::-1].index("resume")
