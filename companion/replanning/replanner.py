@@ -92,6 +92,7 @@ CONTACT_PATH_S = 60.0  # vehicle seconds of each contact's predicted path in a `
 PACE_TAU_S = 8.0  # vehicle seconds over which the ground speed along the route is smoothed
 GUARD_MIN_ALT_M = 10.0  # m above home: below it the vehicle is taking off or landing, which the guard leaves be
 GUARD_REPEAT_WALL_S = 1.0  # wall seconds between two guard actions
+JOIN_LATENCY_S = 1.0  # vehicle seconds between choosing the item to join and the autopilot flying to it
 FLOWN_CHECK_DT_S = 0.5  # vehicle seconds between the points of a plan's flown path
 HOLD_REFUSED_WALL_S = 0.5  # wall seconds after finding no checked hold pattern before looking again
 RESUME_HORIZON_S = 20.0  # vehicle seconds of the path flown on resuming that are checked
@@ -600,9 +601,11 @@ class LiveReplanner:
         # good: clear by the margin; else still used if it is safe and better than the route being flown
         safe = status in GOOD and (rec.sep_after_m >= d_coll + cfg.margin_m
                                    or rec.sep_after_m >= max(d_coll, conflict.separation))
-        if not safe and job.violations and set(job.violations) <= {"turn"}:
+        if not safe and job.violations and set(job.violations) <= {"turn"} and self.holding is None:
             # turns tighter than the vehicle's: what matters is the path it will fly through them (the
-            # waypoints are its mission items), checked as flown against the obstacles and the traffic
+            # waypoints are its mission items), checked as flown against the obstacles and the traffic; only for
+            # a vehicle flying its route towards the commit point (one that is held joins from elsewhere: on SITL
+            # such a plan joined from a hold overshot its tight turn 22.8 m into a cylinder)
             flown = self._flown_separation(cp, new_route, threats)
             if flown is not None:
                 safe = flown >= d_coll + cfg.margin_m or flown >= max(d_coll, conflict.separation)
@@ -992,15 +995,24 @@ class LiveReplanner:
         return per[worst], worst
 
     def ahead_seq(self, seq: int) -> int:
-        """The first route item from ``seq`` on that a plane has not yet passed along the route (it is past item k
-        when it is beyond it along the leg k -> k+1): resumed towards an item it has passed, ArduPlane turns back
-        round through whatever is beside it (on SITL, 30 m into a cylinder after a hold). A copter keeps ``seq``."""
+        """The first route item from ``seq`` on that a plane can fly to from where it is: not passed along the
+        route (beyond it along the leg k -> k+1), not behind it (against its velocity) and not within two wide
+        turns plus a second of flight (what it cannot turn onto without a loop). Resumed towards such an item,
+        ArduPlane loops back round through whatever is beside it: on SITL, after a hold beside item 5, 33 m into a
+        cylinder. The goal is always kept. A copter keeps ``seq``."""
         if self.position is None or not self.link.profile.hold_circles:
             return seq
         seqs, pts = self.route.seqs, self.route.points
+        p, v = self.position[:2], self.velocity
+        wide = self.limits.wide_turn_radius(self.groundspeed) if self.limits is not None else 2.0 * self._turn_radius()
+        near = 2.0 * max(wide, self._turn_radius()) + max(self.groundspeed, 1.0) * JOIN_LATENCY_S
+        moving = float(np.linalg.norm(v)) > 1.0
         target = seq
         for k in np.flatnonzero((seqs >= seq) & (seqs < self.goal_seq)):
-            if k + 1 >= len(seqs) or float(np.dot(self.position[:2] - pts[k, :2], pts[k + 1, :2] - pts[k, :2])) <= 0:
+            to = pts[k, :2] - p
+            passed = k + 1 < len(seqs) and float(np.dot(p - pts[k, :2], pts[k + 1, :2] - pts[k, :2])) > 0
+            behind = moving and float(np.dot(to, v)) <= 0.0
+            if not (passed or behind or float(np.linalg.norm(to)) < near) or k + 1 >= len(seqs):
                 break
             target = int(seqs[k + 1])
         if target != seq:
