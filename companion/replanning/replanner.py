@@ -646,9 +646,7 @@ class LiveReplanner:
         if heading is None:
             first = route[1] - route[0] if len(route) > 1 else np.array([0.0, 1.0, 0.0])
             heading = first / max(float(np.linalg.norm(first[:2])), 1e-6)
-        turn = self._turn_radius()
-        radius = turn if not self.link.profile.hold_circles else max(
-            self.limits.wide_turn_radius(self.speed) if self.limits is not None else 2.0 * turn, turn)
+        radius = self._wide_turn_radius(self.speed) if self.link.profile.hold_circles else self._turn_radius()
         length = float(np.linalg.norm(np.diff(route, axis=0), axis=1).sum())
         path = predict_own_path(route[0], heading[:2] * self.speed, route[0], route[1:], radius,
                                 self.scenario.vehicle.acceptance_radius,
@@ -664,6 +662,12 @@ class LiveReplanner:
         bank = math.radians(self.limits.max_bank_deg if self.limits is not None else self.scenario.vehicle.max_bank_deg)
         v = max(self.groundspeed, self.scenario.vehicle.cruise_speed)
         return v * v / (G0 * math.tan(bank))
+
+    def _wide_turn_radius(self, speed: float) -> float:
+        """How wide a plane's path-follower turns onto a track far off its heading (AutopilotLimits.wide_turn_radius;
+        twice the tightest turn without read limits), never less than the tightest turn."""
+        wide = self.limits.wide_turn_radius(speed) if self.limits is not None else 2.0 * self._turn_radius()
+        return max(wide, self._turn_radius())
 
     def _start_heading(self, cp: CommitPoint) -> np.ndarray | None:
         """Unit (3,) direction the vehicle flies through the commit point: the old route's there, or its own
@@ -795,7 +799,7 @@ class LiveReplanner:
         still fits in the first half of the way to the conflict."""
         cfg = self.cfg
         budget = min(cfg.budget_s * 2.0 ** self._failed_plans, max(cfg.max_budget_s, cfg.budget_s))
-        room = (conflict.t - now) * self.speed * 0.5
+        room = self._room_m(conflict, now)
         while budget > cfg.budget_s and self._short_lead_m(budget) > room:
             budget = max(budget / 2.0, cfg.budget_s)
         return budget
@@ -806,7 +810,11 @@ class LiveReplanner:
         plan_s = (budget_s + cfg.check_interval_wall_s) * self.clock.rate
         return (plan_s + self._upload_wall_s * self.clock.rate + cfg.lead_margin_s) * self.speed
 
-    def _commit_lead_m(self, conflict: Conflict, now: float, budget_s: float | None = None) -> float:
+    def _room_m(self, conflict: Conflict, now: float) -> float:
+        """The first half of the way to the conflict: what a commit lead may take (the rest is the detour's)."""
+        return (conflict.t - now) * self.speed * 0.5
+
+    def _commit_lead_m(self, conflict: Conflict, now: float, budget_s: float) -> float:
         """How far ahead of the vehicle the new route starts. Far enough that the vehicle, flying on while the
         plan is made, cannot reach the first new item before the upload is verified: the swap's guard then
         has no reason to hold it. A plane held in LOITER for a guard turns off its route for seconds (at SITL's
@@ -815,12 +823,10 @@ class LiveReplanner:
         switching it counts. Shortened to the planning-and-upload time alone when the conflict is too close
         for that (the guard then holds if it must)."""
         cfg = self.cfg
-        budget_s = cfg.budget_s if budget_s is None else budget_s
         plan_s = (budget_s + cfg.check_interval_wall_s) * self.clock.rate
         full = (plan_s + self._guard_threshold_s() + cfg.lead_margin_s) * self.speed + self._switch_m()
         short = self._short_lead_m(budget_s)
-        room = (conflict.t - now) * self.speed * 0.5  # keep the first half of the way to the conflict for the detour
-        return full if full <= room else short
+        return full if full <= self._room_m(conflict, now) else short
 
     def _join_seq(self, first_new_seq: int) -> int:
         """The commit point's item, or the next one if the vehicle is already past the commit point (it
@@ -1004,8 +1010,7 @@ class LiveReplanner:
             return seq
         seqs, pts = self.route.seqs, self.route.points
         p, v = self.position[:2], self.velocity
-        wide = self.limits.wide_turn_radius(self.groundspeed) if self.limits is not None else 2.0 * self._turn_radius()
-        near = 2.0 * max(wide, self._turn_radius()) + max(self.groundspeed, 1.0) * JOIN_LATENCY_S
+        near = 2.0 * self._wide_turn_radius(self.groundspeed) + max(self.groundspeed, 1.0) * JOIN_LATENCY_S
         moving = float(np.linalg.norm(v)) > 1.0
         target = seq
         for k in np.flatnonzero((seqs >= seq) & (seqs < self.goal_seq)):
@@ -1037,10 +1042,8 @@ class LiveReplanner:
         if worst is not None and per[worst] < d_coll + HOLD_MARGIN_M:
             return per[worst], worst
         if self.link.profile.hold_circles and float(np.linalg.norm(self.velocity)) > 1.0:
-            wide = self.limits.wide_turn_radius(self.groundspeed) if self.limits is not None else \
-                2.0 * self._turn_radius()
             path = predict_own_path(self.position, self.velocity, self.position, self.route.points[hit[0]:],
-                                    max(wide, self._turn_radius()), self.scenario.vehicle.acceptance_radius,
+                                    self._wide_turn_radius(self.groundspeed), self.scenario.vehicle.acceptance_radius,
                                     horizon_s=RESUME_HORIZON_S)
             breach = first_breach(path, env, d_coll)
             if breach is not None:

@@ -9,13 +9,11 @@ rewritten to a point 600 m further south; 5 s later DO_SET_MISSION_CURRENT 6.
 
 from __future__ import annotations
 
-import time
-
 import numpy as np
 import pytest
 import pytest_asyncio
 from conformance.conftest import home_item, item, numbered, ready, takeoff, waypoint
-from conformance.test_hold_turn import _track_until, change_speed
+from conformance.test_hold_turn import _track_until, change_speed, track_until_east
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
@@ -41,12 +39,9 @@ async def flown(backend: str, launch) -> dict[str, float]:
         await ready(v)
         await v.client.upload_verified(_mission(BOTTOM))
         await v.supervisor.wait_ready(60.0)
-        track: list[tuple[float, float, float, float]] = []
         with v.link.subscribe("GLOBAL_POSITION_INT", "MISSION_CURRENT") as sub:
             await v.supervisor.start(1)
-            deadline = time.monotonic() + 180.0
-            while time.monotonic() < deadline and not (track and track[-1][1] > 200.0):  # on the last leg
-                await _track_until(v, sub, (track[-1][0] if track else 0.0) + 0.5, track)
+            track = await track_until_east(v, sub, 200.0, 180.0)  # on the last leg
             assert track and track[-1][1] > 200.0, "never reached the last leg"
             legs = np.array(track)
 

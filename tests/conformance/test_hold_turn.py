@@ -56,6 +56,16 @@ async def _track_until(v, sub, until_s: float, out: list) -> None:
     raise AssertionError("the autopilot's clock stopped")
 
 
+async def track_until_east(v, sub, east_m: float, wall_s: float) -> list[tuple[float, float, float, float]]:
+    """The track (t, east, north, alt) from now until the vehicle is more than ``east_m`` east of home, or
+    ``wall_s`` wall seconds have passed (the caller asserts it got there)."""
+    track: list[tuple[float, float, float, float]] = []
+    deadline = time.monotonic() + wall_s
+    while time.monotonic() < deadline and not (track and track[-1][1] > east_m):
+        await _track_until(v, sub, (track[-1][0] if track else 0.0) + 0.5, track)
+    return track
+
+
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
 async def flown(backend: str, launch) -> dict[str, float]:
     """The flight, once per backend: what each test asserts on."""
@@ -69,13 +79,10 @@ async def flown(backend: str, launch) -> dict[str, float]:
                           waypoint(TURN_AT - 600.0, LEG_EAST, ALT, param2=30.0)])
         await v.client.upload_verified(items)
         await v.supervisor.wait_ready(60.0)
-        track: list[tuple[float, float, float, float]] = []
         with v.link.subscribe("GLOBAL_POSITION_INT", "MISSION_CURRENT") as sub:
             await v.supervisor.start(1)
             # fly until the second leg is current and 500 m east, then LOITER there
-            deadline = time.monotonic() + 120.0
-            while time.monotonic() < deadline and not (track and track[-1][1] > 450.0):
-                await _track_until(v, sub, (track[-1][0] if track else 0.0) + 0.5, track)
+            track = await track_until_east(v, sub, 450.0, 120.0)
             assert track and track[-1][1] > 450.0, "never reached the second leg"
             turn = np.array([p for p in track if p[1] > 1.0 and p[2] > TURN_AT - 200.0])
             overshoot = float(turn[:, 2].max() - TURN_AT)  # north of the new leg's line
