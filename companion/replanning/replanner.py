@@ -195,6 +195,7 @@ class ReplanRecord:
     sep_before_m: float
     sep_after_m: float | None = None
     plan_status: str = ""
+    budget_s: float = 0.0  # the planner's time budget for this plan (it doubles after a failed plan)
     plan_s: float = 0.0
     upload_s: float = 0.0
     latency_s: float | None = None  # conflict detected → new mission current (wall)
@@ -572,6 +573,7 @@ class LiveReplanner:
         problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed,
                                  heading=self._start_heading(cp), threat_margin=cfg.margin_m)
         settings = replan_settings(self.scenario.planner, cfg)
+        rec.budget_s = budget
         t0 = time.monotonic()
         seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
         # a plan that overruns (a loaded machine, a planner process still starting) must not let the vehicle fly
