@@ -53,6 +53,7 @@ from companion.replanning.holds import (
     FLOWN_WIDER_M,
     HOLD_MARGIN_M,
     HoldPattern,
+    circle_traffic_separation,
     copter_hold,
     plane_hold,
 )
@@ -244,6 +245,7 @@ class LiveReplanner:
         self._held_since: float | None = None  # mission time the current hold began
         self._last_replan = -math.inf  # mission time
         self._hold_refused_at = -math.inf  # wall time no checked hold pattern was found
+        self._hold_checked_at = -math.inf  # wall time the hold circle was last checked against the traffic
         self._failed_plans = 0  # plans in a row that were not safe enough to use (each next one gets more budget)
         self._last_check = -math.inf  # wall
         self._upload_wall_s = 0.05  # running estimate of one verified upload (wall s)
@@ -489,6 +491,7 @@ class LiveReplanner:
         if self.holding is None and await self._guard(now):
             return
         if self.holding is not None:
+            await self._recheck_hold(now, threats)
             if now - self._last_replan >= self.cfg.hold_retry_s:
                 await self._retry_from_hold(now, threats)
             return
@@ -936,6 +939,34 @@ class LiveReplanner:
         self._held_since = self.now()
         self.events.log("hold", mode=self.held_in, reason=reason, pattern=pattern.summary())
 
+    async def _recheck_hold(self, now: float, threats: Threats) -> None:
+        """While circling a hold of ours: the traffic is checked against the circle again (at most every
+        :data:`HOLD_REFUSED_WALL_S` wall seconds); a circle that no longer keeps it at d_coll is replaced by a
+        checked one that keeps it further (the traffic's prediction changes as it flies)."""
+        pattern = self.hold_pattern
+        if (pattern is None or pattern.kind != "circle" or self.held_in != "GUIDED" or not len(threats)
+                or self.position is None or time.monotonic() - self._hold_checked_at < HOLD_REFUSED_WALL_S):
+            return
+        self._hold_checked_at = time.monotonic()
+        d_coll = self.scenario.hazard.d_coll
+        speed = max(self.groundspeed, self.scenario.vehicle.cruise_speed)
+        sep = circle_traffic_separation(self.position, pattern.centre, pattern.radius, pattern.clockwise, speed,
+                                        now, threats)
+        if sep >= d_coll:
+            return
+        new = self._checked_hold()
+        if new is None or new.kind != "circle" or new.traffic_separation_m <= sep:
+            self.events.log("hold_unclear", separation_m=round(sep, 1), pattern=pattern.summary(),
+                            note="no other checked circle keeps the traffic further")
+            return
+        try:
+            await self._circle(new)
+        except (CommandError, AttributeError) as e:
+            self.events.log("hold_circle_refused", error=str(e), pattern=new.summary())
+            return
+        self.hold_pattern = new
+        self.events.log("hold_moved", separation_m=round(sep, 1), pattern=new.summary())
+
     def _checked_hold(self) -> HoldPattern | None:
         """The hold pattern for where the vehicle is now, checked against the static world and the traffic
         (:mod:`companion.replanning.holds`): a plane on ArduPilot circles a centre and radius of ours; any other
@@ -1028,9 +1059,9 @@ class LiveReplanner:
 
     def leg_blocked(self, seq: int) -> tuple[float, str | None] | None:
         """(clearance, obstacle) when what AUTO flies on resuming at item ``seq`` comes too close to a static
-        obstacle: the straight leg from the vehicle to the item within d_coll + the hold margin, or the path the
-        vehicle itself flies onto it and on (:func:`predict_own_path`, 20 s, as wide as its path-follower turns)
-        within d_coll; None when both are clear."""
+        obstacle: the straight leg from the vehicle to the item, or the path the vehicle itself flies onto it and on
+        (:func:`predict_own_path`, 20 s, as wide as its path-follower turns), within d_coll + the hold margin; None
+        when both are clear."""
         if self.position is None:
             return None
         hit = np.flatnonzero(self.route.seqs >= seq)
@@ -1047,7 +1078,9 @@ class LiveReplanner:
             path = predict_own_path(self.position, self.velocity, self.position, self.route.points[hit[0]:],
                                     self._wide_turn_radius(self.groundspeed), self.scenario.vehicle.acceptance_radius,
                                     horizon_s=RESUME_HORIZON_S)
-            breach = first_breach(path, env, d_coll)
+            # by the margin too: the model starts wings level, and a plane resumed from a hold circle is banked
+            # (on the simulator, resumed 3 s into its circle, a path predicted clear came 6.3 m from a cylinder)
+            breach = first_breach(path, env, d_coll + HOLD_MARGIN_M)
             if breach is not None:
                 return breach.clearance_m, breach.obstacle
         return None

@@ -8,7 +8,13 @@ from pathlib import Path
 
 import numpy as np
 
-from companion.replanning.holds import FLOWN_WIDER_M, HOLD_MARGIN_M, copter_hold, plane_hold
+from companion.replanning.holds import (
+    FLOWN_WIDER_M,
+    HOLD_MARGIN_M,
+    circle_traffic_separation,
+    copter_hold,
+    plane_hold,
+)
 from planner.trajectory.checks import obstacle_distances
 from planner.world.environment import Threat, Threats
 from planner.world.scenario import load_scenario
@@ -52,6 +58,28 @@ def test_a_circle_that_traffic_will_cross_is_not_chosen() -> None:
     other = plane_hold(here, np.array([0.0, 20.0]), 80.0, ENV, D_COLL, 20.0, parked, 0.0)
     assert other is None or (np.linalg.norm(other.centre - free.centre) > 1.0 and
                              other.traffic_separation_m >= D_COLL)
+
+
+def test_traffic_is_checked_on_the_circle_as_flown_and_kept_beyond_the_margin_where_a_circle_allows() -> None:
+    """An intruder parked just outside the circle asked (by d_coll + 5 m) is inside the ring ArduPlane flies
+    (16-20 m wider): that circle is not taken while another keeps the margin."""
+    here = np.array([200.0, 500.0, 100.0])
+    free = plane_hold(here, np.array([0.0, 20.0]), 80.0, ENV, D_COLL, 20.0)
+    assert free is not None
+    outward = free.path[-len(free.path) // 2] - free.centre
+    outward[2] = 0.0
+    spot = free.centre + outward / np.linalg.norm(outward) * (80.0 + 40.0 + D_COLL + 5.0)
+    parked = Threats((Threat("parked", "track", 40.0, tuple(float(v) for v in spot), (0.0, 0.0, 0.0)),))
+    on_asked = float(np.min(np.linalg.norm(_ring(free.centre, 80.0)[:, :2] - spot[:2], axis=1))) - 40.0
+    assert on_asked >= D_COLL  # the circle asked alone would pass
+    sep = circle_traffic_separation(here, free.centre, 80.0, free.clockwise, 20.0, 0.0, parked)
+    assert sep < D_COLL  # the ring flown does not
+    other = plane_hold(here, np.array([0.0, 20.0]), 80.0, ENV, D_COLL, 20.0, parked, 0.0)
+    assert other is not None and np.linalg.norm(other.centre - free.centre) > 1.0
+    assert other.traffic_separation_m >= D_COLL + HOLD_MARGIN_M
+    # recomputed independently on both rings of the circle chosen
+    for r in (80.0, 80.0 + FLOWN_WIDER_M):
+        assert float(np.min(np.linalg.norm(_ring(other.centre, r)[:, :2] - spot[:2], axis=1))) - 40.0 >= D_COLL
 
 
 def test_no_room_anywhere_gives_no_circle() -> None:
