@@ -55,6 +55,8 @@ SPEED_RANGE = (0.6, 2.0)  # a meet intruder that must take off at once flies thi
 JOIN_M = 30.0  # the vehicle is on its route while it is this close to it
 SETTLE_S = 4.0  # ... and settled on it this long after joining it (turning onto it, speeding up)
 PACE_WINDOW_S = 4.0  # ... and its pace along the route is measured over the last this long
+SLOWED = 0.5  # its pace over the last RECENT_S below this share of its best: slowing to hold, the estimate stands
+RECENT_S = 1.0
 
 
 class IntruderTrack:
@@ -66,7 +68,8 @@ class IntruderTrack:
     estimated from its pace over the last :data:`PACE_WINDOW_S`, and the intruder takes off at the time that brings it to ``meet`` at its nominal speed;
     if that time has passed already, it takes off at once at the speed that keeps the appointment (within
     :data:`SPEED_RANGE`). A vehicle that leaves the route after that (it replanned) keeps the appointment as last
-    estimated. From its take-off on it flies its script at a constant speed, whatever the vehicle does."""
+    estimated, and so does one that slows below half its best pace on the route (a copter braking to hold). From its
+    take-off on it flies its script at a constant speed, whatever the vehicle does."""
 
     def __init__(self, intruder: Intruder, route: np.ndarray | None = None) -> None:
         self.intruder = intruder
@@ -82,6 +85,8 @@ class IntruderTrack:
             self._route_cumulative = _cumulative(self._route)
             self._pace: list[tuple[float, float]] = []  # (mission s, m along the route) while on the route
             self._eta: float | None = None  # the vehicle's last estimated arrival at the meeting point
+            self._pace_max = 0.0  # m/s, its best pace along the route so far
+            self._slowed = False  # slowing down on the route: the appointment stands
             meet = np.asarray(intruder.meet, dtype=float)
             self._meet_on_route, _ = _arc_length_at(self._route, self._route_cumulative, meet)
             self._meet_on_path = _arc_length_at(self._points, self._cumulative, meet)[0]
@@ -110,9 +115,23 @@ class IntruderTrack:
             t0, s0 = next(p for p in reversed(self._pace) if t - p[0] >= PACE_WINDOW_S)
             pace = (self._pace[-1][1] - s0) / (t - t0)
             left = self._meet_on_route - self._pace[-1][1]
-            if left <= 0 or pace <= 0:
+            if left <= 0:
                 return
-            eta = self._eta = t + left / pace
+            t1, s1 = next(p for p in reversed(self._pace) if t - p[0] >= RECENT_S)
+            recent = (self._pace[-1][1] - s1) / (t - t1)
+            if self._eta is None or recent >= SLOWED * self._pace_max:
+                if pace <= 0:
+                    return
+                self._pace_max = max(self._pace_max, pace)
+                self._eta = t + left / pace
+                self._slowed = False
+            elif not self._slowed:
+                # slowing down on the route (a copter braking to hold): the appointment is where it would have been
+                # flying on at its best pace, and stands, as when it leaves the route (before this, the copters'
+                # crossing_traffic holds pushed ga-right's take-off past the end of the flight)
+                self._slowed = True
+                self._eta = t + left / self._pace_max
+            eta = self._eta
         if t < eta - self._meet_on_path / self.intruder.speed:
             return
         lo, hi = SPEED_RANGE

@@ -83,6 +83,22 @@ def test_leaving_the_route_starts_the_pace_again() -> None:
     assert track.waiting and not track._pace
 
 
+@pytest.mark.parametrize("decel", [math.inf, 2.5], ids=["stops", "brakes"])
+def test_a_vehicle_that_stops_on_the_route_keeps_its_appointment(decel: float) -> None:
+    """A copter braking to hold on its route (at once, or at ArduCopter's 2.5 m/s²): the intruder still takes off
+    when the vehicle, flying on at its pace, would have met it (the copters' crossing_traffic flights never saw
+    their second intruder)."""
+    track = IntruderTrack(CROSSER, ROUTE)
+    x, v, dt = 0.0, 20.0, 0.1
+    for t in np.arange(0.0, 40.0, dt):  # just settled on the route at 9 s, 180 m along, then hovering
+        if t >= 9.0:
+            v = max(v - decel * dt, 0.0)
+        x += v * dt
+        track.follow(float(t), np.array([x, 0.0, 100.0]))
+    assert track.start_time is not None  # it took off while the vehicle held
+    assert track.start_time + 300.0 / track.speed == pytest.approx(600.0 / 20.0, abs=1.5)
+
+
 def test_meet_needs_the_route() -> None:
     with pytest.raises(ValueError, match="route"):
         IntruderTrack(CROSSER)
