@@ -97,8 +97,8 @@ def _parser() -> argparse.ArgumentParser:
                     help="bench replan only: replans run the scenario's own planner (the paper's fusion) instead of "
                          "the roadmap pipeline, for comparison")
     bn.add_argument("--cpu-hog", type=int, default=0, metavar="N",
-                    help="bench replan only: N busy processes beside the flights (deadlines under load, issue 16; "
-                         "default 0)")
+                    help="bench replan and bench flights: N busy processes beside the flights (deadlines under "
+                         "load, issue 16; default 0)")
     bn.add_argument("--backend", choices=("sim", "sitl-plane", "sitl-copter", "px4"), default="sim",
                     help="bench flights only: what flies: the built-in simulator (20x), ArduPilot SITL plane or "
                          "copter (10x), PX4 SITL quadrotor (10x) (default sim)")
@@ -187,6 +187,7 @@ def cmd_bench_replan(args: argparse.Namespace) -> int:
 def cmd_bench_flights(args: argparse.Namespace) -> int:
     """Whole flights of the scenarios with moving threats on one backend (companion.flight.flights_bench)."""
     from companion.flight import flights_bench as fb
+    from planner.bench.load import cpu_hog
     from planner.world.scenario import load_scenario
 
     planner_cli.local_only(args, "bench flights")
@@ -203,14 +204,18 @@ def cmd_bench_flights(args: argparse.Namespace) -> int:
     if unknown or not names:
         raise FuseplanError(f"--scenarios: {', '.join(unknown) or 'none named'}: choose from the scenarios with "
                             f"moving threats: {', '.join(shipped)}")
+    hog = getattr(args, "cpu_hog", 0)
+    if hog < 0:
+        raise FuseplanError("--cpu-hog must be >= 0")
     settings = fb.FlightsSettings(args.backend, runs, tuple(shipped[n] for n in dict.fromkeys(names)),
-                                  args.no_replan_too, args.output, tuple(args.overrides), folder)
+                                  args.no_replan_too, args.output, tuple(args.overrides), folder, hog)
     for path in settings.scenarios:  # bad --set fails here, once, not in every flight
         load_scenario(path, list(settings.fly_overrides))
     planner_cli.make_output_dir(args.output)
     say = (lambda _t: None) if args.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
     try:
-        _records, reused = fb.run_flights_bench(settings, main, progress=say)
+        with cpu_hog(hog):
+            _records, reused = fb.run_flights_bench(settings, main, progress=say)
     except KeyboardInterrupt:
         return planner_cli._interrupted(args.output / "flights.jsonl", "flights")
     except OSError as e:

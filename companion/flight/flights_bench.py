@@ -72,6 +72,7 @@ class FlightsSettings:
     output: Path
     overrides: tuple[str, ...] = ()  # --set, for every flight
     folder: Path | None = None  # the autopilot's folder (--sitl-dir or the environment)
+    hog: int = 0  # --cpu-hog: busy processes beside the flights
 
     @property
     def fly_overrides(self) -> tuple[str, ...]:
@@ -80,12 +81,14 @@ class FlightsSettings:
     @property
     def fingerprint(self) -> str:
         """What decides a flight besides its key: a resumed record must match it."""
-        return json.dumps([self.backend, SPEEDUP[self.backend], list(self.fly_overrides)])
+        return json.dumps([self.backend, SPEEDUP[self.backend], list(self.fly_overrides)]
+                          + ([{"cpu_hog": self.hog}] if self.hog else []))
 
     def command(self) -> str:
         names = ",".join(p.stem for p in self.scenarios)
         return (f"fuseplan bench flights --backend {self.backend} --runs {self.runs} --scenarios {names}"
-                + (" --no-replan-too" if self.replan_off_too else "") + f" -o {self.output}"
+                + (" --no-replan-too" if self.replan_off_too else "") + (f" --cpu-hog {self.hog}" if self.hog else "")
+                + f" -o {self.output}"
                 + set_options(self.overrides))
 
     def flights(self) -> list[tuple[Path, bool, int]]:
@@ -401,7 +404,9 @@ def write_report(s: FlightsSettings, records: Sequence[dict[str, Any]]) -> list[
 
     lines = [f"# Flights with moving threats: {s.backend}", "", f"`{s.command()}`", "",
              "Hosts: " + "; ".join(dict.fromkeys(r["host"] for r in records)) + ". Autopilots: "
-             + "; ".join(dict.fromkeys(r["autopilot"] for r in records)) + ".", "",
+             + "; ".join(dict.fromkeys(r["autopilot"] for r in records)) + "."
+             + (f" Load: {s.hog} busy process{'es' if s.hog != 1 else ''} (planner.bench.load.cpu_hog) beside "
+                "the flights." if s.hog else ""), "",
              ("| backend | scenario | replanning | flights | completed | kept d_coll: static | kept d_coll: traffic "
              "| static clearance min / median (m) | traffic separation min / median (m) "
              "| cross-track p50 / p95, median (m) | cross-track p95 max (m) | climb error p50 / p95, median (m) "

@@ -73,6 +73,11 @@ def test_a_second_run_with_the_same_output_flies_nothing(bench: Path, monkeypatc
     # other settings for the same flights: refused, nothing flown
     assert main([*ARGS, "-o", str(bench), "--set", "hazard.d_coll=12"]) == 2
     assert "flown with other settings" in capsys.readouterr().err
+    # nor under load: the busy processes are part of what a flight was flown with, and of the command reported
+    assert main([*ARGS, "-o", str(bench), "--cpu-hog", "1"]) == 2
+    assert "flown with other settings" in capsys.readouterr().err
+    loaded = fb.FlightsSettings("sim", 1, (Path("crossing_traffic.toml"),), False, bench, hog=1)
+    assert "--cpu-hog 1" in loaded.command()
 
 
 def test_cross_track_and_climb_error_on_a_synthetic_track() -> None:
