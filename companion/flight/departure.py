@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.mavlink.vehicle_limits import AutopilotLimits
-from planner.trajectory.checks import obstacle_distances
+from planner.trajectory.checks import nearest_obstacle
 from planner.world.environment import Environment
 
 PLANE_GROUND_ROLL_M = 30.0  # ArduPlane SITL: lift-off about 30 m down the runway
@@ -141,9 +141,7 @@ def check_departure(fix: VehicleFix, start: np.ndarray, takeoff_alt: float, limi
                          f"(0..{env.size_x:g} × 0..{env.size_y:g} m): it cannot be flown from there")
     paths = departure_paths(fix, start, takeoff_alt, limits) if on_ground else [_densify(np.stack([p, start]))]
     pts = np.vstack(paths)
-    per = {k: float(v.min()) for k, v in obstacle_distances(pts, env).items()}
-    nearest = min(per, key=per.__getitem__, default=None)
-    clearance = per[nearest] if nearest is not None else math.inf
+    clearance, nearest = nearest_obstacle(pts, env)
     need = d_coll + DEPARTURE_MARGIN_M
     if clearance < need:
         how = (f"take off on heading {fix.heading_deg or 0.0:.0f}° and climb out" if on_ground and

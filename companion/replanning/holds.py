@@ -15,7 +15,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from planner.trajectory.checks import obstacle_distances
+from planner.trajectory.checks import nearest_obstacle
 from planner.world.environment import Environment, Threats
 
 HOLD_MARGIN_M = 10.0  # beyond d_coll: the path-follower captures the circle a little wide
@@ -66,6 +66,11 @@ def _circle_path(p: np.ndarray, centre: np.ndarray, radius: float, clockwise: bo
     return np.column_stack([flat, np.full(len(flat), p[2])])
 
 
+def _circle_paths(p: np.ndarray, centre: np.ndarray, radius: float, clockwise: bool) -> tuple[np.ndarray, np.ndarray]:
+    """(:func:`_circle_path` of the circle asked, the same of the circle flown, :data:`FLOWN_WIDER_M` wider)."""
+    return _circle_path(p, centre, radius, clockwise), _circle_path(p, centre, radius + FLOWN_WIDER_M, clockwise)
+
+
 def _flown_ring(centre: np.ndarray, radius: float, z: float) -> np.ndarray:
     """The circle as the autopilot will fly it, :data:`FLOWN_WIDER_M` wider than asked."""
     a = np.linspace(0.0, 2 * math.pi, CIRCLE_POINTS + 1)
@@ -73,31 +78,31 @@ def _flown_ring(centre: np.ndarray, radius: float, z: float) -> np.ndarray:
     return np.stack([centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), np.full(a.size, z)], axis=1)
 
 
-def _traffic_separation(path: np.ndarray, speed: float, t0: float, threats: Threats | None,
-                        horizon_s: float) -> float:
-    """Least separation (distance − radius) from ``threats`` while flying ``path`` from time ``t0`` at ``speed``,
-    round and round (its last point back to the start of the circle) for ``horizon_s``."""
-    if threats is None or not len(threats) or len(path) < 2:
-        return math.inf
+def _flown_at(path: np.ndarray, speed: float, times: np.ndarray) -> np.ndarray:
+    """(T, 3) where a vehicle flying ``path`` (an approach then one circle, :func:`_circle_path`) at ``speed`` is
+    at ``times``, round and round the circle (its last point back to the circle's start)."""
     seg = np.linalg.norm(np.diff(path, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
-    times = np.arange(0.0, horizon_s + TRAFFIC_DT_S, TRAFFIC_DT_S)
     along = np.minimum(times * max(speed, 0.1), s[-1])
     if s[-1] > 0:  # the circle repeats: wrap the arc length past the end back over the circle part
         approach_len = s[max(len(path) - CIRCLE_POINTS - 1, 0)]
         lap = s[-1] - approach_len
         over = times * max(speed, 0.1) - approach_len
         along = np.where(over > 0, approach_len + np.mod(over, max(lap, 1e-6)), times * max(speed, 0.1))
-    pts = np.stack([np.interp(along, s, path[:, k]) for k in range(3)], axis=1)
+    return np.stack([np.interp(along, s, path[:, k]) for k in range(3)], axis=1)
+
+
+def _traffic_separation(paths: tuple[np.ndarray, ...], speed: float, t0: float, threats: Threats | None,
+                        horizon_s: float) -> float:
+    """Least separation (distance − radius) from ``threats`` while flying any of ``paths`` (:func:`_flown_at`)
+    from time ``t0`` at ``speed`` for ``horizon_s``; the threats' positions are predicted once for all."""
+    if threats is None or not len(threats) or any(len(p) < 2 for p in paths):
+        return math.inf
+    times = np.arange(0.0, horizon_s + TRAFFIC_DT_S, TRAFFIC_DT_S)
     centres = threats.positions(t0 + times)  # (k, T, 3)
-    sep = np.linalg.norm(centres - pts[None], axis=-1) - threats.radii(t0 + times)
-    return float(sep.min())
-
-
-def _worst(path: np.ndarray, env: Environment) -> tuple[float, str | None]:
-    per = {k: float(v.min()) for k, v in obstacle_distances(path, env).items()}
-    nearest = min(per, key=per.__getitem__, default=None)
-    return (per[nearest] if nearest is not None else math.inf), nearest
+    radii = threats.radii(t0 + times)
+    return min(float((np.linalg.norm(centres - _flown_at(p, speed, times)[None], axis=-1) - radii).min())
+               for p in paths)
 
 
 def plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: Environment, d_coll: float,
@@ -135,11 +140,12 @@ def _plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: 
                 # is the planner's, not a hazard: a circle may cross it; its obstacles are what it must clear)
                 continue
             centre = np.array([*centre2, p[2]])
-            path = _circle_path(p, centre, radius, clockwise)
-            clearance, nearest = _worst(np.vstack([path, _flown_ring(centre, radius, p[2])]), env)
+            paths = _circle_paths(p, centre, radius, clockwise)
+            path = paths[0]
+            clearance, nearest = nearest_obstacle(np.vstack([path, _flown_ring(centre, radius, p[2])]), env)
             if clearance < need:
                 continue
-            sep = circle_traffic_separation(p, centre, radius, clockwise, speed, t_now, threats)
+            sep = _traffic_separation(paths, speed, t_now, threats, HOLD_HORIZON_S)
             pattern = HoldPattern("circle", centre, radius, clockwise, path, clearance, nearest, sep)
             if sep >= d_coll + HOLD_MARGIN_M:
                 return pattern
@@ -153,9 +159,8 @@ def circle_traffic_separation(position: np.ndarray, centre: np.ndarray, radius: 
     """Least separation from ``threats`` of a plane circling ``centre`` from ``position`` for
     :data:`HOLD_HORIZON_S`: on the circle asked and on the one flown (:data:`FLOWN_WIDER_M` wider; on CI's loaded
     simulator a hold checked at 13.3 m on the circle asked came −8.6 m from a crossing aircraft)."""
-    p = np.asarray(position, dtype=float)
-    return min(_traffic_separation(_circle_path(p, centre, r, clockwise), speed, t_now, threats, HOLD_HORIZON_S)
-               for r in (radius, radius + FLOWN_WIDER_M))
+    paths = _circle_paths(np.asarray(position, dtype=float), centre, radius, clockwise)
+    return _traffic_separation(paths, speed, t_now, threats, HOLD_HORIZON_S)
 
 
 def copter_hold(position: np.ndarray, velocity: np.ndarray, stopping_distance: float, env: Environment,
@@ -168,5 +173,5 @@ def copter_hold(position: np.ndarray, velocity: np.ndarray, stopping_distance: f
     n = float(np.linalg.norm(v2))
     direction = np.array([*(v2 / n), 0.0]) if n > 0.1 else np.zeros(3)
     run = np.linspace(p, p + direction * stopping_distance, 20)
-    clearance, nearest = _worst(run, env)
+    clearance, nearest = nearest_obstacle(run, env)
     return HoldPattern("brake", run[-1], 0.0, True, run, clearance, nearest, math.inf)

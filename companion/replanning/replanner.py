@@ -76,7 +76,7 @@ from companion.replanning.threats import (
 )
 from planner import kernel
 from planner.plan import PlanStatus, plan
-from planner.trajectory.checks import obstacle_distances
+from planner.trajectory.checks import nearest_obstacle
 from planner.world.config import G0
 from planner.world.environment import Threats
 from planner.world.scenario import Scenario
@@ -95,7 +95,8 @@ GUARD_MIN_ALT_M = 10.0  # m above home: below it the vehicle is taking off or la
 GUARD_REPEAT_WALL_S = 1.0  # wall seconds between two guard actions
 JOIN_LATENCY_S = 1.0  # vehicle seconds between choosing the item to join and the autopilot flying to it
 FLOWN_CHECK_DT_S = 0.5  # vehicle seconds between the points of a plan's flown path
-HOLD_REFUSED_WALL_S = 0.5  # wall seconds after finding no checked hold pattern before looking again
+HOLD_CHECK_WALL_S = 0.5  # wall seconds between two looks for a hold pattern after none was found, and between
+# two traffic checks of the circle being held (each takes CPU the planner needs: under load, 30 a second)
 RESUME_HORIZON_S = 20.0  # vehicle seconds of the path flown on resuming that are checked
 MIN_HOLD_RADIUS_TURNS = 2.0  # the smallest hold circle commanded, in tightest turns (ArduPlane flies it wider)
 # the guard acts on a predicted clearance below this share of d_coll: its path model is a few metres off in a turn
@@ -662,11 +663,16 @@ class LiveReplanner:
                                  self.cfg.sample_dt_s)
         return min((c.separation for c in seps), default=math.inf)
 
+    @property
+    def flying_speed(self) -> float:
+        """The speed it flies turns and circles at: its ground speed, at least the cruise speed (a plane slowed
+        by a climb, or a vehicle not yet up to speed, still turns as wide as at cruise)."""
+        return max(self.groundspeed, self.scenario.vehicle.cruise_speed)
+
     def _turn_radius(self) -> float:
         """The vehicle's tightest turn at its ground speed (its roll limit when read, else the scenario's bank)."""
         bank = math.radians(self.limits.max_bank_deg if self.limits is not None else self.scenario.vehicle.max_bank_deg)
-        v = max(self.groundspeed, self.scenario.vehicle.cruise_speed)
-        return v * v / (G0 * math.tan(bank))
+        return self.flying_speed ** 2 / (G0 * math.tan(bank))
 
     def _wide_turn_radius(self, speed: float) -> float:
         """How wide a plane's path-follower turns onto a track far off its heading (AutopilotLimits.wide_turn_radius;
@@ -908,7 +914,7 @@ class LiveReplanner:
             # not flying the mission (a failsafe, the pilot): it cannot step into a mixed item; leave it be
             self.events.log("not_holding", reason=reason, mode=self._name(self.custom_mode))
             return
-        if time.monotonic() - self._hold_refused_at < HOLD_REFUSED_WALL_S:
+        if time.monotonic() - self._hold_refused_at < HOLD_CHECK_WALL_S:
             return  # just refused: checking again takes the CPU the planner needs (under load, 30 checks a second)
         pattern = self._checked_hold()
         if pattern is None:
@@ -941,17 +947,16 @@ class LiveReplanner:
 
     async def _recheck_hold(self, now: float, threats: Threats) -> None:
         """While circling a hold of ours: the traffic is checked against the circle again (at most every
-        :data:`HOLD_REFUSED_WALL_S` wall seconds); a circle that no longer keeps it at d_coll is replaced by a
+        :data:`HOLD_CHECK_WALL_S` wall seconds); a circle that no longer keeps it at d_coll is replaced by a
         checked one that keeps it further (the traffic's prediction changes as it flies)."""
         pattern = self.hold_pattern
         if (pattern is None or pattern.kind != "circle" or self.held_in != "GUIDED" or not len(threats)
-                or self.position is None or time.monotonic() - self._hold_checked_at < HOLD_REFUSED_WALL_S):
+                or self.position is None or time.monotonic() - self._hold_checked_at < HOLD_CHECK_WALL_S):
             return
         self._hold_checked_at = time.monotonic()
         d_coll = self.scenario.hazard.d_coll
-        speed = max(self.groundspeed, self.scenario.vehicle.cruise_speed)
-        sep = circle_traffic_separation(self.position, pattern.centre, pattern.radius, pattern.clockwise, speed,
-                                        now, threats)
+        sep = circle_traffic_separation(self.position, pattern.centre, pattern.radius, pattern.clockwise,
+                                        self.flying_speed, now, threats)
         if sep >= d_coll:
             return
         new = self._checked_hold()
@@ -981,7 +986,7 @@ class LiveReplanner:
         if circles:
             now = self.now()
             return plane_hold(self.position, self.velocity, self.loiter_radius, env, d_coll,
-                              max(self.groundspeed, self.scenario.vehicle.cruise_speed), self.threats(now), now,
+                              self.flying_speed, self.threats(now), now,
                               min_radius=MIN_HOLD_RADIUS_TURNS * self._turn_radius())
         stop = self.limits.stopping_distance if self.limits is not None else \
             self.scenario.vehicle.cruise_speed ** 2 / 5.0
@@ -1011,9 +1016,7 @@ class LiveReplanner:
         circle = centre + np.concatenate([  # as asked, and as ArduPlane flies it (wider)
             r * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
             for r in (self.loiter_radius, self.loiter_radius + FLOWN_WIDER_M)])
-        per = {k: float(v.min()) for k, v in obstacle_distances(circle, self.scenario.environment).items()}
-        worst = min(per, key=per.__getitem__, default=None)
-        clearance = per[worst] if worst is not None else math.inf
+        clearance, worst = nearest_obstacle(circle, self.scenario.environment)
         if clearance < self.scenario.hazard.d_coll + HOLD_MARGIN_M:
             return None
         return HoldPattern("circle", centre, self.loiter_radius, True, circle, clearance, worst, math.inf)
@@ -1027,11 +1030,8 @@ class LiveReplanner:
         seg = np.diff(ahead, axis=0)
         n = np.maximum(np.ceil(np.linalg.norm(seg, axis=1) / 5.0).astype(int), 1)
         pts = np.vstack([a + np.outer(np.arange(k + 1) / k, s) for a, s, k in zip(ahead[:-1], seg, n, strict=True)])
-        per = {k: float(v.min()) for k, v in obstacle_distances(pts, self.scenario.environment).items()}
-        worst = min(per, key=per.__getitem__, default=None)
-        if worst is None or per[worst] >= self.scenario.hazard.d_coll:
-            return None
-        return per[worst], worst
+        clearance, worst = nearest_obstacle(pts, self.scenario.environment)
+        return None if clearance >= self.scenario.hazard.d_coll else (clearance, worst)
 
     def ahead_seq(self, seq: int) -> int:
         """The first route item from ``seq`` on that a plane can fly to from where it is: not passed along the
@@ -1070,10 +1070,9 @@ class LiveReplanner:
         target = self.route.points[hit[0]]
         leg = np.linspace(self.position, target, max(int(np.linalg.norm(target - self.position) / 5.0), 1) + 1)
         env, d_coll = self.scenario.environment, self.scenario.hazard.d_coll
-        per = {k: float(v.min()) for k, v in obstacle_distances(leg, env).items()}
-        worst = min(per, key=per.__getitem__, default=None)
-        if worst is not None and per[worst] < d_coll + HOLD_MARGIN_M:
-            return per[worst], worst
+        clearance, worst = nearest_obstacle(leg, env)
+        if clearance < d_coll + HOLD_MARGIN_M:
+            return clearance, worst
         if self.link.profile.hold_circles and float(np.linalg.norm(self.velocity)) > 1.0:
             path = predict_own_path(self.position, self.velocity, self.position, self.route.points[hit[0]:],
                                     self._wide_turn_radius(self.groundspeed), self.scenario.vehicle.acceptance_radius,

@@ -6,6 +6,7 @@ point, instead of the closed forms the cost uses, and counts violations per cate
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -94,6 +95,13 @@ def obstacle_distances(points: np.ndarray, env: Environment) -> dict[str, np.nda
         d = np.linalg.norm(points[None] - env.spheres.center[:, None], axis=-1) - env.spheres.radius[:, None]
         out.update({f"spheres[{j}]": d[j] for j in range(len(env.spheres))})
     return out
+
+
+def nearest_obstacle(points: np.ndarray, env: Environment) -> tuple[float, str | None]:
+    """(signed clearance, name) of the static obstacle nearest any of ``points``; (inf, None) without one."""
+    per = {k: float(v.min()) for k, v in obstacle_distances(points, env).items()}
+    nearest = min(per, key=per.__getitem__, default=None)
+    return (per[nearest] if nearest is not None else math.inf), nearest
 
 
 def check_trajectory(

@@ -13,6 +13,7 @@ from planner.trajectory.checks import (
     CheckResult,
     check_trajectory,
     convergence_iteration,
+    nearest_obstacle,
     obstacle_clearance,
     robustness,
     smooth,
@@ -58,6 +59,15 @@ def nonzero(counts: dict) -> set[str]:
 # ---------------------------------------------------------------------------------------------
 # smooth()
 # ---------------------------------------------------------------------------------------------
+
+
+def test_nearest_obstacle_names_the_closest_one_and_its_signed_clearance():
+    env = env_with(cylinders=cylinders([[500.0, 500.0, 50.0, 400.0], [900.0, 500.0, 30.0, 400.0]]),
+                   spheres=Spheres(np.array([[500.0, 900.0, MID]]), np.array([40.0])))
+    pts = np.array([[500.0, 580.0, MID], [870.0, 500.0, MID + 10.0]])  # 30 m from [0], 0 m from [1] (its edge)
+    assert nearest_obstacle(pts, env) == (pytest.approx(0.0, abs=1e-9), "cylinders[1]")
+    assert nearest_obstacle(pts[:1], env) == (pytest.approx(30.0), "cylinders[0]")
+    assert nearest_obstacle(pts, env_with()) == (math.inf, None)  # nothing to hit
 
 
 def test_smooth_times_follow_arc_length_at_speed():
