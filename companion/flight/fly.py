@@ -48,7 +48,7 @@ from companion.mission.exports import (
     zones_of,
 )
 from companion.mission.geo import geodetic_to_enu, lonlatalt
-from companion.replanning.replan import ReplanConfig
+from companion.replanning.replan import ReplanConfig, with_room
 from companion.replanning.replanner import LiveReplanner
 from companion.replanning.separation import min_separations
 from planner.world.scenario import Scenario
@@ -122,6 +122,10 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                 if opts.fence and len(scenario.environment.cylinders) else []
             _write_mission_files(opts.report, plan_doc, scenario, items, spec, fence)
             client = (MavsdkMissionClient if isinstance(link, MavsdkLink) else MissionClient)(link)  # the link's own
+            planned = len(items)  # as in the mission files
+            if opts.replan and client.writes_in_part:  # room for a replan's longer route (never flown)
+                items = with_room(items, (opts.replan_config or ReplanConfig()).spare_items)
+                events.log("mission_room", items=len(items), spare=len(items) - planned)
             sup = FlightSupervisor(link, client, events, arm=opts.arm or opts.sim, home=scenario.home)
             length = float(plan_doc["metrics"]["length_m"])
             timeout = 120.0 + 4.0 * length / scenario.vehicle.cruise_speed / max(opts.speedup, 1e-3)
@@ -142,8 +146,8 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
     finally:
         if sim is not None:
             await sim.stop()
-    return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, len(items), replanner, feed,
-                                limits)
+    return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, (planned, len(items)), replanner,
+                                feed, limits)
 
 
 async def _plan_within(plan_doc: dict[str, Any], scenario: Scenario, limits: AutopilotLimits, opts: FlyOptions,
@@ -206,7 +210,8 @@ def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scena
 
 
 def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: Scenario, out: FlightOutcome,
-                         sim: Any, autopilot: str, n_items: int, replanner: LiveReplanner | None = None,
+                         sim: Any, autopilot: str, n_items: tuple[int, int],
+                         replanner: LiveReplanner | None = None,
                          feed: TrafficFeed | None = None, limits: AutopilotLimits | None = None) -> dict[str, Any]:
     """flight.json and track.png; the flown track is the simulator's truth when we ran it, else telemetry.
     Separations: the simulator's truth tracks, or a traffic feed's (the autopilot's positions against the
@@ -231,7 +236,8 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         "reason": out.reason,
         "holding": out.holding,
         "items_reached": sorted(out.items_reached),
-        "mission_items": n_items,
+        "mission_items": n_items[0],  # the planned mission, as in the mission files
+        "room_items": n_items[1] - n_items[0],  # copies of its loiter end uploaded behind it (replan.with_room)
         "fence_items": out.fence_count,
         "min_clearance_m": safety.static_clearance_m,  # static obstacles (kept under its old name)
         "min_static_clearance_m": safety.static_clearance_m,

@@ -311,6 +311,11 @@ class MavsdkMissionClient(MissionClient):
         super().__init__(link)
         self._last_type: int | None = None  # the type of the last list MAVSDK transferred (see set_current)
 
+    @property
+    def writes_in_part(self) -> bool:
+        """Never: ``mission_raw`` has no partial write."""
+        return False
+
     async def _upload(self, items: list[MissionItem], mission_type: int) -> list[MissionItem] | None:
         """MAVSDK refuses a list without exactly one item flagged current (CURRENT_INVALID) and PX4 takes the flag
         as its new current item: when none is flagged, the item current on the vehicle now is (0 before any

@@ -37,7 +37,7 @@ from companion.mavlink.errors import CommandError, MissionTimeout, MissionUpload
 from companion.mavlink.items import FENCE, MISSION, MissionItem
 from companion.mavlink.link import Link, Message
 from companion.mavlink.profiles import Firmware
-from companion.mavlink.storage import mission_difference
+from companion.mavlink.storage import changed_range, mission_difference
 
 log = logging.getLogger(__name__)
 
@@ -57,6 +57,10 @@ def command_name(command: int) -> str:
 
 DOWNLOAD_RESTARTS = 3  # a stalled download is started again this many times (the last try is patient)
 FINAL_ACK_MISSES = 3  # waits (of ``timeout``) for the final MISSION_ACK before checking by readback
+# item requests in flight at once in a readback from an autopilot that answers single requests outside a transfer
+# (profile ``partial_write``): small enough for its send buffer on a radio link, large enough that a readback
+# costs about one of its loops instead of one per item (ArduPlane SITL at 10x: ~4 ms per item one by one)
+READ_WINDOW = 8
 
 
 def _numbered(items: Sequence[MissionItem], mission_type: int) -> list[MissionItem]:
@@ -157,18 +161,20 @@ class MissionClient:
         return got
 
     async def _transfer(self, items: list[MissionItem], mission_type: int,
-                        first: int | None = None) -> tuple[int | None, int] | None:
+                        first: int | None = None, last: int | None = None) -> tuple[int | None, int] | None:
         """The upload exchange: None once the autopilot ACKs it; ``(result or None, seq)`` when the outcome is
-        ambiguous because the final ACK went missing. ``first``: write only ``items[first:]`` over the stored
-        list (MISSION_WRITE_PARTIAL_LIST, the same length) instead of the whole list (MISSION_COUNT)."""
+        ambiguous because the final ACK went missing. ``first`` (and ``last``, default the end): write only
+        ``items[first:last + 1]`` over the stored list (MISSION_WRITE_PARTIAL_LIST, the same length) instead of
+        the whole list (MISSION_COUNT)."""
         link = self.link
         ts, tc = self._target()
         count = len(items)
         lowest = 0 if first is None else first  # the first seq the autopilot may ask for
+        top = count - 1 if first is None or last is None else last  # and the last
         if first is None:
             count_msg = mavlink.MAVLink_mission_count_message(ts, tc, count, mission_type)
         else:
-            count_msg = mavlink.MAVLink_mission_write_partial_list_message(ts, tc, first, count - 1, mission_type)
+            count_msg = mavlink.MAVLink_mission_write_partial_list_message(ts, tc, first, top, mission_type)
         with link.subscribe("MISSION_REQUEST_INT", "MISSION_REQUEST", "MISSION_ACK",
                             predicate=self._for(mission_type)) as sub:
             link.send(count_msg)
@@ -178,11 +184,11 @@ class MissionClient:
             stalled = False  # the item last sent went out again unasked (no request since)
             misses = 0
             answered = 0  # bounded even against a peer that re-requests forever
-            max_answers = (count + 1) * (self.retries + 1) * 2
+            max_answers = (top - lowest + 2) * (self.retries + 1) * 2
             loop = asyncio.get_running_loop()
             progress = loop.time()  # when the autopilot last asked for an item
             while True:
-                waiting_ack = count > 0 and last_sent == count - 1 and requested == count - 1
+                waiting_ack = count > 0 and last_sent == top and requested == top
                 wait = self.timeout if requested is None or waiting_ack else self.item_timeout
                 try:
                     msg = await sub.get(wait)
@@ -196,11 +202,11 @@ class MissionClient:
                         # the last item went out again and again with no answer at all (MAVSDK and PX4 do not
                         # answer an item after the transfer ended, ArduPilot would NACK it): the final ACK was
                         # probably lost, and a readback tells at once
-                        return None, count - 1
+                        return None, top
                     if (last_sent is None and misses > self.retries and self._give_up(progress)) or (
                             last_sent is not None and silent > self.item_giveup_s):
                         if final_resent:
-                            return None, count - 1
+                            return None, top
                         raise MissionTimeout("upload", requested) from None
                     if last_sent is None:
                         log.debug("no request for %s; resending (%d)", count_msg.get_type(), misses)
@@ -213,8 +219,8 @@ class MissionClient:
                     continue
                 if msg.get_type() == "MISSION_ACK":
                     if msg.type == ACCEPTED:
-                        if count == 0 or last_sent == count - 1:
-                            log.info("uploaded items %d-%d of %d (mission type %d)", lowest, count - 1, count,
+                        if count == 0 or last_sent == top:
+                            log.info("uploaded items %d-%d of %d (mission type %d)", lowest, top, count,
                                      mission_type)
                             return None
                         log.debug("ignoring early MISSION_ACK ACCEPTED (stale?) at item %s", requested)
@@ -223,7 +229,7 @@ class MissionClient:
                         # after the last item, ArduPilot's MISSION_ERROR is its answer to a copy of that item
                         # (ours, or one the network duplicated) arriving once the upload had ended: the final
                         # ACK may have been lost; a readback tells
-                        return msg.type, count - 1
+                        return msg.type, top
                     if msg.type == mavlink.MAV_MISSION_ERROR and stalled:
                         # we had been resending an item nobody asked for again: the autopilot abandoned the
                         # transfer on its own clock (its OPERATION_CANCELLED lost) and now answers our resend
@@ -236,8 +242,8 @@ class MissionClient:
                     fault = msg.type == mavlink.MAV_MISSION_ERROR and self.link.profile.error_may_be_transfer_fault
                     raise MissionUploadError(msg.type, requested, transfer_fault=fault)
                 seq = msg.seq
-                if not lowest <= seq < count:
-                    log.warning("autopilot requested item %d of %d-%d; ignored", seq, lowest, count - 1)
+                if not lowest <= seq <= top:
+                    log.warning("autopilot requested item %d of %d-%d; ignored", seq, lowest, top)
                     continue
                 answered += 1
                 if answered > max_answers:
@@ -269,29 +275,29 @@ class MissionClient:
         what changed where the autopilot allows it; returns the path taken, for the log:
 
         * ``"partial FIRST-LAST"``: the profile has ``partial_write`` (ArduPilot) and both lists have the same
-          length: items FIRST…LAST (from the first that differs as the autopilot stores it, to the end) went
-          with MISSION_WRITE_PARTIAL_LIST and were verified by reading back the count and those items only;
+          length: items FIRST…LAST (the first and the last that differ as the autopilot stores them) went with
+          MISSION_WRITE_PARTIAL_LIST and were verified by reading back the count and those items only;
         * ``"unchanged"``: as above, but no item differs: nothing is sent, nothing read back;
         * ``"whole"``: otherwise (PX4 and other autopilots, a change of length, or an autopilot that refused the
           partial list with MAV_MISSION_ERROR before writing anything: the stored list is not ``previous``'s
           length), :meth:`upload_verified`.
 
-        The items before FIRST are not read back: ``previous`` is taken to be what the vehicle holds. Raises what
-        :meth:`upload_verified` raises: :class:`MissionUploadError`, :class:`MissionTimeout`,
+        The items outside FIRST…LAST are not read back: ``previous`` is taken to be what the vehicle holds.
+        Raises what :meth:`upload_verified` raises: :class:`MissionUploadError`, :class:`MissionTimeout`,
         :class:`MissionVerifyError`. Like a whole upload, a partial one that fails part-way leaves new items
         before the failure and old ones after it (docs/autopilots.md §3.7)."""
         sent = _numbered(items, mission_type)
-        if not self.link.profile.partial_write or len(sent) != len(previous):
+        if not self.writes_in_part or len(sent) != len(previous):
             await self.upload_verified(sent, mission_type)
             return "whole"
-        diff = mission_difference(sent, _numbered(previous, mission_type), self.home_at_zero(mission_type),
-                                  self.firmware)
-        if diff is None:
+        changed = changed_range(sent, _numbered(previous, mission_type), self.home_at_zero(mission_type),
+                                self.firmware)
+        if changed is None:
             return "unchanged"
-        first, last = diff[0], len(sent) - 1
+        first, last = changed
         try:
             async with self._lock:
-                await self._upload_range(sent, first, mission_type)
+                await self._upload_range(sent, first, last, mission_type)
         except MissionUploadError as exc:
             if exc.seq is not None or exc.operation != "upload" or exc.result != mavlink.MAV_MISSION_ERROR:
                 raise
@@ -301,45 +307,104 @@ class MissionClient:
             return "whole"
         return f"partial {first}-{last}"
 
-    async def _upload_range(self, items: list[MissionItem], first: int, mission_type: int) -> list[MissionItem]:
-        """Write ``items[first:]`` in place and read them back (:meth:`_verify_range`); the readback. A final ACK
-        that went missing is settled by that readback, as :meth:`_upload` does with a whole one."""
-        ambiguous = await self._transfer(items, mission_type, first)
+    async def _upload_range(self, items: list[MissionItem], first: int, last: int,
+                            mission_type: int) -> list[MissionItem]:
+        """Write ``items[first:last + 1]`` in place and read them back (:meth:`_verify_range`); the readback. A
+        final ACK that went missing is settled by that readback, as :meth:`_upload` does with a whole one."""
+        ambiguous = await self._transfer(items, mission_type, first, last)
         if ambiguous is None:
-            return await self._verify_range(items, first, mission_type)
+            return await self._verify_range(items, first, last, mission_type)
         log.info("final MISSION_ACK of the partial write not seen; checking by readback")
         try:
-            return await self._verify_range(items, first, mission_type)
+            return await self._verify_range(items, first, last, mission_type)
         except (MissionTimeout, MissionUploadError, MissionVerifyError):
             result, seq = ambiguous
             if result is None:
                 raise MissionTimeout("upload", seq) from None
             raise MissionUploadError(result, seq, transfer_fault=True) from None
 
-    async def _verify_range(self, items: list[MissionItem], first: int, mission_type: int) -> list[MissionItem]:
-        """The stored count (MISSION_REQUEST_LIST → MISSION_COUNT) and items ``first``… (one MISSION_REQUEST_INT
-        each), compared with ``items`` as :meth:`upload_verified` compares; the items read back, else
-        :class:`MissionVerifyError`."""
+    async def _verify_range(self, items: list[MissionItem], first: int, last: int,
+                            mission_type: int) -> list[MissionItem]:
+        """The stored count (MISSION_REQUEST_LIST → MISSION_COUNT) and items ``first``…``last``
+        (MISSION_REQUEST_INT, asked for together, :meth:`_read_items`), compared with ``items`` as
+        :meth:`upload_verified` compares; the items read back, else :class:`MissionVerifyError`."""
+        link = self.link
+        ts, tc = self._target()
+        got = await self._read_items(range(first, last + 1), mission_type, patient=True, count=len(items))
+        link.send(mavlink.MAVLink_mission_ack_message(ts, tc, ACCEPTED, mission_type))
+        log.info("read back items %d-%d of %d (mission type %d)", first, last, len(items), mission_type)
+        return _matching(items[first:last + 1], got, self.home_at_zero(mission_type), self.firmware)
+
+    async def _read_items(self, seqs: range, mission_type: int, patient: bool,
+                          count: int | None = None) -> list[MissionItem]:
+        """Items ``seqs`` of the stored list, in order. Where the autopilot answers single MISSION_REQUEST_INTs
+        outside a transfer (profile ``partial_write``: ArduPilot keeps no download state) up to
+        :data:`READ_WINDOW` requests are in flight at once, and with ``count`` the stored count is asked for in
+        the same breath (MISSION_REQUEST_LIST) and must equal it (else :class:`MissionVerifyError`); elsewhere
+        one request at a time, as the protocol's download does. Unanswered requests are sent again after
+        ``item_timeout``; retries and MISSION_ACK errors as :meth:`_request`."""
         link = self.link
         ts, tc = self._target()
         pred = self._for(mission_type)
-        with link.subscribe("MISSION_COUNT", "MISSION_ACK", predicate=pred) as sub:
-            count_msg = await self._request(
-                sub, mavlink.MAVLink_mission_request_list_message(ts, tc, mission_type), "MISSION_COUNT",
-                self.timeout, "download", None)
-        if count_msg.count != len(items):
-            raise MissionVerifyError(min(count_msg.count, len(items)), "count", len(items), count_msg.count)
-        got: list[MissionItem] = []
-        with link.subscribe("MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_ACK", predicate=pred) as sub:
-            for seq in range(first, len(items)):
-                msg = await self._request(
-                    sub, mavlink.MAVLink_mission_request_int_message(ts, tc, seq, mission_type),
-                    ("MISSION_ITEM_INT", "MISSION_ITEM"), self.item_timeout, "download", seq,
-                    match=lambda m, seq=seq: m.seq == seq)
-                got.append(replace(MissionItem.from_message(msg), mission_type=mission_type))
-        link.send(mavlink.MAVLink_mission_ack_message(ts, tc, ACCEPTED, mission_type))
-        log.info("read back items %d-%d of %d (mission type %d)", first, len(items) - 1, len(items), mission_type)
-        return _matching(items[first:], got, self.home_at_zero(mission_type), self.firmware)
+        if count is not None and not self.link.profile.partial_write:
+            with link.subscribe("MISSION_COUNT", "MISSION_ACK", predicate=pred) as sub:
+                count_msg = await self._request(
+                    sub, mavlink.MAVLink_mission_request_list_message(ts, tc, mission_type), "MISSION_COUNT",
+                    self.timeout, "download", None)
+            if count_msg.count != count:
+                raise MissionVerifyError(min(count_msg.count, count), "count", count, count_msg.count)
+            count = None
+        window = READ_WINDOW if self.link.profile.partial_write else 1
+        wanted = list(seqs)
+        got: dict[int, MissionItem] = {}
+        asked: list[int] = []  # requests in flight (-1: the count)
+        misses = stray_errors = 0
+        loop = asyncio.get_running_loop()
+        start = loop.time()
+
+        def ask(seq: int) -> None:
+            if seq < 0:
+                link.send(mavlink.MAVLink_mission_request_list_message(ts, tc, mission_type))
+            else:
+                link.send(mavlink.MAVLink_mission_request_int_message(ts, tc, seq, mission_type))
+
+        with link.subscribe("MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_COUNT", "MISSION_ACK", predicate=pred) as sub:
+            todo = ([-1] if count is not None else []) + wanted
+            while todo or asked:
+                while todo and len(asked) < window:
+                    asked.append(todo.pop(0))
+                    ask(asked[-1])
+                try:
+                    msg = await sub.get(self.timeout if asked == [-1] else self.item_timeout)
+                except TimeoutError:
+                    misses += 1
+                    if misses > self.retries and (not patient or self._give_up(start)):
+                        raise MissionTimeout("download", min(asked)) from None
+                    for seq in asked:
+                        ask(seq)
+                    continue
+                mtype = msg.get_type()
+                if mtype == "MISSION_ACK":
+                    if msg.type == mavlink.MAV_MISSION_ERROR and stray_errors < self.retries:
+                        stray_errors += 1  # a stray item's answer, or ours refused: asked again
+                        log.debug("MISSION_ACK ERROR during a readback (stray item?); asking again")
+                        for seq in asked:
+                            ask(seq)
+                        continue
+                    if msg.type != ACCEPTED:
+                        raise MissionUploadError(msg.type, min(asked), "download")
+                    continue  # a stale ACK of something else
+                seq = -1 if mtype == "MISSION_COUNT" else msg.seq
+                if seq not in asked:
+                    continue  # a late answer to a request already answered
+                asked.remove(seq)
+                misses = 0
+                if seq < 0:
+                    if msg.count != count:
+                        raise MissionVerifyError(min(msg.count, count), "count", count, msg.count)
+                else:
+                    got[seq] = replace(MissionItem.from_message(msg), mission_type=mission_type)
+        return [got[seq] for seq in wanted]
 
     async def verify(self, items: Sequence[MissionItem], mission_type: int = MISSION) -> list[MissionItem]:
         """Download ``mission_type`` and compare it with ``items`` as :meth:`upload_verified` does; returns the
@@ -347,6 +412,12 @@ class MissionClient:
         async with self._lock:
             got = await self._download(mission_type)
         return _matching(_numbered(items, mission_type), got, self.home_at_zero(mission_type), self.firmware)
+
+    @property
+    def writes_in_part(self) -> bool:
+        """A changed tail of a list goes as a partial write (:meth:`upload_changed_verified`): the profile's
+        ``partial_write``."""
+        return self.link.profile.partial_write
 
     @property
     def firmware(self) -> Firmware:
@@ -386,14 +457,7 @@ class MissionClient:
                 sub, mavlink.MAVLink_mission_request_list_message(ts, tc, mission_type), "MISSION_COUNT",
                 self.timeout, "download", None)
         count = count_msg.count
-        got: list[MissionItem] = []
-        with link.subscribe("MISSION_ITEM_INT", "MISSION_ITEM", "MISSION_ACK", predicate=pred) as sub:
-            for seq in range(count):
-                msg = await self._request(
-                    sub, mavlink.MAVLink_mission_request_int_message(ts, tc, seq, mission_type),
-                    ("MISSION_ITEM_INT", "MISSION_ITEM"), self.item_timeout, "download", seq,
-                    match=lambda m, seq=seq: m.seq == seq, patient=patient)
-                got.append(replace(MissionItem.from_message(msg), mission_type=mission_type))
+        got = await self._read_items(range(count), mission_type, patient)
         link.send(mavlink.MAVLink_mission_ack_message(ts, tc, ACCEPTED, mission_type))
         log.info("downloaded %d items (mission type %d)", count, mission_type)
         return got

@@ -89,6 +89,17 @@ def _byte(value: float) -> float:
     return float(_BYTE_MAX) if value < 0 else min(float(_BYTE_MAX), _whole(value))
 
 
+def changed_range(new: Sequence[MissionItem], old: Sequence[MissionItem], home_at_zero: bool = True,
+                  firmware: Firmware = Firmware.GENERIC) -> tuple[int, int] | None:
+    """``(first, last)`` seqs of the items that differ between two lists of one length as ``firmware`` stores them
+    (item 0 skipped with ``home_at_zero``), or None when none does: the range a partial write must cover."""
+    if len(new) != len(old):
+        raise ValueError(f"lists of {len(new)} and {len(old)} items have no common range")
+    changed = [a.seq for a, b in zip(new, old) if not (home_at_zero and a.seq == 0)
+               and compare_items(stored(a, firmware), stored(b, firmware)) is not None]
+    return (changed[0], changed[-1]) if changed else None
+
+
 def mission_difference(sent: Sequence[MissionItem], got: Sequence[MissionItem], home_at_zero: bool = True,
                        firmware: Firmware = Firmware.GENERIC) -> tuple[int, str, object, object] | None:
     """First ``(seq, field, sent, got)`` difference between an upload and its readback (or any two lists) as

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from companion.mavlink.items import FRAME_REL_ALT, MissionItem, normalise_frame
-from companion.mission.builder import CMD_WAYPOINT, MissionSpec, waypoint_items
+from companion.mission.builder import CMD_LOITER_UNLIM, CMD_WAYPOINT, MissionSpec, waypoint_items
 from companion.mission.geo import geodetic_to_enu
 from companion.replanning.threats import route_distances, route_points
 from planner.problem import PlanningProblem
@@ -57,10 +57,14 @@ class ReplanConfig:
     # later (2π r / v); resuming needs the route clear for every such delay (SITL's plane.parm: WP_LOITER_RAD 80)
     plane_loiter_radius_m: float = 80.0
     rejoin_step_s: float = 2.0  # delays between 0 and one circle checked this far apart
+    # room for longer routes: on an autopilot that takes partial writes, a mission that ends in a loiter at the goal
+    # is flown with this many copies of that item behind it (never reached: NAV_LOITER_UNLIM never ends), so that a
+    # replan whose route has up to this many more points keeps the length and writes only what changed (with_room)
+    spare_items: int = 16
 
     def __post_init__(self) -> None:
         if not (self.budget_s > 0 and self.population >= 2 and self.upload_attempts >= 1 and self.horizon_s > 0
-                and self.sample_dt_s > 0 and self.guard_s >= 0):
+                and self.sample_dt_s > 0 and self.guard_s >= 0 and self.spare_items >= 0):
             raise ValueError(f"invalid replanning settings: {self}")
 
 
@@ -228,20 +232,43 @@ def padded(route: np.ndarray, n: int, min_leg_m: float) -> np.ndarray:
     return np.array(pts)
 
 
+def _ends_in_loiter(tail: Sequence[MissionItem]) -> bool:
+    """The items after the goal are a loiter that never ends (and copies of it: :func:`with_room`)."""
+    return bool(tail) and all(it.command == CMD_LOITER_UNLIM for it in tail)
+
+
+def with_room(items: Sequence[MissionItem], spare: int) -> list[MissionItem]:
+    """``items`` with ``spare`` copies of their end item behind it when that is a loiter that never ends
+    (NAV_LOITER_UNLIM: the vehicle never gets past it, so it never flies them), else as they are. A replan's
+    longer route then fits in the same length, and only its changed items are written (:func:`splice`,
+    MISSION_WRITE_PARTIAL_LIST, docs/autopilots.md §8.5)."""
+    if spare <= 0 or not items or items[-1].command != CMD_LOITER_UNLIM:
+        return list(items)
+    return list(items) + [items[-1].with_seq(len(items) + k) for k in range(spare)]
+
+
 def splice(items: Sequence[MissionItem], first_new_seq: int, new_route: np.ndarray, goal_seq: int,
            spec: MissionSpec, length: int | None = None) -> list[MissionItem]:
     """``items[:first_new_seq]`` unchanged, then a waypoint per point of ``new_route`` (commit point first,
     goal last), then the old items after the goal (the end action), renumbered. With ``length`` (the flying
-    mission's), a shorter result gets points on its longest legs (:func:`padded`) up to that length, so that only
-    its changed part needs writing (MISSION_WRITE_PARTIAL_LIST, docs/autopilots.md §8).
+    mission's, on an autopilot that takes partial writes) a shorter result is made that long, so that only its
+    changed part needs writing (MISSION_WRITE_PARTIAL_LIST, docs/autopilots.md §8.5): after a loiter end, with
+    copies of it (:func:`with_room`: the slots that already held copies are then left as they were); else with
+    points on the route's longest legs (:func:`padded`).
 
     Keeping the prefix identical means an upload in flight rewrites those slots with what they already hold,
     so the vehicle, still on one of them, never reads a half-written item before the new part is verified.
     """
     if not 0 < first_new_seq <= goal_seq:
         raise ValueError(f"first new item {first_new_seq} must be in 1..{goal_seq}")
-    if length is not None:
-        want = length - first_new_seq - (len(items) - goal_seq - 1)
+    tail = list(items[goal_seq + 1:])
+    room = _ends_in_loiter(tail)
+    if room:
+        tail = tail[:1]  # the copies behind the loiter are room, made again below
+    if length is not None and not room:
+        want = length - first_new_seq - len(tail)
         new_route = padded(new_route, want, 3.0 * spec.vehicle.acceptance_radius)
-    new = list(items[:first_new_seq]) + waypoint_items(new_route, spec) + list(items[goal_seq + 1:])
+    new = list(items[:first_new_seq]) + waypoint_items(new_route, spec) + tail
+    if length is not None and room:
+        new += tail[-1:] * max(length - len(new), 0)
     return [it.with_seq(seq) for seq, it in enumerate(new)]

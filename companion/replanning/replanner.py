@@ -631,7 +631,8 @@ class LiveReplanner:
             rec.held = True
             return False
         items = splice(self.route.items, cp.first_new_seq, new_route[1:] if departing else new_route,
-                       self.goal_seq, self.spec, length=len(self.verified[-1][1]))
+                       self.goal_seq, self.spec,
+                       length=len(self.verified[-1][1]) if self.client.writes_in_part else None)
         t_up = time.monotonic()
         live = await self.swap(items, cp.first_new_seq, rec)
         rec.upload_s = round(time.monotonic() - t_up, 3)

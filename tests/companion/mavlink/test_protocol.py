@@ -8,6 +8,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import math
 import socket
 import time
@@ -36,7 +37,7 @@ from companion.mavlink.items import (
     mission_result_name,
 )
 from companion.mavlink.link import Link
-from companion.mavlink.protocol import FINAL_ACK_MISSES, MissionClient
+from companion.mavlink.protocol import FINAL_ACK_MISSES, READ_WINDOW, MissionClient
 
 pytestmark = pytest.mark.asyncio
 
@@ -242,7 +243,8 @@ async def test_a_mission_error_after_the_last_item_with_a_different_readback_is_
 
 async def test_a_stalled_download_is_started_again(raw_peer):
     """A server that dropped the download (MAVSDK after missing our requests) answers no more item requests
-    but a new MISSION_REQUEST_LIST: the client starts again from the list request."""
+    but a new MISSION_REQUEST_LIST: the client starts again from the list request. (The peer says ArduPilot, so
+    the requests for items 1 and 2 are in flight together, and each try asks for both again.)"""
     link, client = await _linked(raw_peer, timeout=0.1, item_timeout=0.05, item_giveup_s=30.0)
     items = sample_mission()[:3]
     try:
@@ -266,7 +268,7 @@ async def test_a_stalled_download_is_started_again(raw_peer):
                     else:
                         raw_peer.send(_item_int(items[m.seq]))
         got = await download
-        assert lists == 2 and ignored == client.retries + 1
+        assert lists == 2 and ignored == 2 * (client.retries + 1)
         assert_same_items(items, got)
     finally:
         await link.close()
@@ -527,8 +529,9 @@ async def test_partial_write_only_where_the_autopilot_takes_it() -> None:
 @pytest.mark.parametrize("vehicle", ["plane", "copter"])
 async def test_sim_changed_tail_is_written_and_read_back_alone(sim_cls, vehicle):
     """Same length, the last two items changed: MISSION_WRITE_PARTIAL_LIST(n-2, n-1), the simulator requests
-    only those two (legacy MISSION_REQUEST) and they alone are read back (MISSION_REQUEST_INT each, after the
-    count); the stored mission is the new one. Nothing changed: nothing sent. Another length: the whole list."""
+    only those two (legacy MISSION_REQUEST) and they alone are read back (MISSION_REQUEST_INT each, with the
+    count); the stored mission is the new one. Nothing changed: nothing sent. Changes in the middle: that range
+    alone. Another length: the whole list."""
     scenario, mission, _ = rescue_static_mission()
     new = moved_tail(mission, 2)
     n = len(mission)
@@ -554,6 +557,17 @@ async def test_sim_changed_tail_is_written_and_read_back_alone(sim_cls, vehicle)
         assert await client.upload_changed_verified(new, new) == "unchanged"
         assert sent.messages == []
 
+        middle = new[:n - 4] + [replace(it, z=it.z + 7.0) for it in new[n - 4:n - 2]] + new[n - 2:]
+        sent.clear()
+        with link.subscribe("MISSION_REQUEST", "MISSION_REQUEST_INT") as requests:  # ends where the changes end
+            assert await client.upload_changed_verified(middle, new) == f"partial {n - 4}-{n - 3}"
+            assert [r.seq for r in requests.drain()] == [n - 4, n - 3]
+        assert [(m.start_index, m.end_index) for m in sent.of("MISSION_WRITE_PARTIAL_LIST")] == [(n - 4, n - 3)]
+        assert [m.seq for m in sent.of("MISSION_REQUEST_INT")] == [n - 4, n - 3]
+        assert same_mission(middle, await client.download())
+        new = middle
+
+        sent.clear()
         longer = new + [replace(new[-2], seq=n, z=123.0)]
         assert await client.upload_changed_verified(longer, new) == "whole"
         assert len(sent.of("MISSION_COUNT")) == 1 and not sent.of("MISSION_WRITE_PARTIAL_LIST")
@@ -562,7 +576,7 @@ async def test_sim_changed_tail_is_written_and_read_back_alone(sim_cls, vehicle)
 
 async def test_sim_a_change_at_item_0_alone_is_no_change_on_ardupilot(sim_cls):
     """ArduPilot ignores an uploaded item 0 (its home) and the readback never compares it: a mission that differs
-    only there is unchanged; the first item that differs beyond it starts the range."""
+    only there is unchanged; the first item that differs beyond it starts the range (and, alone, ends it)."""
     scenario, mission, _ = rescue_static_mission()
     other_home = [replace(mission[0], z=mission[0].z + 50.0)] + mission[1:]
     changed = [mission[0], replace(mission[1], z=mission[1].z + 5.0)] + mission[2:]
@@ -572,7 +586,7 @@ async def test_sim_a_change_at_item_0_alone_is_no_change_on_ardupilot(sim_cls):
         client = MissionClient(link)
         await client.upload_verified(mission)
         assert await client.upload_changed_verified(other_home, mission) == "unchanged"
-        assert await client.upload_changed_verified(changed, mission) == f"partial 1-{len(mission) - 1}"
+        assert await client.upload_changed_verified(changed, mission) == "partial 1-1"
         assert same_mission(changed, await client.download())
 
 
@@ -689,3 +703,42 @@ async def test_mavsdk_backend_uploads_the_whole_list(sim_cls):
             await link.close()
             # MAVSDK's async wrapper runs blocking calls on the loop's default executor: end its threads here
             await asyncio.get_running_loop().shutdown_default_executor()
+
+
+@pytest.mark.parametrize("autopilot", ["ArduPilot", "PX4"])
+async def test_a_readback_asks_for_a_window_of_items_at_once_only_from_ardupilot(raw_peer, autopilot):
+    """ArduPilot answers single item requests outside a transfer, so a download has READ_WINDOW requests in flight
+    (one of its loops per window, not per item); PX4 keeps download state, so it gets one request at a time. The
+    items still come back in order, whatever order the answers arrive in."""
+    link = Link(f"udpout:127.0.0.1:{raw_peer.port}")
+    await link.open()
+    items = (sample_mission() * 3)[:12]
+    items = [replace(it, seq=i) for i, it in enumerate(items)]
+    try:
+        await raw_peer.recv_type("HEARTBEAT")
+        ap = mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA if autopilot == "ArduPilot" else mavlink.MAV_AUTOPILOT_PX4
+        raw_peer.send(mavlink.MAVLink_heartbeat_message(mavlink.MAV_TYPE_QUADROTOR, ap, 0, 0,
+                                                        mavlink.MAV_STATE_STANDBY, 3))
+        await link.wait_heartbeat(2.0)
+        download = asyncio.create_task(MissionClient(link, item_timeout=1.0).download())
+        await raw_peer.recv_type("MISSION_REQUEST_LIST")
+        raw_peer.send(mavlink.MAVLink_mission_count_message(1, 191, len(items), MISSION))
+        in_flight: list[int] = []
+        deadline = time.monotonic() + 0.3  # shorter than the client's item timeout: no resends yet
+        while time.monotonic() < deadline:
+            with contextlib.suppress(TimeoutError):
+                in_flight += [m.seq for m in await raw_peer.recv(0.02) if m.get_type() == "MISSION_REQUEST_INT"]
+        want = list(range(READ_WINDOW)) if autopilot == "ArduPilot" else [0]
+        assert in_flight == want
+        answered = 0
+        while not download.done():
+            for seq in reversed(in_flight):  # answered last first
+                raw_peer.send(_item_int(items[seq]))
+                answered += 1
+            in_flight = []
+            with contextlib.suppress(TimeoutError):
+                in_flight = [m.seq for m in await raw_peer.recv(0.1) if m.get_type() == "MISSION_REQUEST_INT"]
+        assert_same_items(items, await download)
+        assert answered == len(items)
+    finally:
+        await link.close()

@@ -2,13 +2,15 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 
 import numpy as np
 import pytest
 
 from companion.mavlink.items import compare_items
-from companion.mission.builder import MissionSpec, build_mission, time_to_start
+from companion.mavlink.storage import Firmware, changed_range
+from companion.mission.builder import CMD_LOITER_UNLIM, MissionSpec, build_mission, time_to_start
 from companion.replanning.replan import (
     MissionRoute,
     ReplanConfig,
@@ -19,6 +21,7 @@ from companion.replanning.replan import (
     replan_settings,
     splice,
     warm_starts,
+    with_room,
 )
 from companion.replanning.separation import min_separations, separation_to_law, separation_to_track
 from planner.world.environment import Threat, Threats
@@ -107,24 +110,54 @@ def test_splice_keeps_the_prefix_and_the_end_action() -> None:
 
 
 def test_a_shorter_replan_is_padded_to_the_flying_missions_length_on_the_same_path() -> None:
-    """So that only its changed part needs writing (MISSION_WRITE_PARTIAL_LIST): points in the middle of the
-    longest legs, never a turn; a longer route is left as it is (the whole list is uploaded)."""
-    items = _items()
+    """So that only its changed part needs writing (MISSION_WRITE_PARTIAL_LIST): a mission that ends in RTL gets
+    points in the middle of the longest legs, never a turn; a longer route is left as it is (the whole list is
+    uploaded)."""
+    spec = dataclasses.replace(_spec(), vehicle=dataclasses.replace(SC.vehicle, end_action="rtl"))
+    items = build_mission(ROUTE, spec)
     r = MissionRoute.of(items, SC.home)
     first = int(r.seqs[2])
     short = np.array([[300.0, 300, 70], [800, 800, 150]])
-    out = splice(items, first, short, r.goal_seq, _spec(), length=len(items) + 3)
-    assert len(out) == len(items) + 3
+    out = splice(items, first, short, r.goal_seq, spec, length=len(items) + 3)
+    assert len(out) == len(items) + 3 and out[-1].command == items[-1].command
     pts = MissionRoute.of(out, SC.home).points[2:]
     assert np.allclose(pts[0], short[0], atol=0.05) and np.allclose(pts[-1], short[-1], atol=0.05)
     d = (short[1] - short[0]) / np.linalg.norm(short[1] - short[0])
     off = pts - short[0]
     assert np.allclose(off - np.outer(off @ d, d), 0.0, atol=0.05)  # every added point on the one straight leg
     assert np.all(np.diff(off @ d) > 0)  # in order along it
-    assert len(splice(items, first, short, r.goal_seq, _spec(), length=2)) == len(splice(
-        items, first, short, r.goal_seq, _spec()))  # already longer: nothing added
+    assert len(splice(items, first, short, r.goal_seq, spec, length=2)) == len(splice(
+        items, first, short, r.goal_seq, spec))  # already longer: nothing added
     tiny = np.array([[300.0, 300, 70], [310, 300, 70]])
     assert len(padded(tiny, 10, 30.0)) == 2  # no leg long enough to split
+
+
+def test_a_loiter_end_gets_room_behind_it_and_a_replan_keeps_the_length_with_copies_of_it() -> None:
+    """A mission ending in NAV_LOITER_UNLIM (never left) is flown with copies of it behind (with_room). A longer
+    replan fits in that length, a shorter one is made up with copies, never with points on the route; the copies
+    that were there before stay in their slots, so the write ends at the last slot that really changed."""
+    items = _items()
+    assert items[-1].command == CMD_LOITER_UNLIM
+    roomy = with_room(items, 6)
+    assert len(roomy) == len(items) + 6 and [it.seq for it in roomy] == list(range(len(roomy)))
+    assert all(compare_items(items[-1].with_seq(it.seq), it) is None for it in roomy[len(items):])
+    r = MissionRoute.of(roomy, SC.home)
+    assert r.goal_seq == MissionRoute.of(items, SC.home).goal_seq  # the copies are not route
+    first = int(r.seqs[2])
+    for new_route in (np.array([[300.0, 300, 70], [800, 800, 150]]),  # shorter than the old tail
+                      np.array([[300.0, 300, 70], [400, 350, 80], [500, 450, 90], [600, 550, 110], [700, 650, 130],
+                                [800, 800, 150]])):  # longer: uses some of the room
+        out = splice(roomy, first, new_route, r.goal_seq, _spec(), length=len(roomy))
+        assert len(out) == len(roomy) and [it.seq for it in out] == list(range(len(out)))
+        got = MissionRoute.of(out, SC.home)
+        assert np.allclose(got.points[2:], new_route, atol=0.05)  # no point added on the route
+        end = got.goal_seq + 1
+        assert all(compare_items(items[-1].with_seq(it.seq), it) is None for it in out[end:])
+        changed = changed_range(out, roomy, firmware=Firmware.ARDUPLANE)
+        assert changed is not None and changed[0] == first
+        assert changed[1] == max(end, r.goal_seq + 1) - 1  # from the later loiter on, slots are left as they were
+    assert with_room(build_mission(ROUTE, dataclasses.replace(_spec(), vehicle=dataclasses.replace(
+        SC.vehicle, end_action="rtl"))), 6)[-1].command != CMD_LOITER_UNLIM  # an RTL end gets no room
 
 
 def test_warm_starts_bend_the_old_route_both_ways_and_keep_its_ends() -> None:
