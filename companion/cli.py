@@ -107,6 +107,9 @@ def _parser() -> argparse.ArgumentParser:
                          "(default: all of them)")
     bn.add_argument("--no-replan-too", action="store_true",
                     help="bench flights only: fly every flight again without replanning")
+    bn.add_argument("--replan-budget", type=float, default=None, metavar="S",
+                    help="bench flights only: fly's --replan-budget for every flight with replanning (default: "
+                         "fly's)")
     bn.add_argument("--sitl-dir", type=Path, default=None, metavar="DIR",
                     help="bench flights only: the autopilot's folder (default $FUSEPLAN_SITL_DIR for ArduPilot, "
                          "$FUSEPLAN_PX4_DIR for PX4)")
@@ -208,7 +211,8 @@ def cmd_bench_flights(args: argparse.Namespace) -> int:
     if hog < 0:
         raise FuseplanError("--cpu-hog must be >= 0")
     settings = fb.FlightsSettings(args.backend, runs, tuple(shipped[n] for n in dict.fromkeys(names)),
-                                  args.no_replan_too, args.output, tuple(args.overrides), folder, hog)
+                                  args.no_replan_too, args.output, tuple(args.overrides), folder, hog,
+                                  _seconds(args, "replan_budget"))
     for path in settings.scenarios:  # bad --set fails here, once, not in every flight
         load_scenario(path, list(settings.fly_overrides))
     planner_cli.make_output_dir(args.output)

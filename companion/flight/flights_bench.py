@@ -73,6 +73,7 @@ class FlightsSettings:
     overrides: tuple[str, ...] = ()  # --set, for every flight
     folder: Path | None = None  # the autopilot's folder (--sitl-dir or the environment)
     hog: int = 0  # --cpu-hog: busy processes beside the flights
+    replan_budget: float | None = None  # --replan-budget: fly's, for every flight (None: its default)
 
     @property
     def fly_overrides(self) -> tuple[str, ...]:
@@ -82,12 +83,14 @@ class FlightsSettings:
     def fingerprint(self) -> str:
         """What decides a flight besides its key: a resumed record must match it."""
         return json.dumps([self.backend, SPEEDUP[self.backend], list(self.fly_overrides)]
-                          + ([{"cpu_hog": self.hog}] if self.hog else []))
+                          + ([{"cpu_hog": self.hog}] if self.hog else [])
+                          + ([{"replan_budget": self.replan_budget}] if self.replan_budget is not None else []))
 
     def command(self) -> str:
         names = ",".join(p.stem for p in self.scenarios)
         return (f"fuseplan bench flights --backend {self.backend} --runs {self.runs} --scenarios {names}"
                 + (" --no-replan-too" if self.replan_off_too else "") + (f" --cpu-hog {self.hog}" if self.hog else "")
+                + (f" --replan-budget {self.replan_budget:g}" if self.replan_budget is not None else "")
                 + f" -o {self.output}"
                 + set_options(self.overrides))
 
@@ -146,7 +149,8 @@ def fly_one(s: FlightsSettings, scenario: Path, replan: bool, run: int, fly: Fly
         shutil.rmtree(report)
     home = load_scenario(scenario, list(s.fly_overrides)).home
     argv = ["fly", str(scenario), "-q", "--report", str(report),
-            *(a for o in s.fly_overrides for a in ("--set", o)), *(() if replan else ("--no-replan",))]
+            *(a for o in s.fly_overrides for a in ("--set", o)), *(() if replan else ("--no-replan",)),
+            *(("--replan-budget", f"{s.replan_budget:g}") if replan and s.replan_budget is not None else ())]
     t0 = time.monotonic()
     with _autopilot(s, (home.lat, home.lon, home.alt)) as ep:
         if ep is None:

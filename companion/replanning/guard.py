@@ -35,12 +35,15 @@ class Breach:
 
 def predict_own_path(position: np.ndarray, velocity: np.ndarray, origin: np.ndarray, targets: np.ndarray,
                      turn_radius: float, acceptance_m: float, horizon_s: float = GUARD_HORIZON_S,
-                     dt: float = GUARD_DT_S) -> np.ndarray:
+                     dt: float = GUARD_DT_S, direct: bool = False, sense: int = 0) -> np.ndarray:
     """(K, 4) rows (t, x, y, z): from ``position`` with horizontal ``velocity`` (ENU m/s), following the legs
     ``origin`` → ``targets[0]`` → ``targets[1]`` … as a path-follower does (it steers at a point a turn radius ahead
     on the leg, at a turn rate of at most v / ``turn_radius``; 0: turns at once, a copter), taking the next leg
     within ``acceptance_m`` of a target or past the line through it square to the leg, climbing so as to reach each
-    target's altitude on arrival."""
+    target's altitude on arrival. ``direct``: the first target is flown to straight from wherever the vehicle is,
+    with no leg to hold to (ArduPlane entering AUTO: ``Mode::enter`` turns cross-tracking off for the first
+    waypoint), so a vehicle that turns round first flies to it from where its turn ends. ``sense`` (+1 right, −1
+    left, 0 the shorter way): the way it turns while its target is more than 90° off its heading."""
     p = np.asarray(position, dtype=float).copy()
     v = np.asarray(velocity, dtype=float)[:2]
     speed = float(np.linalg.norm(v))
@@ -62,7 +65,7 @@ def predict_own_path(position: np.ndarray, velocity: np.ndarray, origin: np.ndar
         if len(targets):
             leg = targets[k, :2] - prev[:2]
             n = float(np.linalg.norm(leg))
-            if n > 1.0:  # the carrot: the point ``ahead`` beyond the vehicle's projection on the leg
+            if n > 1.0 and not (direct and k == 0):  # the carrot: ``ahead`` beyond the vehicle's projection on the leg
                 along = float(np.clip(np.dot(p[:2] - prev[:2], leg) / n + ahead, 0.0, n))
                 carrot = prev[:2] + leg * (along / n)
             else:
@@ -72,6 +75,8 @@ def predict_own_path(position: np.ndarray, velocity: np.ndarray, origin: np.ndar
             if heading is None:
                 heading = want
             turn = (want - heading + math.pi) % (2 * math.pi) - math.pi
+            if sense and abs(turn) > math.pi / 2 and turn * sense < 0:
+                turn += 2 * math.pi * sense  # the long way round, as the vehicle already turns
             heading += max(-rate * dt, min(rate * dt, turn))
             dist = max(math.hypot(*(targets[k, :2] - p[:2])), 1e-6)
             p[2] += (targets[k, 2] - p[2]) * min(speed * dt / dist, 1.0)

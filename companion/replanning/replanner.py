@@ -24,7 +24,7 @@ import logging
 import math
 import multiprocessing
 import time
-from collections.abc import Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -98,6 +98,10 @@ FLOWN_CHECK_DT_S = 0.5  # vehicle seconds between the points of a plan's flown p
 HOLD_CHECK_WALL_S = 0.5  # wall seconds between two looks for a hold pattern after none was found, and between
 # two traffic checks of the circle being held (each takes CPU the planner needs: under load, 30 a second)
 RESUME_HORIZON_S = 20.0  # vehicle seconds of the path flown on resuming that are checked
+# how much wider than its path-follower's bound (AutopilotLimits.wide_turn_radius) a plane may turn round on
+# resuming: ArduPlane SITL at 23.5 m/s turned back from a hold at 58 m against the L1 law's 37 m, then flew
+# straight at the item from there, 22.7 m into a cylinder the path predicted at 37 m had cleared
+RESUME_WIDE_TURNS = 1.6
 MIN_HOLD_RADIUS_TURNS = 2.0  # the smallest hold circle commanded, in tightest turns (ArduPlane flies it wider)
 # the guard acts on a predicted clearance below this share of d_coll: its path model is a few metres off in a turn
 # (the demo's plane: predicted 9.9 m, flown 15.4 m), and a hold that was not needed turns the plane off its route
@@ -787,13 +791,14 @@ class LiveReplanner:
                 await self.set_current(target)
             rec.held = True
             return False
+        resume = self.resume if self.holding is not None else None
         if target != self.current_seq or (replaced and self.holding is None):
             # ArduPlane keeps flying its own copy of a replaced active item until that item is restarted (on the
             # simulator at 5x under load, towards the old item 12 through the intruder: -8.2 m); a held vehicle
             # restarts it on re-entering AUTO
-            await self.set_current(target)
-        if self.holding is not None:
-            await self.resume()
+            await self.set_current(target, then=resume)
+        elif resume is not None:
+            await resume()
         return True
 
     def _guard_threshold_s(self) -> float:
@@ -872,10 +877,15 @@ class LiveReplanner:
                             in_s=round(worst.t - now, 1))
         return worst is None or worst.separation >= self.scenario.hazard.d_coll
 
-    async def set_current(self, seq: int) -> None:
-        """DO_SET_MISSION_CURRENT and wait until MISSION_CURRENT shows it (the vehicle took it)."""
+    async def set_current(self, seq: int, then: Callable[[], Awaitable[None]] | None = None) -> None:
+        """DO_SET_MISSION_CURRENT and wait until MISSION_CURRENT shows it (the vehicle took it). ``then`` (a held
+        vehicle's resume) runs as soon as the command is acknowledged, while that confirmation is on its way: it
+        comes with the autopilot's next status message, a loop or more later (ArduPlane SITL at 10x: 10-20 ms)."""
         with self.link.subscribe("MISSION_CURRENT", predicate=lambda m: m.seq == seq) as sub:
             await self.client.set_current(seq)
+            if then is not None:
+                self.current_seq = seq
+                await then()
             try:
                 await sub.get(2.0)
             except TimeoutError:
@@ -1060,9 +1070,9 @@ class LiveReplanner:
 
     def leg_blocked(self, seq: int) -> tuple[float, str | None] | None:
         """(clearance, obstacle) when what AUTO flies on resuming at item ``seq`` comes too close to a static
-        obstacle: the straight leg from the vehicle to the item, or the path the vehicle itself flies onto it and on
-        (:func:`predict_own_path`, 20 s, as wide as its path-follower turns), within d_coll + the hold margin; None
-        when both are clear."""
+        obstacle: the straight leg from the vehicle to the item, or the path a plane flies onto it and on
+        (:func:`predict_own_path`, 20 s, straight at the item from where its turn ends, each turn it may make),
+        within d_coll + the hold margin; None when both are clear."""
         if self.position is None:
             return None
         hit = np.flatnonzero(self.route.seqs >= seq)
@@ -1075,14 +1085,23 @@ class LiveReplanner:
         if clearance < d_coll + HOLD_MARGIN_M:
             return clearance, worst
         if self.link.profile.hold_circles and float(np.linalg.norm(self.velocity)) > 1.0:
-            path = predict_own_path(self.position, self.velocity, self.position, self.route.points[hit[0]:],
-                                    self._wide_turn_radius(self.groundspeed), self.scenario.vehicle.acceptance_radius,
-                                    horizon_s=RESUME_HORIZON_S)
-            # by the margin too: the model starts wings level, and a plane resumed from a hold circle is banked
-            # (on the simulator, resumed 3 s into its circle, a path predicted clear came 6.3 m from a cylinder)
-            breach = first_breach(path, env, d_coll + HOLD_MARGIN_M)
-            if breach is not None:
-                return breach.clearance_m, breach.obstacle
+            # AUTO flies to the item straight from wherever the plane ends its turn towards it (no leg to hold to),
+            # so every turn it may make is checked: as wide as its path-follower's bound and RESUME_WIDE_TURNS times
+            # that, and, with the item behind it, round either way
+            wide = self._wide_turn_radius(self.groundspeed)
+            to = target[:2] - self.position[:2]
+            behind = float(np.dot(to, self.velocity[:2])) < 0.0
+            for radius in (wide, RESUME_WIDE_TURNS * wide):
+                for sense in ((-1, 1) if behind else (0,)):
+                    path = predict_own_path(self.position, self.velocity, self.position, self.route.points[hit[0]:],
+                                            radius, self.scenario.vehicle.acceptance_radius,
+                                            horizon_s=RESUME_HORIZON_S, direct=True, sense=sense)
+                    # by the margin too: the model starts wings level, and a plane resumed from a hold circle is
+                    # banked (on the simulator, resumed 3 s into its circle, a path predicted clear came 6.3 m from
+                    # a cylinder)
+                    breach = first_breach(path, env, d_coll + HOLD_MARGIN_M)
+                    if breach is not None:
+                        return breach.clearance_m, breach.obstacle
         return None
 
     async def resume(self) -> None:

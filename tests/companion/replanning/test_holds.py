@@ -109,3 +109,29 @@ def test_the_guard_predicts_a_breach_ahead_and_not_on_a_clear_turn() -> None:
                             np.array([[200.0, 200.0, 60.0], [200.0, 400.0, 60.0]]), 33.0, 20.0)
     assert first_breach(turn, ENV, D_COLL) is None
     assert turn[-1, 2] > 250.0 and turn[:, 1].max() < 200.0 + 2 * 33.0  # round the corner, no wider than a turn
+
+
+def test_a_plane_resumed_with_its_item_behind_flies_at_it_from_where_its_turn_ends() -> None:
+    """ArduPlane SITL resumed from a hold at (398, 954) heading 288° at 23.5 m/s, its item (800, 800) behind it: it
+    turned round to the left at 58 m and flew straight at the item from there, 22.7 m into cylinders[5] of
+    rescue_dynamic (x 650, y 750, r 80). The check that let it go held to the line from where it was, at the L1
+    bound's 37 m: 20.3 m clear. Flown straight at the item from where the turn ends (``direct``), that turn
+    breaches; the other way round it would have cleared."""
+    from companion.replanning.guard import predict_own_path
+
+    pos = np.array([398.3, 953.7, 116.2])
+    h = math.radians(288.0)
+    vel = 23.5 * np.array([math.sin(h), math.cos(h)])
+    item = np.array([[800.0, 800.0, 150.0]])
+
+    def clearance(path: np.ndarray) -> float:
+        return float((np.hypot(path[:, 1] - 650.0, path[:, 2] - 750.0) - 80.0).min())
+
+    held_to_line = predict_own_path(pos, vel, pos, item, 37.4, 50.0, horizon_s=30.0)
+    assert clearance(held_to_line) > D_COLL + 10.0  # what passed the old check
+    left = predict_own_path(pos, vel, pos, item, 1.6 * 37.4, 50.0, horizon_s=30.0, direct=True, sense=-1)
+    assert clearance(left) < 0.0  # as SITL flew it (-22.7 m)
+    assert clearance(predict_own_path(pos, vel, pos, item, 37.4, 50.0, horizon_s=30.0, direct=True)) < D_COLL
+    right = predict_own_path(pos, vel, pos, item, 1.6 * 37.4, 50.0, horizon_s=30.0, direct=True, sense=1)
+    assert clearance(right) > D_COLL + 10.0 and right[1:40, 1].max() > pos[0]  # round to the right: north, clear
+    assert np.hypot(right[:, 1] - 800.0, right[:, 2] - 800.0).min() < 10.0  # and on to the item
