@@ -177,7 +177,9 @@ def flight_record(s: FlightsSettings, scenario: str, replan: bool, run: int, cod
     d_coll = flight.get("d_coll_m")
     static, traffic = flight.get("min_static_clearance_m"), flight.get("min_traffic_separation_m")
     err = track_errors(events, plan)
+    live = [r for r in flight.get("replan_log") or [] if isinstance(r, dict) and r.get("latency_s") is not None]
     return json_safe({
+        "version": RECORD_VERSION,
         "backend": s.backend, "scenario": scenario, "replanning": replan, "run": run, "fingerprint": s.fingerprint,
         "exit": code, "completed": bool(flight.get("completed")), "reason": flight.get("reason"),
         "flown_safe": flight.get("flown_safe"), "d_coll_m": d_coll,
@@ -190,9 +192,17 @@ def flight_record(s: FlightsSettings, scenario: str, replan: bool, run: int, cod
         "route_samples": err.samples, "reference": err.reference,
         "replans": flight.get("replans"), "replan_attempts": flight.get("replan_attempts"),
         "holds": sum(e.get("event") == "hold" for e in events),
+        # each replan made live: conflict seen → new mission current, its planning and its swap (wall s), and
+        # whether only the changed items were written
+        "replan_latency_s": [r["latency_s"] for r in live], "replan_plan_s": [r.get("plan_s") for r in live],
+        "replan_swap_s": [r.get("upload_s") for r in live],
+        "partial_writes": sum(str(r.get("upload_path", "")).startswith("partial") for r in live),
         "track_source": flight.get("track_source"), "wall_s": round(wall_s, 1), "autopilot": where,
         "host": host(), "report": str(report.relative_to(s.output)),
     })
+
+
+RECORD_VERSION = 2  # a reused record of another version is read again from its report directory
 
 
 def _kept(value: Any, d_coll: Any) -> bool:
@@ -326,6 +336,11 @@ def run_flights_bench(s: FlightsSettings, fly: FlyCommand,
         if k in have and have[k].get("fingerprint") != s.fingerprint:
             raise FuseplanError(f"{jsonl}: {k[1]} run {k[3]} on {k[0]} was flown with other settings (--set); "
                                 "delete the file or choose another -o to start afresh")
+    for k in keys:  # records of an older version: the report directory says what this version measures
+        rec = have.get(k)
+        if rec is not None and rec.get("version") != RECORD_VERSION and (s.output / rec["report"]).is_dir():
+            have[k] = flight_record(s, rec["scenario"], rec["replanning"], rec["run"], rec["exit"], rec["wall_s"],
+                                    s.output / rec["report"], rec["autopilot"])
     todo = [(f, k) for f, k in zip(plan, keys) if k not in have]
     say(f"bench flights: {s.backend}, {', '.join(p.stem for p in s.scenarios)}, {s.runs} flight(s) each, "
         f"replanning {'on and off' if s.replan_off_too else 'on'}: {len(todo)} to fly, "
@@ -372,7 +387,7 @@ RUN_FIELDS = ("backend", "scenario", "replanning", "run", "exit", "completed", "
               "min_static_clearance_m", "nearest_obstacle", "static_kept", "min_traffic_separation_m",
               "nearest_traffic", "traffic_kept", "separations", "xtrack_p50_m", "xtrack_p95_m", "climb_error_p50_m",
               "climb_error_p95_m", "route_samples", "reference", "replans", "replan_attempts", "holds",
-              "track_source", "reason", "wall_s", "autopilot", "host", "report")
+              "replan_latency_s", "partial_writes", "track_source", "reason", "wall_s", "autopilot", "host", "report")
 
 
 def summarise(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -399,7 +414,8 @@ def write_report(s: FlightsSettings, records: Sequence[dict[str, Any]]) -> list[
     out = s.output
     write_csv(out / "flights.csv", rows, list(rows[0]) if rows else ["backend"])
     write_csv(out / "flights_runs.csv",
-              [{**r, "separations": "; ".join(f"{k} {v}" for k, v in sorted(r["min_separation_m"].items()))}
+              [{**r, "separations": "; ".join(f"{k} {v}" for k, v in sorted(r["min_separation_m"].items())),
+                "replan_latency_s": " ".join(f"{v:g}" for v in r.get("replan_latency_s") or [])}
                for r in records], RUN_FIELDS)
 
     def two(row: dict[str, Any], col: str, a: str, b: str, fmt: str = ".1f") -> str:
@@ -432,6 +448,16 @@ def write_report(s: FlightsSettings, records: Sequence[dict[str, Any]]) -> list[
             f"| {med('climb_error_p50_m')} / {med('climb_error_p95_m')} | {_num(row['climb_error_p95_m_max'])} "
             f"| {two(row, 'replans', 'median', 'max', 'g')} | {two(row, 'replan_attempts', 'median', 'max', 'g')} "
             f"| {two(row, 'holds', 'median', 'max', 'g')} |")
+    latency = latency_rows(records)
+    if latency:
+        lines += ["", "Replans made live: conflict seen → new mission current (wall seconds, pooled over the flights), "
+                  "its planning and its swap (upload with readback, set-current and, when held, the resume), and "
+                  "how many wrote only the changed items (MISSION_WRITE_PARTIAL_LIST):", "",
+                  "| backend | scenario | replans live | conflict → live median / p90 / max (s) | planning median (s) "
+                  "| swap median (s) | partial writes |", "|---|---|---|---|---|---|---|"]
+        lines += [f"| {r['backend']} | {r['scenario']} | {r['n']} | {r['median']:.3f} / {r['p90']:.3f} / "
+                  f"{r['max']:.3f} | {r['plan']:.3f} | {r['swap']:.3f} | {r['partial']} of {r['n']} |"
+                  for r in latency]
     lines += ["", "Per flight (flights_runs.csv; each flight's report directory is under flights/):", "",
               ("| scenario | replanning | run | exit | completed | static clearance (m, nearest) "
               "| separation per threat (m) | cross-track p50 / p95 (m) | climb error p50 / p95 (m) "
@@ -460,6 +486,25 @@ def write_report(s: FlightsSettings, records: Sequence[dict[str, Any]]) -> list[
     md = out / "flights.md"
     md.write_text("\n".join(lines) + "\n")
     return [md, out / "flights.csv", out / "flights_runs.csv", out / "flights.jsonl"]
+
+
+def latency_rows(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per backend × scenario (replanning on), the replans made live pooled over the flights: their number, the
+    median / p90 / max of conflict → live, the medians of planning and swap, and the partial writes."""
+    rows = []
+    for key in dict.fromkeys((r["backend"], r["scenario"]) for r in records if r["replanning"]):
+        rs = [r for r in records if r["replanning"] and (r["backend"], r["scenario"]) == key]
+        lat = np.array([v for r in rs for v in r.get("replan_latency_s") or []], dtype=float)
+        if not lat.size:
+            continue
+        plan = np.array([v for r in rs for v in r.get("replan_plan_s") or [] if v is not None], dtype=float)
+        swap = np.array([v for r in rs for v in r.get("replan_swap_s") or [] if v is not None], dtype=float)
+        rows.append({"backend": key[0], "scenario": key[1], "n": int(lat.size), "median": float(np.median(lat)),
+                     "p90": float(np.percentile(lat, 90)), "max": float(lat.max()),
+                     "plan": float(np.median(plan)) if plan.size else math.nan,
+                     "swap": float(np.median(swap)) if swap.size else math.nan,
+                     "partial": sum(int(r.get("partial_writes") or 0) for r in rs)})
+    return rows
 
 
 def _reference_text(refs: Sequence[str]) -> str:

@@ -71,11 +71,15 @@ def _circle_paths(p: np.ndarray, centre: np.ndarray, radius: float, clockwise: b
     return _circle_path(p, centre, radius, clockwise), _circle_path(p, centre, radius + FLOWN_WIDER_M, clockwise)
 
 
+def _ring(centre: np.ndarray, radius: float, z: float) -> np.ndarray:
+    """(CIRCLE_POINTS + 1, 3) points of the circle of ``radius`` round ``centre`` (x, y) at altitude ``z``."""
+    a = np.linspace(0.0, 2 * math.pi, CIRCLE_POINTS + 1)
+    return np.stack([centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a), np.full(a.size, z)], axis=1)
+
+
 def _flown_ring(centre: np.ndarray, radius: float, z: float) -> np.ndarray:
     """The circle as the autopilot will fly it, :data:`FLOWN_WIDER_M` wider than asked."""
-    a = np.linspace(0.0, 2 * math.pi, CIRCLE_POINTS + 1)
-    r = radius + FLOWN_WIDER_M
-    return np.stack([centre[0] + r * np.cos(a), centre[1] + r * np.sin(a), np.full(a.size, z)], axis=1)
+    return _ring(centre, radius + FLOWN_WIDER_M, z)
 
 
 def _flown_at(path: np.ndarray, speed: float, times: np.ndarray) -> np.ndarray:
@@ -107,25 +111,28 @@ def _traffic_separation(paths: tuple[np.ndarray, ...], speed: float, t0: float, 
 
 def plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: Environment, d_coll: float,
                speed: float, threats: Threats | None = None, t_now: float = 0.0,
-               min_radius: float | None = None) -> HoldPattern | None:
+               min_radius: float | None = None, turn_radius: float = 0.0, lag_m: float = 0.0) -> HoldPattern | None:
     """The first circle of ``radius`` (tangent to the track on the right, then the left, then centres further
     along the track) whose approach and circle clear every static obstacle by d_coll + :data:`HOLD_MARGIN_M` and
     keep ``threats`` (timed from ``t_now``) at d_coll + the same margin for :data:`HOLD_HORIZON_S`, else the one of
     that radius that keeps them furthest beyond d_coll; then the same with smaller circles, down to ``min_radius``
     (the radius is ours to command); None when there is none. The centre stays inside the region and the altitude
-    is the vehicle's own (it holds its altitude)."""
+    is the vehicle's own (it holds its altitude). ``turn_radius``: the widest the plane may turn onto the circle,
+    ``lag_m`` how far it may fly on straight before it starts turning; the circle it sweeps turning so from its
+    track (on the circle's side) must clear the obstacles too."""
     radii = [radius]
     if min_radius is not None:
         radii += [r for r in (0.75 * radius, 0.5 * radius, min_radius) if min_radius <= r < radius]
     for r in radii:
-        found = _plane_hold(position, velocity, r, env, d_coll, speed, threats, t_now)
+        found = _plane_hold(position, velocity, r, env, d_coll, speed, threats, t_now, turn_radius, lag_m)
         if found is not None:
             return found
     return None
 
 
 def _plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: Environment, d_coll: float,
-                speed: float, threats: Threats | None, t_now: float) -> HoldPattern | None:
+                speed: float, threats: Threats | None, t_now: float, turn_radius: float = 0.0,
+                lag_m: float = 0.0) -> HoldPattern | None:
     p = np.asarray(position, dtype=float)
     v = np.asarray(velocity, dtype=float)[:2]
     heading = v / n if (n := float(np.linalg.norm(v))) > 0.5 else np.array([0.0, 1.0])
@@ -142,7 +149,12 @@ def _plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: 
             centre = np.array([*centre2, p[2]])
             paths = _circle_paths(p, centre, radius, clockwise)
             path = paths[0]
-            clearance, nearest = nearest_obstacle(np.vstack([path, _flown_ring(centre, radius, p[2])]), env)
+            # the turn onto it, begun late and wider than the circle (ArduPlane SITL at 23.8 m/s flew on straight
+            # for ~2 s after the command, then turned onto a 50 m circle at ~60 m: 3.0 m from a cylinder that
+            # circle cleared by 27.9 m), sweeps this one
+            turn = max(turn_radius, radius)
+            entry = _ring(base + lag_m * heading + turn * side, turn, p[2])
+            clearance, nearest = nearest_obstacle(np.vstack([path, _flown_ring(centre, radius, p[2]), entry]), env)
             if clearance < need:
                 continue
             sep = _traffic_separation(paths, speed, t_now, threats, HOLD_HORIZON_S)

@@ -99,9 +99,12 @@ HOLD_CHECK_WALL_S = 0.5  # wall seconds between two looks for a hold pattern aft
 # two traffic checks of the circle being held (each takes CPU the planner needs: under load, 30 a second)
 RESUME_HORIZON_S = 20.0  # vehicle seconds of the path flown on resuming that are checked
 # how much wider than its path-follower's bound (AutopilotLimits.wide_turn_radius) a plane may turn round on
-# resuming: ArduPlane SITL at 23.5 m/s turned back from a hold at 58 m against the L1 law's 37 m, then flew
-# straight at the item from there, 22.7 m into a cylinder the path predicted at 37 m had cleared
+# resuming, or onto a hold circle: ArduPlane SITL at 23.5 m/s turned back from a hold at 58 m against the L1 law's
+# 37 m, then flew straight at the item from there, 22.7 m into a cylinder the path predicted at 37 m had cleared
 RESUME_WIDE_TURNS = 1.6
+# vehicle seconds a plane may fly on straight after a hold is commanded before it turns onto the circle (ArduPlane
+# SITL at 10x: ~2 s between the acknowledged DO_REPOSITION and the first change of heading, our latency included)
+HOLD_TURN_LAG_S = 2.5
 MIN_HOLD_RADIUS_TURNS = 2.0  # the smallest hold circle commanded, in tightest turns (ArduPlane flies it wider)
 # the guard acts on a predicted clearance below this share of d_coll: its path model is a few metres off in a turn
 # (the demo's plane: predicted 9.9 m, flown 15.4 m), and a hold that was not needed turns the plane off its route
@@ -998,7 +1001,9 @@ class LiveReplanner:
             now = self.now()
             return plane_hold(self.position, self.velocity, self.loiter_radius, env, d_coll,
                               self.flying_speed, self.threats(now), now,
-                              min_radius=MIN_HOLD_RADIUS_TURNS * self._turn_radius())
+                              min_radius=MIN_HOLD_RADIUS_TURNS * self._turn_radius(),
+                              turn_radius=RESUME_WIDE_TURNS * self._wide_turn_radius(self.flying_speed),
+                              lag_m=HOLD_TURN_LAG_S * self.flying_speed)
         stop = self.limits.stopping_distance if self.limits is not None else \
             self.scenario.vehicle.cruise_speed ** 2 / 5.0
         speed_share = min(self.groundspeed / max(self.scenario.vehicle.cruise_speed, 0.1), 1.0) ** 2
@@ -1071,8 +1076,8 @@ class LiveReplanner:
     def leg_blocked(self, seq: int) -> tuple[float, str | None] | None:
         """(clearance, obstacle) when what AUTO flies on resuming at item ``seq`` comes too close to a static
         obstacle: the straight leg from the vehicle to the item, or the path a plane flies onto it and on
-        (:func:`predict_own_path`, 20 s, straight at the item from where its turn ends, each turn it may make),
-        within d_coll + the hold margin; None when both are clear."""
+        (:func:`predict_own_path`, 20 s, straight at the item from where its turn ends, each turn it may make, each
+        item taken as early as the autopilot may), within d_coll + the hold margin; None when both are clear."""
         if self.position is None:
             return None
         hit = np.flatnonzero(self.route.seqs >= seq)
@@ -1087,15 +1092,17 @@ class LiveReplanner:
         if self.link.profile.hold_circles and float(np.linalg.norm(self.velocity)) > 1.0:
             # AUTO flies to the item straight from wherever the plane ends its turn towards it (no leg to hold to),
             # so every turn it may make is checked: as wide as its path-follower's bound and RESUME_WIDE_TURNS times
-            # that, and, with the item behind it, round either way
+            # that, and, with the item behind it, round either way; each item taken as early as ArduPlane takes it
+            # (an item's 20 m on SITL: resumed 101 m from its item, the plane cut to the next leg 6.5 m from a
+            # cylinder the path taking the item at 20 m cleared by 20.3 m; at 65 m it comes 9.5 m)
             wide = self._wide_turn_radius(self.groundspeed)
             to = target[:2] - self.position[:2]
             behind = float(np.dot(to, self.velocity[:2])) < 0.0
             for radius in (wide, RESUME_WIDE_TURNS * wide):
                 for sense in ((-1, 1) if behind else (0,)):
                     path = predict_own_path(self.position, self.velocity, self.position, self.route.points[hit[0]:],
-                                            radius, self.scenario.vehicle.acceptance_radius,
-                                            horizon_s=RESUME_HORIZON_S, direct=True, sense=sense)
+                                            radius, self._switch_m(), horizon_s=RESUME_HORIZON_S, direct=True,
+                                            sense=sense)
                     # by the margin too: the model starts wings level, and a plane resumed from a hold circle is
                     # banked (on the simulator, resumed 3 s into its circle, a path predicted clear came 6.3 m from
                     # a cylinder)

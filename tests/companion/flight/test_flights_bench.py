@@ -58,6 +58,13 @@ def test_the_bench_writes_its_files_with_flight_json_s_numbers(bench: Path) -> N
     assert "fuseplan bench flights --backend sim --runs 1 --scenarios crossing_traffic" in md
     assert "Hosts: " in md and "| sim | crossing_traffic | on | 1 |" in md
     assert "the last mission verified before it" in md
+    live = [r for r in flight["replan_log"] if r["latency_s"] is not None]
+    assert rec["replan_latency_s"] == [r["latency_s"] for r in live] and len(live) == flight["replans"]
+    assert rec["partial_writes"] == sum(r["upload_path"].startswith("partial") for r in live)
+    if live:  # the latency table pools the flights' replans made live
+        [row] = fb.latency_rows([rec])
+        assert row["n"] == len(live) and row["median"] == pytest.approx(np.median(rec["replan_latency_s"]))
+        assert f"| sim | crossing_traffic | {len(live)} | {row['median']:.3f} / " in md
 
 
 def test_a_second_run_with_the_same_output_flies_nothing(bench: Path, monkeypatch: pytest.MonkeyPatch,
@@ -78,6 +85,15 @@ def test_a_second_run_with_the_same_output_flies_nothing(bench: Path, monkeypatc
     assert "flown with other settings" in capsys.readouterr().err
     loaded = fb.FlightsSettings("sim", 1, (Path("crossing_traffic.toml"),), False, bench, hog=1)
     assert "--cpu-hog 1" in loaded.command()
+    # a record written by an older version is read again from its report directory, not flown again
+    old = json.loads(before)
+    for key in ("version", "replan_latency_s", "partial_writes"):
+        old.pop(key)
+    (bench / "flights.jsonl").write_text(json.dumps(old) + "\n")
+    assert main([*ARGS, "-o", str(bench)]) == 0
+    assert "0 to fly, 1 reused" in capsys.readouterr().err
+    assert list(csv.DictReader((bench / "flights_runs.csv").open()))[0]["partial_writes"] != ""  # read again
+    (bench / "flights.jsonl").write_text(before)
 
 
 def test_cross_track_and_climb_error_on_a_synthetic_track() -> None:

@@ -135,3 +135,40 @@ def test_a_plane_resumed_with_its_item_behind_flies_at_it_from_where_its_turn_en
     right = predict_own_path(pos, vel, pos, item, 1.6 * 37.4, 50.0, horizon_s=30.0, direct=True, sense=1)
     assert clearance(right) > D_COLL + 10.0 and right[1:40, 1].max() > pos[0]  # round to the right: north, clear
     assert np.hypot(right[:, 1] - 800.0, right[:, 2] - 800.0).min() < 10.0  # and on to the item
+
+
+def test_a_resume_takes_its_item_as_early_as_arduplane_does() -> None:
+    """ArduPlane SITL resumed 101 m from its item (401, 353) heading 50° at 23 m/s counted it reached early and cut
+    to the next leg 6.5 m from cylinders[0] of crossing_traffic (x 480, y 480, r 90). Predicted taking the item at
+    the scenario's 20 m, the path cleared by 20.3 m; at ArduPlane's early switch (65 m) and the wider turn it
+    comes 9.5 m, inside d_coll + the hold margin."""
+    from companion.mavlink.profiles import PLANE_EARLY_SWITCH_M
+    from companion.replanning.guard import predict_own_path
+
+    route = np.array([[401.5, 353.1, 119.2], [542.3, 380.0, 127.6], [612.7, 418.2, 129.8], [729.7, 489.2, 134.9]])
+    pos = np.array([316.6, 407.3, 104.6])
+    h = math.radians(49.9)
+    vel = 23.0 * np.array([math.sin(h), math.cos(h)])
+
+    def clearance(accept: float, radius: float) -> float:
+        path = predict_own_path(pos, vel, pos, route, radius, accept, horizon_s=20.0, direct=True)
+        return float((np.hypot(path[:, 1] - 480.0, path[:, 2] - 480.0) - 90.0).min())
+
+    assert clearance(20.0, 36.6) > 20.0 and clearance(20.0, 1.6 * 36.6) > 20.0  # what let it go
+    assert clearance(PLANE_EARLY_SWITCH_M, 1.6 * 36.6) < 10.0  # what it flew: 6.5 m
+
+
+def test_a_hold_circle_is_checked_with_the_turn_onto_it_begun_late_and_wide() -> None:
+    """ArduPlane SITL at (594, 837) heading 93.5° at 23.8 m/s was held on the 50 m circle tangent to its track on
+    the right (centre (591, 787), clear of crossing_traffic's cylinders[3] by 27.9 m): it flew on straight ~2 s,
+    turned at ~60 m and came 3.0 m from that cylinder. With the late, wide turn onto it checked, that circle is
+    refused."""
+    sc = load_scenario(ROOT / "sitl_scenarios" / "crossing_traffic.toml")
+    env = sc.environment
+    p = np.array([594.1, 836.7, 154.4])
+    h = math.radians(93.5)
+    v = 23.8 * np.array([math.sin(h), math.cos(h)])
+    asked = plane_hold(p, v, 50.0, env, sc.hazard.d_coll, 23.8)
+    assert asked is not None and asked.clockwise and np.allclose(asked.centre[:2], [591.0, 786.8], atol=0.5)
+    checked = plane_hold(p, v, 50.0, env, sc.hazard.d_coll, 23.8, turn_radius=60.6, lag_m=2.5 * 23.8)
+    assert checked is None or not np.allclose(checked.centre[:2], asked.centre[:2], atol=1.0)
