@@ -79,7 +79,13 @@ def normalise_frame(frame: int) -> int:
     return _INT_TO_PLAIN.get(frame, frame)
 
 
-def compare_items(sent: MissionItem, got: MissionItem, alt_tol: float = 0.01,
+# altitudes compare within this: ArduPilot keeps them as whole centimetres cut from float32 z × 100 (a C cast), so
+# up to 1 cm lower plus float32's rounding; on SITL under load z 134.65000017 was read back as 134.63999939, and a
+# 1.0 cm tolerance failed a replan's upload three times over
+ALT_TOL_M = 0.011
+
+
+def compare_items(sent: MissionItem, got: MissionItem, alt_tol: float = ALT_TOL_M,
                   param_tol: float = 1e-4) -> tuple[str, object, object] | None:
     """First ``(field, sent, got)`` difference between two items, or None: frames normalised, float params
     compared with a tolerance (they travel as float32), NaN equal to NaN, the current flag ignored. What an

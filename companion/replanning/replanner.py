@@ -48,7 +48,7 @@ from companion.mission.builder import MissionSpec
 from companion.mission.events import EventLog
 from companion.mission.geo import enu_to_geodetic, geodetic_to_enu, to_int_e7
 from companion.mission.restore import restore_mission
-from companion.replanning.guard import first_breach, predict_own_path
+from companion.replanning.guard import GUARD_DT_S, first_breach, predict_own_path
 from companion.replanning.holds import (
     FLOWN_WIDER_M,
     HOLD_MARGIN_M,
@@ -653,23 +653,40 @@ class LiveReplanner:
         return True
 
     def _flown_separation(self, cp: CommitPoint, route: np.ndarray, threats: Threats) -> float | None:
-        """The least traffic separation along ``route`` as the vehicle will fly it from the commit point
-        (:func:`predict_own_path` at its wide turn radius, to the route's end), or None when that path comes within
-        d_coll of a static obstacle."""
+        """The least traffic separation along ``route`` as the vehicle will fly it from the commit point (every
+        path of :meth:`_flown_paths` from its wide turn radius, to the route's end), or None when one of those
+        paths comes within d_coll of a static obstacle."""
         heading = self._start_heading(cp)
         if heading is None:
             first = route[1] - route[0] if len(route) > 1 else np.array([0.0, 1.0, 0.0])
             heading = first / max(float(np.linalg.norm(first[:2])), 1e-6)
         radius = self._wide_turn_radius(self.speed) if self.link.profile.hold_circles else self._turn_radius()
         length = float(np.linalg.norm(np.diff(route, axis=0), axis=1).sum())
-        path = predict_own_path(route[0], heading[:2] * self.speed, route[0], route[1:], radius,
-                                self.scenario.vehicle.acceptance_radius,
-                                horizon_s=min(length / self.speed + 10.0, self.cfg.horizon_s), dt=FLOWN_CHECK_DT_S)
-        if first_breach(path, self.scenario.environment, self.scenario.hazard.d_coll) is not None:
-            return None
-        seps = route_separations(path[:, 1:4], self.speed, 0.0, cp.t, threats, self.cfg.horizon_s,
-                                 self.cfg.sample_dt_s)
-        return min((c.separation for c in seps), default=math.inf)
+        worst = math.inf
+        for path in self._flown_paths(route[0], heading[:2] * self.speed, route[0], route[1:], radius,
+                                      min(length / self.speed + 10.0, self.cfg.horizon_s), dt=FLOWN_CHECK_DT_S):
+            if first_breach(path, self.scenario.environment, self.scenario.hazard.d_coll) is not None:
+                return None
+            seps = route_separations(path[:, 1:4], self.speed, 0.0, cp.t, threats, self.cfg.horizon_s,
+                                     self.cfg.sample_dt_s)
+            worst = min([worst, *(c.separation for c in seps)])
+        return worst
+
+    def _flown_paths(self, position: np.ndarray, velocity: np.ndarray, origin: np.ndarray, targets: np.ndarray,
+                     radius: float, horizon_s: float, dt: float = GUARD_DT_S, direct: bool = False,
+                     behind: bool = False) -> list[np.ndarray]:
+        """The paths the vehicle may fly along ``targets`` (:func:`predict_own_path`). A plane's path-follower is
+        not modelled closely enough for one: it may turn as wide as ``radius`` or RESUME_WIDE_TURNS times it, take
+        each item at its acceptance radius or as early as ArduPlane switches, and (``behind``: its item behind it)
+        turn round either way; each of those paths is given. A copter (no circles) has one."""
+        accept = self.scenario.vehicle.acceptance_radius
+        if not self.link.profile.hold_circles:
+            return [predict_own_path(position, velocity, origin, targets, radius, accept, horizon_s=horizon_s, dt=dt,
+                                     direct=direct)]
+        return [predict_own_path(position, velocity, origin, targets, r, a, horizon_s=horizon_s, dt=dt,
+                                 direct=direct, sense=sense)
+                for r in (radius, RESUME_WIDE_TURNS * radius) for a in dict.fromkeys((accept, self._switch_m()))
+                for sense in ((-1, 1) if behind else (0,))]
 
     @property
     def flying_speed(self) -> float:
@@ -1091,24 +1108,17 @@ class LiveReplanner:
             return clearance, worst
         if self.link.profile.hold_circles and float(np.linalg.norm(self.velocity)) > 1.0:
             # AUTO flies to the item straight from wherever the plane ends its turn towards it (no leg to hold to),
-            # so every turn it may make is checked: as wide as its path-follower's bound and RESUME_WIDE_TURNS times
-            # that, and, with the item behind it, round either way; each item taken as early as ArduPlane takes it
-            # (an item's 20 m on SITL: resumed 101 m from its item, the plane cut to the next leg 6.5 m from a
-            # cylinder the path taking the item at 20 m cleared by 20.3 m; at 65 m it comes 9.5 m)
+            # so every path it may fly is checked (_flown_paths): resumed 101 m from its item, SITL's plane took it
+            # early and cut to the next leg 6.5 m from a cylinder the path taking it at its 20 m cleared by 20.3 m
             wide = self._wide_turn_radius(self.groundspeed)
-            to = target[:2] - self.position[:2]
-            behind = float(np.dot(to, self.velocity[:2])) < 0.0
-            for radius in (wide, RESUME_WIDE_TURNS * wide):
-                for sense in ((-1, 1) if behind else (0,)):
-                    path = predict_own_path(self.position, self.velocity, self.position, self.route.points[hit[0]:],
-                                            radius, self._switch_m(), horizon_s=RESUME_HORIZON_S, direct=True,
-                                            sense=sense)
-                    # by the margin too: the model starts wings level, and a plane resumed from a hold circle is
-                    # banked (on the simulator, resumed 3 s into its circle, a path predicted clear came 6.3 m from
-                    # a cylinder)
-                    breach = first_breach(path, env, d_coll + HOLD_MARGIN_M)
-                    if breach is not None:
-                        return breach.clearance_m, breach.obstacle
+            behind = float(np.dot(target[:2] - self.position[:2], self.velocity[:2])) < 0.0
+            for path in self._flown_paths(self.position, self.velocity, self.position, self.route.points[hit[0]:],
+                                          wide, RESUME_HORIZON_S, direct=True, behind=behind):
+                # by the margin too: the model starts wings level, and a plane resumed from a hold circle is banked
+                # (on the simulator, resumed 3 s into its circle, a path predicted clear came 6.3 m from a cylinder)
+                breach = first_breach(path, env, d_coll + HOLD_MARGIN_M)
+                if breach is not None:
+                    return breach.clearance_m, breach.obstacle
         return None
 
     async def resume(self) -> None:

@@ -74,6 +74,16 @@ def test_a_real_difference_is_still_found() -> None:
     assert mission_difference(sent, [sent[0], replace(sent[1], param2=0.0)], firmware=COPTER) is None
 
 
+def test_an_altitude_cut_to_whole_centimetres_from_float32_is_the_same_and_2_cm_is_not() -> None:
+    """ArduPlane SITL read z 134.65000017 back as 134.63999939 (float32 z x 100 cut to whole centimetres): the same
+    altitude; a 2 cm move is a difference."""
+    sent = _item(WP, param2=30.0, z=134.65000017258637)
+    assert mission_difference([sent], [replace(sent, z=134.63999938964844)], home_at_zero=False,
+                              firmware=PLANE) is None
+    assert mission_difference([sent], [replace(sent, z=134.63)], home_at_zero=False, firmware=PLANE)[:2] == (
+        sent.seq, "z")
+
+
 def test_other_autopilots_keep_every_field() -> None:
     sent = _item(WP, param1=2.0, param2=30.0, param4=math.nan)
     assert compare_items(stored(sent, Firmware.GENERIC), replace(sent, param2=0.0)) is not None

@@ -172,3 +172,23 @@ def test_a_hold_circle_is_checked_with_the_turn_onto_it_begun_late_and_wide() ->
     assert asked is not None and asked.clockwise and np.allclose(asked.centre[:2], [591.0, 786.8], atol=0.5)
     checked = plane_hold(p, v, 50.0, env, sc.hazard.d_coll, 23.8, turn_radius=60.6, lag_m=2.5 * 23.8)
     assert checked is None or not np.allclose(checked.centre[:2], asked.centre[:2], atol=1.0)
+
+
+def test_a_turn_flown_wide_with_its_item_taken_late_is_one_of_the_paths_checked() -> None:
+    """A replan from ArduPlane SITL's plane at the commit point (684, 882), flying 64.5° at 23.3 m/s, turned right
+    onto (745, 829) and on east along y ~ 825; the plane overshot the turn and flew 5.0 m into crossing_traffic's
+    cylinders[3] (x 780, y 700, r 110). The path at the L1 bound (36.6 m) cleared it by 14.4 m and was let through;
+    turning 1.6 times as wide with the item taken at its 20 m, it breaches, as flown."""
+    from companion.replanning.guard import predict_own_path
+
+    route = np.array([[684.1, 881.6, 83.0], [745.2, 828.8, 87.7], [834.2, 822.4, 87.4], [902.8, 801.5, 90.1],
+                      [995.1, 803.4, 102.4]])
+    h = math.radians(64.5)
+    vel = 23.3 * np.array([math.sin(h), math.cos(h)])
+
+    def clearance(radius: float, accept: float) -> float:
+        path = predict_own_path(route[0], vel, route[0], route[1:], radius, accept, horizon_s=20.0)
+        return float((np.hypot(path[:, 1] - 780.0, path[:, 2] - 700.0) - 110.0).min())
+
+    assert clearance(36.6, 20.0) > 10.0
+    assert clearance(1.6 * 36.6, 20.0) < 10.0
