@@ -433,7 +433,8 @@ def test_a_stale_auto_heartbeat_between_hold_and_resume_does_not_leave_the_vehic
     seen: dict[str, object] = {}
 
     async def hold_then_resume(sim: SimAutopilot, rp: LiveReplanner) -> None:
-        while sim.mode != "AUTO" or sim.mission_time is None or sim.mission_time < 5.0:
+        # where a checked circle is clear (its entry turn too): a hold refused leaves nothing to resume from
+        while sim.mode != "AUTO" or sim.mission_time is None or sim.mission_time < 5.0 or rp._checked_hold() is None:
             await asyncio.sleep(0.01)
         await rp.hold("test: a hold the vehicle reports late")
         seen["held"] = sim.mode
