@@ -337,23 +337,15 @@ class MissionClient:
 
     async def _read_items(self, seqs: range, mission_type: int, patient: bool,
                           count: int | None = None) -> list[MissionItem]:
-        """Items ``seqs`` of the stored list, in order. Where the autopilot answers single MISSION_REQUEST_INTs
-        outside a transfer (profile ``partial_write``: ArduPilot keeps no download state) up to
-        :data:`READ_WINDOW` requests are in flight at once, and with ``count`` the stored count is asked for in
-        the same breath (MISSION_REQUEST_LIST) and must equal it (else :class:`MissionVerifyError`); elsewhere
-        one request at a time, as the protocol's download does. Unanswered requests are sent again after
-        ``item_timeout``; retries and MISSION_ACK errors as :meth:`_request`."""
+        """Items ``seqs`` of the stored list, in order; with ``count``, the stored count first (MISSION_REQUEST_LIST),
+        which must equal it (else :class:`MissionVerifyError`). Where the autopilot answers single
+        MISSION_REQUEST_INTs outside a transfer (profile ``partial_write``: ArduPilot keeps no download state) up to
+        :data:`READ_WINDOW` requests, the count's included, are in flight at once; elsewhere one at a time, as the
+        protocol's download does. Unanswered requests are sent again after ``item_timeout``; retries and
+        MISSION_ACK errors as :meth:`_request`."""
         link = self.link
         ts, tc = self._target()
         pred = self._for(mission_type)
-        if count is not None and not self.link.profile.partial_write:
-            with link.subscribe("MISSION_COUNT", "MISSION_ACK", predicate=pred) as sub:
-                count_msg = await self._request(
-                    sub, mavlink.MAVLink_mission_request_list_message(ts, tc, mission_type), "MISSION_COUNT",
-                    self.timeout, "download", None)
-            if count_msg.count != count:
-                raise MissionVerifyError(min(count_msg.count, count), "count", count, count_msg.count)
-            count = None
         window = READ_WINDOW if self.link.profile.partial_write else 1
         wanted = list(seqs)
         got: dict[int, MissionItem] = {}

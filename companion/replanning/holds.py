@@ -71,15 +71,15 @@ def _circle_paths(p: np.ndarray, centre: np.ndarray, radius: float, clockwise: b
     return _circle_path(p, centre, radius, clockwise), _circle_path(p, centre, radius + FLOWN_WIDER_M, clockwise)
 
 
-def _ring(centre: np.ndarray, radius: float, z: float) -> np.ndarray:
+def ring(centre: np.ndarray, radius: float, z: float) -> np.ndarray:
     """(CIRCLE_POINTS + 1, 3) points of the circle of ``radius`` round ``centre`` (x, y) at altitude ``z``."""
     a = np.linspace(0.0, 2 * math.pi, CIRCLE_POINTS + 1)
     return np.stack([centre[0] + radius * np.cos(a), centre[1] + radius * np.sin(a), np.full(a.size, z)], axis=1)
 
 
-def _flown_ring(centre: np.ndarray, radius: float, z: float) -> np.ndarray:
+def flown_ring(centre: np.ndarray, radius: float, z: float) -> np.ndarray:
     """The circle as the autopilot will fly it, :data:`FLOWN_WIDER_M` wider than asked."""
-    return _ring(centre, radius + FLOWN_WIDER_M, z)
+    return ring(centre, radius + FLOWN_WIDER_M, z)
 
 
 def _flown_at(path: np.ndarray, speed: float, times: np.ndarray) -> np.ndarray:
@@ -153,8 +153,8 @@ def _plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: 
             # for ~2 s after the command, then turned onto a 50 m circle at ~60 m: 3.0 m from a cylinder that
             # circle cleared by 27.9 m), sweeps this one
             turn = max(turn_radius, radius)
-            entry = _ring(base + lag_m * heading + turn * side, turn, p[2])
-            clearance, nearest = nearest_obstacle(np.vstack([path, _flown_ring(centre, radius, p[2]), entry]), env)
+            entry = ring(base + lag_m * heading + turn * side, turn, p[2])
+            clearance, nearest = nearest_obstacle(np.vstack([path, flown_ring(centre, radius, p[2]), entry]), env)
             if clearance < need:
                 continue
             sep = _traffic_separation(paths, speed, t_now, threats, HOLD_HORIZON_S)

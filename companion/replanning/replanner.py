@@ -24,7 +24,7 @@ import logging
 import math
 import multiprocessing
 import time
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Awaitable, Callable, Iterator, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
@@ -50,12 +50,13 @@ from companion.mission.geo import enu_to_geodetic, geodetic_to_enu, to_int_e7
 from companion.mission.restore import restore_mission
 from companion.replanning.guard import GUARD_DT_S, first_breach, predict_own_path
 from companion.replanning.holds import (
-    FLOWN_WIDER_M,
     HOLD_MARGIN_M,
     HoldPattern,
     circle_traffic_separation,
     copter_hold,
+    flown_ring,
     plane_hold,
+    ring,
 )
 from companion.replanning.replan import (
     CommitPoint,
@@ -98,10 +99,10 @@ FLOWN_CHECK_DT_S = 0.5  # vehicle seconds between the points of a plan's flown p
 HOLD_CHECK_WALL_S = 0.5  # wall seconds between two looks for a hold pattern after none was found, and between
 # two traffic checks of the circle being held (each takes CPU the planner needs: under load, 30 a second)
 RESUME_HORIZON_S = 20.0  # vehicle seconds of the path flown on resuming that are checked
-# how much wider than its path-follower's bound (AutopilotLimits.wide_turn_radius) a plane may turn round on
-# resuming, or onto a hold circle: ArduPlane SITL at 23.5 m/s turned back from a hold at 58 m against the L1 law's
-# 37 m, then flew straight at the item from there, 22.7 m into a cylinder the path predicted at 37 m had cleared
-RESUME_WIDE_TURNS = 1.6
+# how much wider than its path-follower's bound (AutopilotLimits.wide_turn_radius) a plane may turn (_flown_paths,
+# and onto a hold circle): resuming, ArduPlane SITL at 23.5 m/s turned back from a hold at 58 m against the L1
+# law's 37 m, then flew straight at the item from there, 22.7 m into a cylinder the path predicted at 37 m cleared
+WIDE_TURNS = 1.6
 # vehicle seconds a plane may fly on straight after a hold is commanded before it turns onto the circle (ArduPlane
 # SITL at 10x: ~2 s between the acknowledged DO_REPOSITION and the first change of heading, our latency included)
 HOLD_TURN_LAG_S = 2.5
@@ -674,19 +675,19 @@ class LiveReplanner:
 
     def _flown_paths(self, position: np.ndarray, velocity: np.ndarray, origin: np.ndarray, targets: np.ndarray,
                      radius: float, horizon_s: float, dt: float = GUARD_DT_S, direct: bool = False,
-                     behind: bool = False) -> list[np.ndarray]:
-        """The paths the vehicle may fly along ``targets`` (:func:`predict_own_path`). A plane's path-follower is
-        not modelled closely enough for one: it may turn as wide as ``radius`` or RESUME_WIDE_TURNS times it, take
-        each item at its acceptance radius or as early as ArduPlane switches, and (``behind``: its item behind it)
-        turn round either way; each of those paths is given. A copter (no circles) has one."""
+                     behind: bool = False) -> Iterator[np.ndarray]:
+        """The paths the vehicle may fly along ``targets`` (:func:`predict_own_path`), one at a time (a check that
+        finds a breach stops predicting). A plane's path-follower is not modelled closely enough for one: it may
+        turn as wide as ``radius`` or WIDE_TURNS times it, take each item at its acceptance radius or as early as
+        ArduPlane switches, and (``behind``: its item behind it) turn round either way. A copter (no circles) has
+        one."""
         accept = self.scenario.vehicle.acceptance_radius
-        if not self.link.profile.hold_circles:
-            return [predict_own_path(position, velocity, origin, targets, radius, accept, horizon_s=horizon_s, dt=dt,
-                                     direct=direct)]
-        return [predict_own_path(position, velocity, origin, targets, r, a, horizon_s=horizon_s, dt=dt,
-                                 direct=direct, sense=sense)
-                for r in (radius, RESUME_WIDE_TURNS * radius) for a in dict.fromkeys((accept, self._switch_m()))
-                for sense in ((-1, 1) if behind else (0,))]
+        plane = self.link.profile.hold_circles
+        for r in (radius, WIDE_TURNS * radius) if plane else (radius,):
+            for a in dict.fromkeys((accept, self._switch_m())) if plane else (accept,):
+                for sense in (-1, 1) if plane and behind else (0,):
+                    yield predict_own_path(position, velocity, origin, targets, r, a, horizon_s=horizon_s, dt=dt,
+                                           direct=direct, sense=sense)
 
     @property
     def flying_speed(self) -> float:
@@ -1019,7 +1020,7 @@ class LiveReplanner:
             return plane_hold(self.position, self.velocity, self.loiter_radius, env, d_coll,
                               self.flying_speed, self.threats(now), now,
                               min_radius=MIN_HOLD_RADIUS_TURNS * self._turn_radius(),
-                              turn_radius=RESUME_WIDE_TURNS * self._wide_turn_radius(self.flying_speed),
+                              turn_radius=WIDE_TURNS * self._wide_turn_radius(self.flying_speed),
                               lag_m=HOLD_TURN_LAG_S * self.flying_speed)
         stop = self.limits.stopping_distance if self.limits is not None else \
             self.scenario.vehicle.cruise_speed ** 2 / 5.0
@@ -1045,10 +1046,8 @@ class LiveReplanner:
         circle is clear of the obstacles: the fallback when our circle cannot be commanded."""
         assert self.position is not None
         centre = self.position.copy()
-        a = np.linspace(0.0, 2 * math.pi, 73)
-        circle = centre + np.concatenate([  # as asked, and as ArduPlane flies it (wider)
-            r * np.stack([np.cos(a), np.sin(a), np.zeros_like(a)], axis=1)
-            for r in (self.loiter_radius, self.loiter_radius + FLOWN_WIDER_M)])
+        circle = np.vstack([ring(centre, self.loiter_radius, centre[2]),  # as asked, and as ArduPlane flies it
+                            flown_ring(centre, self.loiter_radius, centre[2])])
         clearance, worst = nearest_obstacle(circle, self.scenario.environment)
         if clearance < self.scenario.hazard.d_coll + HOLD_MARGIN_M:
             return None
