@@ -371,18 +371,31 @@ class MavsdkMissionClient(MissionClient):
         """MAVSDK's set_current_mission_item (MISSION_SET_CURRENT, confirmed by MISSION_CURRENT). MAVSDK 4.1 checks
         ``seq`` against the length of the last list it transferred, of whatever type (after a fence of 2 items
         it refuses item 2 of a 16-item mission with INVALID_ARGUMENT): the mission is read first when the last
-        transfer was another list. No confirmation within ``SET_CURRENT_S`` is a :class:`CommandError`."""
+        transfer was another list. MAVSDK's call can wait for ever (a MISSION_CURRENT of another item makes its
+        SetCurrentWorkItem remove its timer, then refresh the removed one), and CI twice saw it unconfirmed after
+        ``SET_CURRENT_S``. Then, or after MAVSDK's own TIMEOUT, the message goes out through the raw link, as the
+        base client sends it (a MISSION_CURRENT with ``seq`` also ends MAVSDK's waiting call). Unconfirmed, or
+        refused by MAVSDK, it is a :class:`CommandError`."""
         cmd = mavlink.MAV_CMD_DO_SET_MISSION_CURRENT
         async with self._lock:
             if self._last_type != MISSION:
                 await self._download(MISSION)
+            call = asyncio.ensure_future(self.link.mission_raw.set_current_mission_item(seq))
+            call.add_done_callback(lambda f: f.cancelled() or f.exception())  # no "never retrieved" if abandoned
             try:
-                await asyncio.wait_for(self.link.mission_raw.set_current_mission_item(seq), SET_CURRENT_S)
+                await asyncio.wait_for(asyncio.shield(call), SET_CURRENT_S)
+                return
             except MissionRawError as exc:
-                raise CommandError(cmd, None, f"MAVSDK set_current_mission_item({seq}): {exc.result.name}") from exc
+                if exc.result.name != "TIMEOUT":
+                    raise CommandError(cmd, None, f"MAVSDK set_current_mission_item({seq}): {exc.result.name}") \
+                        from exc
+                why = "TIMEOUT"
             except TimeoutError:
-                raise CommandError(cmd, None, f"MAVSDK set_current_mission_item({seq}): no MISSION_CURRENT "
-                                   f"within {SET_CURRENT_S:g} s") from None
+                why = f"no confirmation within {SET_CURRENT_S:g} s"
+            log.warning("MAVSDK set_current_mission_item(%d): %s; sending MISSION_SET_CURRENT itself", seq, why)
+            if not await self._set_current_by_message(seq, timeout, retries):
+                raise CommandError(cmd, None, f"MAVSDK set_current_mission_item({seq}): {why}, and MISSION_SET_CURRENT "
+                                   f"unconfirmed {retries + 1} times")
 
     async def command_long(self, command: int, *params: float, timeout: float = 1.0, retries: int = 3,
                            target_component: int | None = None, persist: bool = True) -> int:

@@ -532,18 +532,23 @@ class MissionClient:
                     raise  # an explicit refusal (e.g. seq out of range)
                 else:
                     log.info("no COMMAND_ACK for DO_SET_MISSION_CURRENT; trying MISSION_SET_CURRENT")
-        link = self.link
+        if not await self._set_current_by_message(seq, timeout, retries):
+            raise CommandError(cmd, None, f"neither COMMAND_ACK nor MISSION_CURRENT confirmed item {seq}")
+
+    async def _set_current_by_message(self, seq: int, timeout: float, retries: int) -> bool:
+        """MISSION_SET_CURRENT, sent up to ``1 + retries`` times until MISSION_CURRENT shows ``seq`` (within
+        ``timeout`` s of each); False if it never does."""
         ts, tc = self._target()
         msg = mavlink.MAVLink_mission_set_current_message(ts, tc, seq)
-        with link.subscribe("MISSION_CURRENT", predicate=lambda m: m.seq == seq) as sub:
+        with self.link.subscribe("MISSION_CURRENT", predicate=lambda m: m.seq == seq) as sub:
             for _ in range(retries + 1):
-                link.send(msg)
+                self.link.send(msg)
                 try:
                     await sub.get(timeout)
-                    return
+                    return True
                 except TimeoutError:
                     continue
-        raise CommandError(cmd, None, f"neither COMMAND_ACK nor MISSION_CURRENT confirmed item {seq}")
+        return False
 
     # ------------------------------------------------------------------ commands
     async def command_long(self, command: int, *params: float, timeout: float = 1.0, retries: int = 3,

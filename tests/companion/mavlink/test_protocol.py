@@ -705,6 +705,39 @@ async def test_mavsdk_backend_uploads_the_whole_list(sim_cls):
             await asyncio.get_running_loop().shutdown_default_executor()
 
 
+async def test_mavsdk_set_current_unconfirmed_by_mavsdk_is_sent_as_the_message(sim_cls, monkeypatch, caplog):
+    """An autopilot that ignores the first MISSION_SET_CURRENTs for a while (MAVSDK's call then waits beyond
+    SET_CURRENT_S, or ends TIMEOUT: CI saw it twice on PX4): the MAVSDK client sends the message itself until
+    MISSION_CURRENT confirms the item, and MAVSDK's abandoned call ends with it (no thread left behind)."""
+    from companion.mavlink import mavsdk_backend
+    from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
+
+    monkeypatch.setattr(mavsdk_backend, "SET_CURRENT_S", 1.0)
+    scenario, mission, _ = rescue_static_mission()
+    async with sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0) as sim:
+        real = sim._server._on_set_current  # noqa: SLF001 - the autopilot's own handler, made hostile below
+        first: list[float] = []
+
+        def deaf_at_first(seq: int) -> bool:  # nothing at all for 1.2 s after the first one: no MISSION_CURRENT
+            first.append(first[0] if first else time.monotonic())
+            return True if time.monotonic() - first[0] < 1.2 else real(seq)
+
+        link = MavsdkLink(f"udpout:127.0.0.1:{sim.port}")
+        try:
+            await link.open()
+            await link.wait_heartbeat(5.0)
+            client = MavsdkMissionClient(link)
+            await client.upload_verified(mission)
+            sim._server._on_set_current = deaf_at_first  # noqa: SLF001
+            with caplog.at_level("WARNING", logger="companion.mavlink.mavsdk_backend"):
+                await client.set_current(3)
+            assert sim._nav.current_seq == 3  # noqa: SLF001
+            assert "sending MISSION_SET_CURRENT itself" in caplog.text and len(first) >= 2
+        finally:
+            await link.close()
+            await asyncio.wait_for(asyncio.get_running_loop().shutdown_default_executor(), 10.0)
+
+
 @pytest.mark.parametrize("autopilot", ["ArduPilot", "PX4"])
 async def test_a_readback_asks_for_a_window_of_items_at_once_only_from_ardupilot(raw_peer, autopilot):
     """ArduPilot answers single item requests outside a transfer, so a download has READ_WINDOW requests in flight
