@@ -52,7 +52,13 @@ def _steps_into_unverified_items(events: list[dict]) -> list[dict]:
     return bad
 
 
-@pytest.mark.parametrize("name", ["rescue_static", "large_obstacle_field", "rescue_dynamic", pytest.param(
+@pytest.mark.parametrize("name", ["rescue_static", "large_obstacle_field", pytest.param(
+    # a booting ArduPlane's SERIAL0 by the two above; rescue_dynamic flown on ArduPlane to its end with defaults, its
+    # intruder reported, by test_vehicle_facts.py (ROLL_LIMIT_DEG / WP_LOITER_RAD) and crossing_traffic below
+    "rescue_dynamic", marks=pytest.mark.slow(covered_by=(
+        "test_plane_scenarios_fly_on_arduplane_with_default_options[rescue_static]",
+        "sitl/test_vehicle_facts.py::test_the_plan_and_the_hold_follow_roll_limit_and_wp_loiter_rad",
+        "test_crossing_traffic_on_serial1_with_adsb_from_a_receiver[replan]"))), pytest.param(
     # flown on ArduPlane below, to its end, by the first client on SERIAL1 of a booting ArduPlane
     "crossing_traffic", marks=pytest.mark.slow(covered_by="test_crossing_traffic_on_serial1_with_adsb_from_a_receiver"
                                                           "[replan]"))])

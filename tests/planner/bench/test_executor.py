@@ -108,7 +108,7 @@ def _worker_processes(parent: int) -> list[Any]:
 def test_a_worker_killed_mid_sweep_costs_only_its_runs(tmp_path) -> None:
     """SIGKILL one of two workers once a few runs are in: the sweep completes, every run once, with the records
     the local pool makes."""
-    sets = ["--runs", "3", "--set", "planner.pso.n_pop=40", "--set", "planner.pso.max_iter=30", "-q"]
+    sets = ["--runs", "2", "--set", "planner.pso.n_pop=40", "--set", "planner.pso.max_iter=30", "-q"]
     ref, out = tmp_path / "local", tmp_path / "dask"
     assert main(["bench", "ablation", "-o", str(ref), *sets, "--workers", "2"]) == 0
     jsonl = out / "ablation.jsonl"
@@ -132,10 +132,10 @@ def test_a_worker_killed_mid_sweep_costs_only_its_runs(tmp_path) -> None:
             proc.kill()
             proc.communicate()
     assert killed is not None, "no worker to kill before the sweep ended"
-    assert killed[0] < 18, "the kill came after the last run"
+    assert killed[0] < 12, "the kill came after the last run"
     assert not psutil.pid_exists(killed[1]) or psutil.Process(killed[1]).status() == psutil.STATUS_ZOMBIE
     assert proc.returncode == 0, stderr
-    assert "18 runs computed, 0 reused" in stdout and " s on dask-local, 2 workers" in stdout
+    assert "12 runs computed, 0 reused" in stdout and " s on dask-local, 2 workers" in stdout
     _assert_same_records(ref / "ablation.jsonl", jsonl)  # every run once, the same numbers
 
 
