@@ -49,7 +49,7 @@ from companion.mission.exports import (
 )
 from companion.mission.geo import geodetic_to_enu, lonlatalt
 from companion.replanning.replan import ReplanConfig, with_room
-from companion.replanning.replanner import LiveReplanner
+from companion.replanning.replanner import LiveReplanner, PlanWorker, expects_traffic
 from companion.replanning.separation import min_separations
 from planner.world.scenario import Scenario
 
@@ -103,7 +103,13 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
     try:
         if opts.signing_key is not None:
             events.log("signing", key=opts.signing_key.fingerprint)
-        async with _link(url, opts) as link:
+        async with _link(url, opts) as link, contextlib.AsyncExitStack() as early:
+            # the planner process starts now: its start and imports (seconds on a busy companion) overlap the boot
+            # wait, the parameter reads and the upload; the replanner warms it on the route and closes it
+            worker = None
+            if opts.replan and expects_traffic(scenario, opts.speedup if sim is not None else None):
+                worker = PlanWorker()
+                early.push_async_callback(asyncio.to_thread, worker.close)  # if no replanner ever takes it
             rates = TelemetryRates(link, on_results=lambda answers: events.log("telemetry_rates", **answers)).start()
             await link.wait_heartbeat(timeout=opts.heartbeat_timeout)
             # the streams we do not read turned off before the first transfer (PX4 floods a companion link with
@@ -139,7 +145,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                     replanner = await stack.enter_async_context(LiveReplanner(
                         link, client, events, scenario, spec, items, opts.replan_config,
                         rate=opts.speedup if sim is not None else None, seed=int(plan_doc.get("seed") or 0),
-                        limits=limits))
+                        limits=limits, worker=worker))
                 outcome = await sup.fly(items, fence, ready_timeout=60.0 if sim is None else 30.0,
                                         flight_timeout=timeout, replanner=replanner,
                                         departure=_departure_check(plan_doc, scenario, limits, events))

@@ -145,6 +145,13 @@ def _warm_up(problem: Any, settings: Any) -> None:
         _plan_job(problem, settings, [0], None, 0.03)
 
 
+def expects_traffic(scenario: Scenario, rate: float | None) -> bool:
+    """True when a flight may meet moving threats, so its planner process is started and warmed before take-off:
+    the scenario has threats or intruders, or the autopilot is real (``rate`` None), which may relay ADS-B
+    traffic whatever the scenario says."""
+    return bool(len(scenario.environment.threats) or scenario.intruders or rate is None)
+
+
 class PlanWorker:
     """A planner in its own process: the companion's event loop (and an in-process simulator) keep running at
     full speed while it plans, and the planner gets a whole core for its budget. ``problem`` and
@@ -156,6 +163,17 @@ class PlanWorker:
         self._warm = asyncio.get_running_loop().run_in_executor(self._pool, _warm_up, problem, settings)
         self._warm.add_done_callback(lambda f: f.cancelled() or f.exception())  # no "never retrieved" noise
         self._overhead_s = 0.035  # running estimate: wall time of a job beyond its optimiser's search
+
+    def warm(self, problem: Any, settings: Any) -> None:
+        """Warm up on ``problem`` as well, after what was queued before (a worker started early, before the route
+        was known, has only started its process and imported the planner by then)."""
+        if self._pool is None:
+            return
+        try:
+            self._warm = asyncio.get_running_loop().run_in_executor(self._pool, _warm_up, problem, settings)
+        except BrokenProcessPool:
+            return  # the first warm-up's future already says so; plan() falls back to a thread
+        self._warm.add_done_callback(lambda f: f.cancelled() or f.exception())
 
     async def ready(self) -> float:
         """Wait for the warm-up (process start, imports, a first short plan); returns the seconds waited. A
@@ -231,7 +249,11 @@ class LiveReplanner:
 
     def __init__(self, link: Link, client: MissionClient, events: EventLog, scenario: Scenario,
                  spec: MissionSpec, items: Sequence[MissionItem], cfg: ReplanConfig | None = None, *,
-                 rate: float | None = None, seed: int = 0, limits: AutopilotLimits | None = None) -> None:
+                 rate: float | None = None, seed: int = 0, limits: AutopilotLimits | None = None,
+                 worker: PlanWorker | None = None) -> None:
+        """``worker``: a planner process started earlier (``fly`` starts one as soon as the link is open, so its
+        start and imports overlap the boot wait, the parameter reads and the upload); it is warmed up on this
+        route and closed with the replanner."""
         self.link, self.client, self.events = link, client, events
         self.limits = limits  # the vehicle's own (loiter radius, braking); None: the config's and scenario's
         self.scenario, self.spec = scenario, spec
@@ -273,7 +295,8 @@ class LiveReplanner:
         # started now, and warmed up on the whole route, so the first conflict finds it ready; a flight with nothing
         # moving (the flown-safety guard may still need a static replan) starts it only when it is first needed
         self._worker: PlanWorker | None = None
-        self._expect_traffic = bool(len(scenario.environment.threats) or scenario.intruders or rate is None)
+        self._early_worker = worker
+        self._expect_traffic = expects_traffic(scenario, rate)
         if self._expect_traffic:
             self._start_worker()
         self.guard_enabled = True  # the flown-safety guard (companion/replanning/guard.py)
@@ -281,10 +304,14 @@ class LiveReplanner:
 
     def _start_worker(self) -> PlanWorker:
         if self._worker is None:
-            self._worker = PlanWorker(
-                replan_problem(self.scenario, self.route.points[0], self.route.goal,
-                               self.scenario.environment.threats, 0.0),
-                replan_settings(self.scenario.planner, self.cfg))
+            problem = replan_problem(self.scenario, self.route.points[0], self.route.goal,
+                                     self.scenario.environment.threats, 0.0)
+            settings = replan_settings(self.scenario.planner, self.cfg)
+            if self._early_worker is not None:
+                self._worker, self._early_worker = self._early_worker, None
+                self._worker.warm(problem, settings)
+            else:
+                self._worker = PlanWorker(problem, settings)
         return self._worker
 
     # -- picture ------------------------------------------------------------------------------------
@@ -475,8 +502,9 @@ class LiveReplanner:
 
     async def aclose(self) -> None:
         """Stop the planner process (waits for a plan in progress to end, at most its budget)."""
-        if self._worker is not None:
-            await asyncio.to_thread(self._worker.close)
+        for worker in (self._worker, self._early_worker):
+            if worker is not None:
+                await asyncio.to_thread(worker.close)
 
     async def __aenter__(self) -> LiveReplanner:
         return self

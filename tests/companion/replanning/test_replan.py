@@ -246,3 +246,22 @@ def test_the_latency_report_says_which_planner_made_the_replans(tmp_path: Path) 
     assert "roadmap" not in off and "replans by the scenario's planner" in off
     from planner import kernel
     assert f"cost kernel: {kernel.chosen()}" in off
+
+
+@pytest.mark.asyncio
+async def test_a_planner_process_started_before_the_route_is_known_plans_once_warmed_on_it() -> None:
+    """`fly` starts the planner process as soon as the link is open (no route yet: process start and imports only)
+    and the replanner warms it on the route later; a plan then comes from that process, within its budget."""
+    from companion.replanning.replanner import PlanWorker
+
+    worker = PlanWorker()
+    try:
+        assert await worker.ready() >= 0.0  # started and imported, nothing planned yet
+        problem = replan_problem(SC, np.array([200.0, 200, 50]), SC.goal, SC.environment.threats, 0.0)
+        settings = replan_settings(SC.planner, ReplanConfig())
+        worker.warm(problem, settings)
+        await worker.ready()
+        out = await worker.plan(problem, settings, [1, 2], None, 1.0)
+        assert out.status in ("exact", "approximate") and out.waypoints.shape[1] == 3
+    finally:
+        worker.close()
