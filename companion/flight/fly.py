@@ -106,8 +106,9 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
         async with _link(url, opts) as link, contextlib.AsyncExitStack() as early:
             # the planner process starts now: its start and imports (seconds on a busy companion) overlap the boot
             # wait, the parameter reads and the upload; the replanner warms it on the route and closes it
+            clock_rate = opts.speedup if sim is not None else None  # vehicle s per wall s where known (our simulator)
             worker = None
-            if opts.replan and expects_traffic(scenario, opts.speedup if sim is not None else None):
+            if opts.replan and expects_traffic(scenario, clock_rate):
                 worker = PlanWorker()
                 early.push_async_callback(asyncio.to_thread, worker.close)  # if no replanner ever takes it
             rates = TelemetryRates(link, on_results=lambda answers: events.log("telemetry_rates", **answers)).start()
@@ -144,7 +145,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                 if opts.replan:  # moving threats, ADS-B, and the flown-safety guard on every flight
                     replanner = await stack.enter_async_context(LiveReplanner(
                         link, client, events, scenario, spec, items, opts.replan_config,
-                        rate=opts.speedup if sim is not None else None, seed=int(plan_doc.get("seed") or 0),
+                        rate=clock_rate, seed=int(plan_doc.get("seed") or 0),
                         limits=limits, worker=worker))
                 outcome = await sup.fly(items, fence, ready_timeout=60.0 if sim is None else 30.0,
                                         flight_timeout=timeout, replanner=replanner,

@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import itertools
 import logging
 import math
 import multiprocessing
@@ -160,20 +161,20 @@ class PlanWorker:
     def __init__(self, problem: Any = None, settings: Any = None) -> None:
         self._pool: ProcessPoolExecutor | None = ProcessPoolExecutor(
             max_workers=1, mp_context=multiprocessing.get_context("spawn"))
-        self._warm = asyncio.get_running_loop().run_in_executor(self._pool, _warm_up, problem, settings)
-        self._warm.add_done_callback(lambda f: f.cancelled() or f.exception())  # no "never retrieved" noise
+        self._warm: asyncio.Future[None]
+        self.warm(problem, settings)
         self._overhead_s = 0.035  # running estimate: wall time of a job beyond its optimiser's search
 
     def warm(self, problem: Any, settings: Any) -> None:
-        """Warm up on ``problem`` as well, after what was queued before (a worker started early, before the route
-        was known, has only started its process and imported the planner by then)."""
+        """Queue a warm-up on ``problem`` (None: the process start and imports alone) behind what was queued
+        before: a worker started before the route was known is warmed on it later."""
         if self._pool is None:
             return
         try:
             self._warm = asyncio.get_running_loop().run_in_executor(self._pool, _warm_up, problem, settings)
         except BrokenProcessPool:
             return  # the first warm-up's future already says so; plan() falls back to a thread
-        self._warm.add_done_callback(lambda f: f.cancelled() or f.exception())
+        self._warm.add_done_callback(lambda f: f.cancelled() or f.exception())  # no "never retrieved" noise
 
     async def ready(self) -> float:
         """Wait for the warm-up (process start, imports, a first short plan); returns the seconds waited. A
@@ -253,7 +254,7 @@ class LiveReplanner:
                  worker: PlanWorker | None = None) -> None:
         """``worker``: a planner process started earlier (``fly`` starts one as soon as the link is open, so its
         start and imports overlap the boot wait, the parameter reads and the upload); it is warmed up on this
-        route and closed with the replanner."""
+        route and closed with the replanner (closing it again, as its starter may, is harmless)."""
         self.link, self.client, self.events = link, client, events
         self.limits = limits  # the vehicle's own (loiter radius, braking); None: the config's and scenario's
         self.scenario, self.spec = scenario, spec
@@ -295,21 +296,21 @@ class LiveReplanner:
         # started now, and warmed up on the whole route, so the first conflict finds it ready; a flight with nothing
         # moving (the flown-safety guard may still need a static replan) starts it only when it is first needed
         self._worker: PlanWorker | None = None
-        self._early_worker = worker
         self._expect_traffic = expects_traffic(scenario, rate)
-        if self._expect_traffic:
-            self._start_worker()
+        if self._expect_traffic or worker is not None:
+            self._start_worker(worker)
         self.guard_enabled = True  # the flown-safety guard (companion/replanning/guard.py)
         self._guard_at = -math.inf  # wall time of the last guard action
 
-    def _start_worker(self) -> PlanWorker:
+    def _start_worker(self, started: PlanWorker | None = None) -> PlanWorker:
+        """The planner process, warmed up on the whole route: ``started`` (a process already running) or a new one."""
         if self._worker is None:
             problem = replan_problem(self.scenario, self.route.points[0], self.route.goal,
                                      self.scenario.environment.threats, 0.0)
             settings = replan_settings(self.scenario.planner, self.cfg)
-            if self._early_worker is not None:
-                self._worker, self._early_worker = self._early_worker, None
-                self._worker.warm(problem, settings)
+            if started is not None:
+                started.warm(problem, settings)
+                self._worker = started
             else:
                 self._worker = PlanWorker(problem, settings)
         return self._worker
@@ -502,9 +503,8 @@ class LiveReplanner:
 
     async def aclose(self) -> None:
         """Stop the planner process (waits for a plan in progress to end, at most its budget)."""
-        for worker in (self._worker, self._early_worker):
-            if worker is not None:
-                await asyncio.to_thread(worker.close)
+        if self._worker is not None:
+            await asyncio.to_thread(self._worker.close)
 
     async def __aenter__(self) -> LiveReplanner:
         return self
@@ -711,11 +711,12 @@ class LiveReplanner:
         one."""
         accept = self.scenario.vehicle.acceptance_radius
         plane = self.link.profile.hold_circles
-        for r in (radius, WIDE_TURNS * radius) if plane else (radius,):
-            for a in dict.fromkeys((accept, self._switch_m())) if plane else (accept,):
-                for sense in (-1, 1) if plane and behind else (0,):
-                    yield predict_own_path(position, velocity, origin, targets, r, a, horizon_s=horizon_s, dt=dt,
-                                           direct=direct, sense=sense)
+        radii = (radius, WIDE_TURNS * radius) if plane else (radius,)
+        accepts = tuple(dict.fromkeys((accept, self._switch_m()))) if plane else (accept,)
+        senses = (-1, 1) if plane and behind else (0,)
+        for r, a, sense in itertools.product(radii, accepts, senses):
+            yield predict_own_path(position, velocity, origin, targets, r, a, horizon_s=horizon_s, dt=dt,
+                                   direct=direct, sense=sense)
 
     @property
     def flying_speed(self) -> float:

@@ -65,7 +65,8 @@ def test_full_flight_through_30_percent_drop_with_duplicates_and_reordering(
     # a 6 s silence mid-flight on the simulator's UDP link: lost, restored, mission read back, flown to the end with
     # the same decision; and a 10 s one on ArduPlane SITL (TCP)
     "companion/replanning/test_replanning.py::test_link_outage_pauses_replanning_then_it_resumes_from_fresh_telemetry",
-    "sitl/test_sitl_link.py::test_a_10_s_tcp_link_outage_in_flight_is_survived"))), pytest.param("tcp", marks=pytest.mark.slow(covered_by=(
+    "sitl/test_sitl_link.py::test_a_10_s_tcp_link_outage_in_flight_is_survived"))),
+    pytest.param("tcp", marks=pytest.mark.slow(covered_by=(
     # a silent TCP connection dropped and reconnected in flight on ArduPlane SITL, mission read back, flown to
     # the goal; and connects refused meanwhile, retried with back-off
     "sitl/test_sitl_link.py::test_a_10_s_tcp_link_outage_in_flight_is_survived",

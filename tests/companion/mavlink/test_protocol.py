@@ -683,26 +683,34 @@ async def test_px4_gets_the_whole_list(raw_peer):
         await link.close()
 
 
+@contextlib.asynccontextmanager
+async def _mavsdk_client(sim, mission, shutdown_s: float | None = None):
+    """The MAVSDK backend's client on ``sim`` with ``mission`` uploaded and verified. Afterwards MAVSDK is closed
+    and the loop's default executor, where MAVSDK's async wrapper runs its blocking calls, shut down (within
+    ``shutdown_s`` if given: a blocking call that never ended would hold it)."""
+    from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
+
+    link = MavsdkLink(f"udpout:127.0.0.1:{sim.port}")
+    try:
+        await link.open()
+        await link.wait_heartbeat(5.0)
+        client = MavsdkMissionClient(link)
+        await client.upload_verified(mission)
+        yield client
+    finally:
+        await link.close()
+        await asyncio.wait_for(asyncio.get_running_loop().shutdown_default_executor(), shutdown_s)
+
+
 async def test_mavsdk_backend_uploads_the_whole_list(sim_cls):
     """MAVSDK's mission_raw has no partial write: the MAVSDK backend's client does the whole verified upload, also
     on an ArduPilot vehicle."""
-    from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
-
     scenario, mission, _ = rescue_static_mission()
     new = moved_tail(mission, 2)
-    async with sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0) as sim:
-        link = MavsdkLink(f"udpout:127.0.0.1:{sim.port}")
-        try:
-            await link.open()
-            await link.wait_heartbeat(5.0)
-            client = MavsdkMissionClient(link)
-            await client.upload_verified(mission)
-            assert await client.upload_changed_verified(new, mission) == "whole"
-            assert same_mission(new, sim.mission)
-        finally:
-            await link.close()
-            # MAVSDK's async wrapper runs blocking calls on the loop's default executor: end its threads here
-            await asyncio.get_running_loop().shutdown_default_executor()
+    async with sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0) as sim, \
+            _mavsdk_client(sim, mission) as client:
+        assert await client.upload_changed_verified(new, mission) == "whole"
+        assert same_mission(new, sim.mission)
 
 
 async def test_mavsdk_set_current_unconfirmed_by_mavsdk_is_sent_as_the_message(sim_cls, monkeypatch, caplog):
@@ -710,32 +718,23 @@ async def test_mavsdk_set_current_unconfirmed_by_mavsdk_is_sent_as_the_message(s
     SET_CURRENT_S, or ends TIMEOUT: CI saw it twice on PX4): the MAVSDK client sends the message itself until
     MISSION_CURRENT confirms the item, and MAVSDK's abandoned call ends with it (no thread left behind)."""
     from companion.mavlink import mavsdk_backend
-    from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
 
     monkeypatch.setattr(mavsdk_backend, "SET_CURRENT_S", 1.0)
     scenario, mission, _ = rescue_static_mission()
-    async with sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0) as sim:
+    async with sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0) as sim, \
+            _mavsdk_client(sim, mission, shutdown_s=10.0) as client:
         real = sim._server._on_set_current  # noqa: SLF001 - the autopilot's own handler, made hostile below
-        first: list[float] = []
+        calls: list[float] = []
 
         def deaf_at_first(seq: int) -> bool:  # nothing at all for 1.2 s after the first one: no MISSION_CURRENT
-            first.append(first[0] if first else time.monotonic())
-            return True if time.monotonic() - first[0] < 1.2 else real(seq)
+            calls.append(time.monotonic())
+            return True if calls[-1] - calls[0] < 1.2 else real(seq)
 
-        link = MavsdkLink(f"udpout:127.0.0.1:{sim.port}")
-        try:
-            await link.open()
-            await link.wait_heartbeat(5.0)
-            client = MavsdkMissionClient(link)
-            await client.upload_verified(mission)
-            sim._server._on_set_current = deaf_at_first  # noqa: SLF001
-            with caplog.at_level("WARNING", logger="companion.mavlink.mavsdk_backend"):
-                await client.set_current(3)
-            assert sim._nav.current_seq == 3  # noqa: SLF001
-            assert "sending MISSION_SET_CURRENT itself" in caplog.text and len(first) >= 2
-        finally:
-            await link.close()
-            await asyncio.wait_for(asyncio.get_running_loop().shutdown_default_executor(), 10.0)
+        sim._server._on_set_current = deaf_at_first  # noqa: SLF001
+        with caplog.at_level("WARNING", logger="companion.mavlink.mavsdk_backend"):
+            await client.set_current(3)
+        assert sim._nav.current_seq == 3  # noqa: SLF001
+        assert "sending MISSION_SET_CURRENT itself" in caplog.text and len(calls) >= 2
 
 
 @pytest.mark.parametrize("autopilot", ["ArduPilot", "PX4"])
