@@ -41,7 +41,9 @@ def _parser() -> argparse.ArgumentParser:
     ex.add_argument("source", type=Path, help="a scenario TOML (planned first) or a PLAN.json")
     ex.add_argument("--format", required=True, choices=("waypoints", "plan", "geojson"))
     ex.add_argument("-o", "--output", type=Path, required=True)
-    ex.add_argument("--autopilot", choices=("ardupilot", "px4"), default="ardupilot")
+    ex.add_argument("--autopilot", choices=("ardupilot", "px4", "px4-vtol"), default="ardupilot",
+                    help="the mission layout: ArduPilot, PX4, or a PX4 VTOL (VTOL take-off and landing; default "
+                         "ardupilot)")
     ex.add_argument("--scenario", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
     ex.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory")
     ex.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
@@ -99,9 +101,9 @@ def _parser() -> argparse.ArgumentParser:
     bn.add_argument("--cpu-hog", type=int, default=0, metavar="N",
                     help="bench replan and bench flights: N busy processes beside the flights (deadlines under "
                          "load, issue 16; default 0)")
-    bn.add_argument("--backend", choices=("sim", "sitl-plane", "sitl-copter", "px4"), default="sim",
+    bn.add_argument("--backend", choices=("sim", "sitl-plane", "sitl-copter", "px4", "px4-vtol"), default="sim",
                     help="bench flights only: what flies: the built-in simulator (20x), ArduPilot SITL plane or "
-                         "copter (10x), PX4 SITL quadrotor (10x) (default sim)")
+                         "copter (10x), PX4 SITL quadrotor or standard VTOL (10x) (default sim)")
     bn.add_argument("--scenarios", default=None, metavar="A,B",
                     help="bench flights only: comma-separated subset of the shipped scenarios with moving threats "
                          "(default: all of them)")

@@ -43,6 +43,7 @@ log = logging.getLogger(__name__)
 ARDUPILOT_ENV, PX4_ENV = "FUSEPLAN_SITL_DIR", "FUSEPLAN_PX4_DIR"
 ARDUPILOT = {"plane": ("arduplane", "plane", "plane.parm"), "copter": ("arducopter", "quad", "copter.parm")}
 PX4_MODEL = "sihsim_quadx"  # PX4's SIH airplane does not fly a mission (docs/px4.md)
+PX4_VTOL_MODEL = "sihsim_standard_vtol"  # airframe 10043: flies a fixed-wing mission between VTOL take-off and landing
 PX4_STARTED, PX4_FAILED = "Startup script returned successfully", "Startup script returned with return value"
 START_TIMEOUT_S = 30.0  # start -> ready (measured: SITL listens in under 0.1 s, PX4 answers in 0.6-1.4 s)
 STOP_GRACE_S = 5.0  # SIGTERM -> SIGKILL
@@ -191,14 +192,15 @@ PX4_COMPANION_PORT = 14540  # + instance: where PX4's API link sends
 
 
 @contextlib.contextmanager
-def px4_sitl(home: tuple[float, float, float], folder: Path, speedup: float = 10.0) -> Iterator[Endpoints]:
-    """PX4 SITL (the SIH quadrotor) at ``home`` while the block runs; on entry it has sent a HEARTBEAT on the
-    companion port (whose socket is closed again for ``fly`` to bind)."""
+def px4_sitl(home: tuple[float, float, float], folder: Path, speedup: float = 10.0,
+             model: str = PX4_MODEL) -> Iterator[Endpoints]:
+    """PX4 SITL (its SIH ``model``: the quadrotor, or :data:`PX4_VTOL_MODEL`) at ``home`` while the block runs; on
+    entry it has sent a HEARTBEAT on the companion port (whose socket is closed again for ``fly`` to bind)."""
     instance, lock = _claim("fuseplan-px4-i{}.lock", range(10), lambda n: all(
         _bindable(p + n, socket.SOCK_DGRAM) for p in (*PX4_OWN_PORTS, PX4_COMPANION_PORT)))
     with lock:
         root = Path(tempfile.mkdtemp(prefix=f"fuseplan-px4-i{instance}-")).resolve()
-        env = dict(os.environ, TMPDIR=str(root), PX4_SIM_MODEL=PX4_MODEL, PX4_SIM_SPEED_FACTOR=f"{speedup:g}",
+        env = dict(os.environ, TMPDIR=str(root), PX4_SIM_MODEL=model, PX4_SIM_SPEED_FACTOR=f"{speedup:g}",
                    PX4_INSTANCE=str(instance))
         env.setdefault("PX4_PARAM_SDLOG_MODE", "-1")  # no flight log: it is deleted with the directory anyway
         if any(not os.access(p, os.X_OK) for p in (folder / "bin").glob("px4-*") if not p.name.endswith(".sh")):
@@ -226,7 +228,7 @@ def px4_sitl(home: tuple[float, float, float], folder: Path, speedup: float = 10
             _wait_px4(process, log_path, PX4_COMPANION_PORT + instance, instance + 1)
             yield Endpoints(f"udpin:127.0.0.1:{PX4_COMPANION_PORT + instance}",
                             f"udpout:127.0.0.1:{PX4_OWN_PORTS[1] + instance}",
-                            f"PX4 {PX4_MODEL} -i{instance} ({folder}) at {speedup:g}x")
+                            f"PX4 {model} -i{instance} ({folder}) at {speedup:g}x")
         finally:
             tail = _tail(log_path)
             if process is not None:

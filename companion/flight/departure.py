@@ -4,9 +4,11 @@ any other leg before anything is uploaded (docs/design.md, "Departure").
 ArduPlane takes off where it stands, straight ahead on its heading, and only after the take-off altitude turns
 towards the first waypoint, as its path-follower (L1) turns. On SITL, from the region's corner, that
 climb-out ran 270 m north before the turn; started 300 m east, it went straight through a no-fly cylinder. A
-copter climbs vertically and then flies straight to the start. Where the plane really climbs and turns is not
-known to the metre, so the check covers an envelope: the steepest and the shallowest take-off climb, the tightest
-turn, and the path-follower's turn after the roll-in.
+copter climbs vertically and then flies straight to the start. A VTOL (PX4's NAV_VTOL_TAKEOFF) climbs vertically
+and then transitions on whatever heading it has at the top (the SIH standard VTOL yawed from 351° to 276° in its
+climb), before it turns towards the start as a fixed-wing. Where the plane really climbs and turns is not known to
+the metre, so the check covers an envelope: the steepest and the shallowest take-off climb, the tightest turn, and
+the path-follower's turn after the roll-in; for a VTOL, the transition on every heading.
 """
 
 from __future__ import annotations
@@ -27,6 +29,8 @@ PLANE_STEEPEST_CLIMB_DEG = 25.0
 PLANE_SHALLOWEST_CLIMB_DEG = 18.0
 PLANE_TAKEOFF_SPEED_M_S = 27.0  # ground speed in the take-off climb and the first turn (SITL)
 PLANE_ROLL_IN_S = 2.0  # s flown straight on while the plane rolls into its first turn (the wide case)
+VTOL_TRANSITION_RUN_M = 40.0  # flown straight on while a VTOL transitions (PX4 SIH: 2.0-2.7 s to 10 m/s)
+VTOL_HEADINGS = 12  # transition headings checked, all round
 DEPARTURE_MARGIN_M = 5.0  # beyond d_coll: the envelope is a model, not a measurement
 SAMPLE_M = 5.0  # spacing of the checked points
 REGION_TOLERANCE_M = 25.0  # a vehicle this close outside the region (GPS noise at a corner home) is inside
@@ -107,8 +111,17 @@ def departure_paths(fix: VehicleFix, start: np.ndarray, takeoff_alt: float,
     p0 = np.asarray(fix.position, dtype=float)
     start = np.asarray(start, dtype=float)
     alt = max(takeoff_alt, float(start[2]))
+    up = np.array([p0[0], p0[1], alt])
+    if limits.vertical_takeoff:
+        paths = []
+        for deg in np.arange(VTOL_HEADINGS) * 360.0 / VTOL_HEADINGS:
+            heading = _unit(float(deg))
+            top = p0[:2] + VTOL_TRANSITION_RUN_M * heading
+            flat = turn_then_straight(top, heading, start[:2], limits.wide_turn_radius())
+            z = np.concatenate([[alt] * (len(flat) - 1), [start[2]]])
+            paths.append(_densify(np.vstack([p0, up, [*top, alt], np.column_stack([flat, z])[1:]])))
+        return paths
     if limits.vehicle_type != "plane":
-        up = np.array([p0[0], p0[1], alt])
         return [_densify(np.stack([p0, up, start]))]
     heading = _unit(fix.heading_deg or 0.0)
     paths = []

@@ -40,9 +40,13 @@ from planner.bench.runner import appending, load_records, set_options, write_csv
 from planner.errors import FuseplanError
 from planner.plan import json_safe
 
-BACKENDS = ("sim", "sitl-plane", "sitl-copter", "px4")
-SPEEDUP = {"sim": 20.0, "sitl-plane": 10.0, "sitl-copter": 10.0, "px4": 10.0}  # px4: 2 cores keep up with 10x
-COPTER = 'vehicle.type="copter"'
+BACKENDS = ("sim", "sitl-plane", "sitl-copter", "px4", "px4-vtol")
+SPEEDUP = {"sim": 20.0, "sitl-plane": 10.0, "sitl-copter": 10.0, "px4": 10.0,  # px4: 2 cores keep up with 10x
+           "px4-vtol": 10.0}
+COPTER = ('vehicle.type="copter"',)
+# PX4's SIH standard VTOL: it flies its route as a fixed-wing at its trim airspeed (FW_AIRSPD_TRIM 10 m/s; 18 would
+# be capped at its 12 m/s maximum), and PX4 rejects a VTOL mission without a landing (MIS_TKO_LAND_REQ)
+VTOL = ('vehicle.cruise_speed=10', 'vehicle.end_action="land"')
 DEFAULT_RUNS = 5
 EXIT_BAD_INPUT, EXIT_INTERRUPTED = 2, 130  # fly's exit codes that are not a flight's result
 
@@ -77,7 +81,8 @@ class FlightsSettings:
 
     @property
     def fly_overrides(self) -> tuple[str, ...]:
-        return (*self.overrides, *((COPTER,) if self.backend in ("sitl-copter", "px4") else ()))
+        return (*self.overrides, *(COPTER if self.backend in ("sitl-copter", "px4") else
+                                   VTOL if self.backend == "px4-vtol" else ()))
 
     @property
     def fingerprint(self) -> str:
@@ -105,7 +110,7 @@ def missing(backend: str, folder: Path | None) -> str | None:
     """Why ``backend`` cannot fly here (one line), or None."""
     if backend == "sim":
         return None
-    if backend == "px4":
+    if backend.startswith("px4"):
         return autopilots.px4_missing(folder)
     return autopilots.ardupilot_missing(backend.removeprefix("sitl-"), folder)
 
@@ -114,7 +119,8 @@ def autopilot_folder(backend: str, folder: Path | None) -> Path | None:
     """``--sitl-dir``, else the backend's environment variable (FUSEPLAN_SITL_DIR, FUSEPLAN_PX4_DIR)."""
     if backend == "sim":
         return None
-    return autopilots.folder_of(autopilots.PX4_ENV if backend == "px4" else autopilots.ARDUPILOT_ENV, folder)
+    return autopilots.folder_of(autopilots.PX4_ENV if backend.startswith("px4") else autopilots.ARDUPILOT_ENV,
+                                folder)
 
 
 @contextlib.contextmanager
@@ -122,8 +128,9 @@ def _autopilot(s: FlightsSettings, home: tuple[float, float, float]) -> Iterator
     """A fresh autopilot for one flight (None on the simulator, which ``fly --sim`` runs itself)."""
     if s.backend == "sim":
         yield None
-    elif s.backend == "px4":
-        with autopilots.px4_sitl(home, s.folder or Path(), SPEEDUP["px4"]) as ep:
+    elif s.backend.startswith("px4"):
+        model = autopilots.PX4_VTOL_MODEL if s.backend == "px4-vtol" else autopilots.PX4_MODEL
+        with autopilots.px4_sitl(home, s.folder or Path(), SPEEDUP[s.backend], model) as ep:
             yield ep
     else:
         with autopilots.ardupilot_sitl(s.backend.removeprefix("sitl-"), home, s.folder or Path(),

@@ -62,6 +62,9 @@ class MissionLayout:
     acceptance_dropped: frozenset[str]
     acceptance_max_m: int | None
     qgc_firmware_type: int  # a QGroundControl .plan's firmwareType (MAV_AUTOPILOT)
+    # a VTOL's mission: NAV_VTOL_TAKEOFF (a vertical climb, then the transition towards the item's position) and
+    # NAV_VTOL_LAND (back-transition, vertical landing) instead of NAV_TAKEOFF and NAV_LAND
+    vtol: bool = False
 
     def acceptance_param(self, radius: float, vehicle_type: str) -> float:
         """NAV_WAYPOINT param2 for an acceptance ``radius`` (m) on a ``vehicle_type`` ("plane", "copter")."""
@@ -76,7 +79,10 @@ ARDUPILOT_LAYOUT = MissionLayout("ardupilot", home_item=True, nav_yaw=0.0, accep
                                  acceptance_max_m=255, qgc_firmware_type=mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA)
 PX4_LAYOUT = MissionLayout("px4", home_item=False, nav_yaw=math.nan, acceptance_dropped=frozenset(),
                            acceptance_max_m=None, qgc_firmware_type=mavlink.MAV_AUTOPILOT_PX4)
-LAYOUTS: Mapping[str, MissionLayout] = MappingProxyType({lay.key: lay for lay in (ARDUPILOT_LAYOUT, PX4_LAYOUT)})
+# PX4's VTOLs (the SIH standard VTOL, airframe 10043, flies it: docs/px4.md)
+PX4_VTOL_LAYOUT = replace(PX4_LAYOUT, key="px4-vtol", vtol=True)
+LAYOUTS: Mapping[str, MissionLayout] = MappingProxyType(
+    {lay.key: lay for lay in (ARDUPILOT_LAYOUT, PX4_LAYOUT, PX4_VTOL_LAYOUT)})
 
 
 def mission_layout(key: str) -> MissionLayout:
@@ -288,6 +294,9 @@ PX4_MULTICOPTER = AutopilotProfile(
 )
 
 PX4_FIXED_WING = replace(PX4_MULTICOPTER, name="PX4 fixed-wing")  # nothing the companion does differs (yet)
+# a PX4 VTOL: its own mission layout (VTOL take-off and landing), and in fixed-wing flight its hold (AUTO.LOITER)
+# circles NAV_LOITER_RAD around where it was, as ArduPlane's LOITER does
+PX4_VTOL = replace(PX4_MULTICOPTER, name="PX4 VTOL", layout=PX4_VTOL_LAYOUT.key, hold_circles=True)
 
 # Other MAVLink autopilots (MAVSDK's MissionRawServer says MAV_AUTOPILOT_GENERIC) store items as sent and are
 # commanded with ArduPilot's conventions for their vehicle type: ArduPlane's for a fixed-wing, ArduCopter's else.
@@ -302,11 +311,11 @@ GENERIC_FIXED_WING = replace(ARDUPLANE, name="generic fixed-wing", **_NOT_ARDUPI
 ARDUPILOT_VTOL = replace(ARDUCOPTER, name="ArduPilot VTOL", storage=Firmware.ARDUPLANE)
 
 PROFILES: tuple[AutopilotProfile, ...] = (ARDUPLANE, ARDUCOPTER, ARDUPILOT_VTOL, PX4_MULTICOPTER, PX4_FIXED_WING,
-                                          GENERIC, GENERIC_FIXED_WING)
+                                          PX4_VTOL, GENERIC, GENERIC_FIXED_WING)
 
-# QuadPlane types (ArduPlane stores their items as a plane's); on PX4, VTOLs
-VTOL_TYPES = frozenset({mavlink.MAV_TYPE_VTOL_DUOROTOR, mavlink.MAV_TYPE_VTOL_QUADROTOR,
-                        mavlink.MAV_TYPE_VTOL_TILTROTOR})
+# the VTOL types, MAV_TYPE 19-25 (QuadPlanes on ArduPilot, which stores their items as a plane's; VTOLs on PX4:
+# the SIH standard VTOL says 22, which older MAVLink dialects call VTOL_RESERVED2 and newer ones VTOL_FIXEDROTOR)
+VTOL_TYPES = frozenset(range(mavlink.MAV_TYPE_VTOL_DUOROTOR, mavlink.MAV_TYPE_VTOL_DUOROTOR + 7))
 
 
 def profile_for(autopilot: int | None, vehicle_type: int | None) -> AutopilotProfile:
@@ -316,11 +325,12 @@ def profile_for(autopilot: int | None, vehicle_type: int | None) -> AutopilotPro
     if autopilot == mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA:
         return ARDUPLANE if fixed_wing else ARDUPILOT_VTOL if vehicle_type in VTOL_TYPES else ARDUCOPTER
     if autopilot == mavlink.MAV_AUTOPILOT_PX4:
-        return PX4_FIXED_WING if fixed_wing or vehicle_type in VTOL_TYPES else PX4_MULTICOPTER
+        return PX4_FIXED_WING if fixed_wing else PX4_VTOL if vehicle_type in VTOL_TYPES else PX4_MULTICOPTER
     return GENERIC_FIXED_WING if fixed_wing else GENERIC
 
 
 __all__ = [
     "ARDUCOPTER", "ARDUPILOT_VTOL", "ARDUPLANE", "AutopilotProfile", "Firmware", "GENERIC", "GENERIC_FIXED_WING",
-    "LAYOUTS", "MissionLayout", "PROFILES", "PX4_FIXED_WING", "PX4_MULTICOPTER", "mission_layout", "profile_for",
+    "LAYOUTS", "MissionLayout", "PROFILES", "PX4_FIXED_WING", "PX4_MULTICOPTER", "PX4_VTOL", "PX4_VTOL_LAYOUT",
+    "VTOL_TYPES", "mission_layout", "profile_for",
 ]

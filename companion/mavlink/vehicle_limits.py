@@ -12,6 +12,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from companion.mavlink.profiles import mission_layout
 from planner.world.config import G0, VehicleLimits
 
 # name → (what it is, scale to SI). Only what the companion uses; the names are those of the firmware we fly
@@ -53,8 +54,9 @@ COPTER_ACCEL = 2.5  # m/s², a copter's braking when the autopilot does not say 
 
 
 def parameter_names(autopilot: str, vehicle_type: str) -> Mapping[str, tuple[str, float]]:
-    """The parameters to read for an autopilot layout ("ardupilot", "px4") and vehicle type."""
-    if autopilot == "px4":
+    """The parameters to read for an autopilot layout ("ardupilot", "px4", "px4-vtol") and vehicle type (a VTOL
+    flies its route as a fixed-wing: "plane")."""
+    if autopilot in ("px4", "px4-vtol"):
         return PX4_FIXED_WING if vehicle_type == "plane" else PX4_MULTICOPTER
     return ARDUPLANE if vehicle_type == "plane" else ARDUCOPTER
 
@@ -74,6 +76,7 @@ class AutopilotLimits:
     l1_period_s: float
     l1_damping: float
     read: dict[str, float] = field(default_factory=dict)  # the parameters the autopilot answered, as it sent them
+    vertical_takeoff: bool = False  # a VTOL: it climbs vertically where it stands, then transitions
 
     @property
     def turn_radius(self) -> float:
@@ -106,6 +109,7 @@ class AutopilotLimits:
             k: round(v, 3) for k, v in self.__dict__.items() if isinstance(v, float)}
         d["turn_radius_m"] = round(self.turn_radius, 1)
         d["vehicle_type"] = self.vehicle_type
+        d["vertical_takeoff"] = self.vertical_takeoff
         d["read"] = dict(self.read)
         return d
 
@@ -127,4 +131,4 @@ def limits_from(params: Mapping[str, float], autopilot: str, vehicle: VehicleLim
         if v is not None and math.isfinite(v) and v > 0:
             values[key] = float(v) * scale
             read[name] = float(v)
-    return AutopilotLimits(vehicle.type, read=read, **values)
+    return AutopilotLimits(vehicle.type, read=read, vertical_takeoff=mission_layout(autopilot).vtol, **values)

@@ -9,8 +9,10 @@ Mission layout (``MAV_FRAME_GLOBAL_RELATIVE_ALT_INT``, altitude = ENU z = metres
                         NAV_WAYPOINT × route (waypoints after the start, or trajectory samples if densified)
                         end action: NAV_LOITER_UNLIM / NAV_RETURN_TO_LAUNCH / NAV_LAND at the goal
 
-The layout key (``"ardupilot"``, ``"px4"``; :data:`companion.mavlink.profiles.LAYOUTS`) says what differs: the home
-item (PX4 has none, so its first item is the takeoff at seq 0), the yaw of NAV commands, the acceptance radius.
+The layout key (``"ardupilot"``, ``"px4"``, ``"px4-vtol"``; :data:`companion.mavlink.profiles.LAYOUTS`) says what
+differs: the home item (PX4 has none, so its first item is the takeoff at seq 0), the yaw of NAV commands, the
+acceptance radius, and for a VTOL NAV_VTOL_TAKEOFF and NAV_VTOL_LAND in place of NAV_TAKEOFF and NAV_LAND (the
+vertical climb, then the transition towards the take-off item's position, the start; PX4 does the transitions).
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from planner.world.scenario import Scenario
 
 logger = logging.getLogger(__name__)
 
-Autopilot = Literal["ardupilot", "px4"]
+Autopilot = Literal["ardupilot", "px4", "px4-vtol"]
 
 TAKEOFF_MIN_PITCH_DEG = 10.0  # plane NAV_TAKEOFF param1 (ArduPilot reads 0 as 4°)
 SPEED_TYPE_AIRSPEED = 0.0
@@ -58,9 +60,12 @@ CMD_TAKEOFF = mavlink.MAV_CMD_NAV_TAKEOFF
 CMD_LOITER_UNLIM = mavlink.MAV_CMD_NAV_LOITER_UNLIM
 CMD_RTL = mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH
 CMD_LAND = mavlink.MAV_CMD_NAV_LAND
+CMD_VTOL_TAKEOFF = mavlink.MAV_CMD_NAV_VTOL_TAKEOFF
+CMD_VTOL_LAND = mavlink.MAV_CMD_NAV_VTOL_LAND
+TAKEOFF_COMMANDS = frozenset({CMD_TAKEOFF, CMD_VTOL_TAKEOFF})
 CMD_CHANGE_SPEED = mavlink.MAV_CMD_DO_CHANGE_SPEED
 CMD_FENCE_CIRCLE_EXCLUSION = mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION
-LOCATION_COMMANDS = frozenset({CMD_WAYPOINT, CMD_TAKEOFF, CMD_LOITER_UNLIM, CMD_LAND})
+LOCATION_COMMANDS = frozenset({CMD_WAYPOINT, CMD_TAKEOFF, CMD_LOITER_UNLIM, CMD_LAND, CMD_VTOL_TAKEOFF, CMD_VTOL_LAND})
 
 
 @dataclass(frozen=True)
@@ -147,8 +152,12 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
         items.append(MissionItem(0, FRAME_GLOBAL, CMD_WAYPOINT, x=to_int_e7(home.lat), y=to_int_e7(home.lon),
                                  z=float(home.alt)))
     takeoff_alt = max(vehicle.takeoff_alt, float(wps[0, 2]))
-    items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_TAKEOFF, param1=TAKEOFF_MIN_PITCH_DEG if plane else 0.0,
-                             param4=yaw, x=x[0], y=y[0], z=takeoff_alt))
+    vtol = spec.layout.vtol
+    if vtol:  # param1 0: PX4's default transition heading (towards the item's position, the start)
+        items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_VTOL_TAKEOFF, param4=yaw, x=x[0], y=y[0], z=takeoff_alt))
+    else:
+        items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_TAKEOFF, param1=TAKEOFF_MIN_PITCH_DEG if plane else 0.0,
+                                 param4=yaw, x=x[0], y=y[0], z=takeoff_alt))
     items.append(MissionItem(0, FRAME_MISSION, CMD_CHANGE_SPEED,
                              param1=SPEED_TYPE_AIRSPEED if plane else SPEED_TYPE_GROUNDSPEED,
                              param2=float(vehicle.cruise_speed), param3=NO_CHANGE))
@@ -159,7 +168,8 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
     elif vehicle.end_action == "rtl":
         items.append(MissionItem(0, FRAME_MISSION, CMD_RTL))  # no position (PX4 refuses any other frame)
     elif vehicle.end_action == "land":
-        items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_LAND, param4=yaw, x=gx, y=gy, z=0.0))
+        items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_VTOL_LAND if vtol else CMD_LAND, param4=yaw, x=gx, y=gy,
+                                 z=0.0))
     else:  # VehicleLimits is validated at the scenario boundary; this guards hand-made ones
         raise ValueError(f"unknown end action {vehicle.end_action!r}")
     return [item.with_seq(seq) for seq, item in enumerate(items)]
@@ -268,7 +278,7 @@ def mission_waypoint_index(items: Sequence[MissionItem], waypoints_enu: np.ndarr
                 is_home_item(item)):
             continue
         p = geodetic_to_enu(item.lat, item.lon, home.alt + item.z, home)
-        if item.command != CMD_TAKEOFF:  # the takeoff climbs at the start; it never reaches a waypoint
+        if item.command not in TAKEOFF_COMMANDS:  # the takeoff climbs at the start; it never reaches a waypoint
             # altitude is relative to home, not a geodetic height: compare z directly
             d = np.hypot(np.linalg.norm(wps[next_k:, :2] - p[:2], axis=1), wps[next_k:, 2] - item.z)
             hits = np.flatnonzero(d <= tol_m)

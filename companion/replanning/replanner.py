@@ -984,7 +984,7 @@ class LiveReplanner:
             self.events.log("hold_refused", reason=reason, decision="no checked hold pattern: the vehicle keeps "
                             "flying its current, already-cleared leg")
             return
-        if pattern.kind == "circle":
+        if pattern.kind == "circle" and self._commands_circles:
             try:
                 await self._circle(pattern)
                 self.held_in = "GUIDED"
@@ -1038,10 +1038,12 @@ class LiveReplanner:
         (:mod:`companion.replanning.holds`): a plane on ArduPilot circles a centre and radius of ours; any other
         vehicle stops (its stopping run checked, and flown whatever the verdict: stopping is a copter's safest
         move). None: no circle is clear (or, for a plane, no position to check one from)."""
-        circles = self.link.profile.hold_circles and self.link.profile.layout == "ardupilot"
+        circles = self.link.profile.hold_circles and self._commands_circles
         if self.position is None:
-            return None if circles else HoldPattern("brake", np.zeros(3), 0.0, True, np.zeros((1, 3)), math.inf,
-                                                    None, math.inf)
+            return None if self.link.profile.hold_circles else HoldPattern(
+                "brake", np.zeros(3), 0.0, True, np.zeros((1, 3)), math.inf, None, math.inf)
+        if self.link.profile.hold_circles and not circles:  # PX4 VTOL: its own loiter around where it is
+            return self._loiter_here()
         d_coll = self.scenario.hazard.d_coll
         env = self.scenario.environment
         if circles:
@@ -1059,6 +1061,12 @@ class LiveReplanner:
             self.events.log("hold_unclear", pattern=pattern.summary(),
                             note="the stopping run comes within d_coll; stopping is still the safest move")
         return pattern
+
+    @property
+    def _commands_circles(self) -> bool:
+        """A circle of ours is commanded (DO_REPOSITION in GUIDED, as ArduPlane takes it); elsewhere a circling hold
+        is the autopilot's own loiter around where it is (PX4 VTOL: AUTO.LOITER at NAV_LOITER_RAD)."""
+        return self.link.profile.layout == "ardupilot"
 
     async def _circle(self, pattern: HoldPattern) -> None:
         """ArduPlane: MAV_CMD_DO_REPOSITION (COMMAND_INT: ArduPlane answers it UNSUPPORTED as COMMAND_LONG) with

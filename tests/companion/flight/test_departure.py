@@ -88,3 +88,31 @@ def test_a_copter_climbs_vertically_then_flies_straight(dynamic) -> None:
                               50.0, lim)
     assert np.allclose(path[0], (300.0, 0.0, 0.0)) and np.allclose(path[-1], dynamic.start)
     assert np.isclose(path[:, :2], (300.0, 0.0)).all(axis=1).sum() >= 2  # straight up first
+
+
+PX4_VTOL = {"FW_AIRSPD_TRIM": 10.0, "FW_R_LIM": 50.0, "NAV_ACC_RAD": 10.0, "NAV_LOITER_RAD": 80.0}  # SIH 10043
+
+
+def test_a_vtol_climbs_vertically_and_transitions_on_any_heading(dynamic) -> None:
+    """PX4's VTOL (layout px4-vtol): the limits come from its fixed-wing parameters, and the departure is a vertical
+    climb where it stands, then a transition straight on whatever heading it has at the top (PX4's SIH VTOL yawed
+    75° in its climb), then the turn to the start: every heading is checked, whatever the autopilot says."""
+    lim = limits_from(PX4_VTOL, "px4-vtol", dynamic.vehicle, 60.0)
+    assert lim.vertical_takeoff and lim.cruise_speed == 10.0 and lim.read == PX4_VTOL
+    assert not limits_from(PX4_VTOL, "px4", dynamic.vehicle, 60.0).vertical_takeoff
+    fix = VehicleFix(np.zeros(3), 0.0, np.zeros(3))
+    paths = departure_paths(fix, np.asarray(dynamic.start), dynamic.vehicle.takeoff_alt, lim)
+    alt = dynamic.vehicle.takeoff_alt
+    assert len(paths) == 12 and all(np.allclose(p[-1], dynamic.start) for p in paths)
+    for p in paths:  # straight up first: no horizontal move until the take-off altitude
+        climb = p[: int(np.argmax(p[:, 2] >= alt - 1e-9)) + 1]
+        assert np.allclose(climb[:, :2], 0.0) and climb[-1, 2] == pytest.approx(alt)
+    # then the transition, straight out 40 m: all round the vehicle
+    tops = np.array([p[np.flatnonzero(np.linalg.norm(p[:, :2], axis=1) >= 40.0 - 1e-6)[0], :2] for p in paths])
+    assert np.allclose(np.linalg.norm(tops, axis=1), 40.0) and tops[:, 0].min() < -30.0 < 30.0 < tops[:, 0].max()
+    # 30 m from cylinders[3]'s edge (x 350, y 200, r 70): a plane heading west climbs out clear; a VTOL, which may
+    # transition towards the cylinder whatever its heading on the ground, is refused
+    near = np.array([250.0, 200.0])
+    vtol = check_departure(VehicleFix(np.array([*near, 0.0]), 270.0, np.array([*near, 0.0])), np.asarray(dynamic.start),
+                           dynamic.vehicle.takeoff_alt, lim, dynamic.environment, dynamic.hazard.d_coll)
+    assert vtol.refusal is not None and vtol.nearest_obstacle == "cylinders[3]"

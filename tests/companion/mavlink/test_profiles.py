@@ -20,6 +20,7 @@ from companion.mavlink.profiles import (
     PROFILES,
     PX4_FIXED_WING,
     PX4_MULTICOPTER,
+    PX4_VTOL,
     Firmware,
     mission_layout,
     profile_for,
@@ -42,7 +43,8 @@ ROVER, VTOL = mavlink.MAV_TYPE_GROUND_ROVER, mavlink.MAV_TYPE_VTOL_QUADROTOR
     (APM, VTOL, ARDUPILOT_VTOL),
     (PX4, QUAD, PX4_MULTICOPTER),
     (PX4, FW, PX4_FIXED_WING),
-    (PX4, VTOL, PX4_FIXED_WING),
+    (PX4, VTOL, PX4_VTOL),
+    (PX4, 22, PX4_VTOL),  # the SIH standard VTOL (VTOL_RESERVED2 in this dialect, VTOL_FIXEDROTOR in newer ones)
     (GEN, QUAD, GENERIC),  # MAVSDK's MissionRawServer says MAV_AUTOPILOT_GENERIC
     (GEN, mavlink.MAV_TYPE_GENERIC, GENERIC),
     (GEN, FW, GENERIC_FIXED_WING),
@@ -95,10 +97,11 @@ def test_boot() -> None:
 
 
 def test_readiness_and_storage() -> None:
-    assert [p.prearm_health_only for p in PROFILES] == [p in (PX4_MULTICOPTER, PX4_FIXED_WING) for p in PROFILES]
+    assert [p.prearm_health_only for p in PROFILES] == [p in (PX4_MULTICOPTER, PX4_FIXED_WING, PX4_VTOL)
+                                                        for p in PROFILES]
     assert (ARDUPLANE.storage, ARDUCOPTER.storage, ARDUPILOT_VTOL.storage) == (
         Firmware.ARDUPLANE, Firmware.ARDUCOPTER, Firmware.ARDUPLANE)
-    assert PX4_MULTICOPTER.storage is PX4_FIXED_WING.storage is Firmware.PX4
+    assert PX4_MULTICOPTER.storage is PX4_FIXED_WING.storage is PX4_VTOL.storage is Firmware.PX4
     assert GENERIC.storage is GENERIC_FIXED_WING.storage is Firmware.GENERIC
     ardupilot = (ARDUPLANE, ARDUCOPTER, ARDUPILOT_VTOL)
     for p in PROFILES:
@@ -146,10 +149,10 @@ def test_hold_waypoints_and_missions_in_flight() -> None:
     assert (ARDUPLANE.hold_mode, ARDUCOPTER.hold_mode, PX4_MULTICOPTER.hold_mode) == ("LOITER", "BRAKE", "HOLD")
     for p in PROFILES:
         plane_like = p in (ARDUPLANE, GENERIC_FIXED_WING)
-        assert p.hold_circles == plane_like
+        assert p.hold_circles == (plane_like or p is PX4_VTOL)  # a VTOL in fixed-wing flight circles its hold
         assert p.flies_copy_during_upload == plane_like  # only ArduPlane keeps flying its copy
         assert p.early_switch_m == (65.0 if plane_like else 0.0)
-        px4 = p in (PX4_MULTICOPTER, PX4_FIXED_WING)
+        px4 = p in (PX4_MULTICOPTER, PX4_FIXED_WING, PX4_VTOL)
         assert p.first_item_current_on_upload == px4 and p.awaits_mission_verdict == px4
         assert p.data_streams == (p in (ARDUPLANE, ARDUCOPTER, ARDUPILOT_VTOL))
         assert bool(p.streams_off) == px4
@@ -159,14 +162,16 @@ def test_hold_waypoints_and_missions_in_flight() -> None:
 def test_each_profile_names_a_builder_layout() -> None:
     assert {p.layout for p in PROFILES} == set(LAYOUTS)
     assert [p for p in PROFILES if p.layout == "px4"] == [PX4_MULTICOPTER, PX4_FIXED_WING]
-    apm, px4 = mission_layout("ardupilot"), mission_layout("px4")
+    assert [p for p in PROFILES if p.layout == "px4-vtol"] == [PX4_VTOL]
+    apm, px4, vtol = mission_layout("ardupilot"), mission_layout("px4"), mission_layout("px4-vtol")
+    assert vtol.vtol and not px4.vtol and not apm.vtol and not vtol.home_item
     assert apm.home_item and not px4.home_item
     assert apm.nav_yaw == 0.0 and math.isnan(px4.nav_yaw)
     assert (apm.qgc_firmware_type, px4.qgc_firmware_type) == (APM, PX4)
     assert apm.acceptance_param(20.4, "plane") == 20.0 and apm.acceptance_param(400.0, "plane") == 255.0
     assert apm.acceptance_param(20.4, "copter") == 0.0  # ArduCopter does not store it
     assert px4.acceptance_param(20.4, "copter") == 20.4
-    with pytest.raises(ValueError, match="autopilot must be 'ardupilot' or 'px4', got 'inav'"):
+    with pytest.raises(ValueError, match="autopilot must be 'ardupilot' or 'px4' or 'px4-vtol', got 'inav'"):
         mission_layout("inav")
     spec = MissionSpec("px4", VehicleLimits(), Home(47.0, 8.0, 500.0))
     assert spec.layout is px4 and math.isnan(spec.yaw_param)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -168,6 +169,23 @@ def test_end_actions(action, command):
         assert (last.x, last.y) == (goal_wp.x, goal_wp.y)  # at the goal
     if action == "loiter":
         assert last.z == WPS[-1, 2]
+
+
+def test_a_px4_vtol_takes_off_and_lands_as_a_vtol():
+    """Layout px4-vtol: NAV_VTOL_TAKEOFF at the start (param1 0: PX4 transitions towards the item's position), the
+    legs as a plane's (airspeed), NAV_VTOL_LAND at the goal for the end action "land"; loiter and RTL as on PX4."""
+    land = dataclasses.replace(PLANE, end_action="land")
+    vtol = build_mission(WPS, spec("px4-vtol", land))
+    px4 = build_mission(WPS, spec("px4", land))
+    assert commands(vtol) == [C.MAV_CMD_NAV_VTOL_TAKEOFF] + commands(px4)[1:-1] + [C.MAV_CMD_NAV_VTOL_LAND]
+    first, last = vtol[0], vtol[-1]
+    assert first.param1 == 0.0 and math.isnan(first.param4) and first.z == 50.0
+    assert (first.x, first.y) == (px4[0].x, px4[0].y)  # at the start
+    assert (last.x, last.y, last.z) == (px4[-1].x, px4[-1].y, 0.0)
+    assert vtol[1].param1 == px4[1].param1 == 0.0  # DO_CHANGE_SPEED: airspeed
+    loiter = build_mission(WPS, spec("px4-vtol", PLANE))
+    assert loiter[-1].command == C.MAV_CMD_NAV_LOITER_UNLIM
+    assert mission_waypoint_index(vtol, WPS, HOME)[0] == 0  # the take-off never reaches a waypoint
 
 
 def test_acceptance_radius_cap_ardupilot_only():
