@@ -216,26 +216,39 @@ async def test_upload_changed_verified_with_another_length_uploads_the_whole_lis
     assert difference(vehicle, shorter, await vehicle.client.download()) is None
 
 
-async def test_a_partial_write_takes_less_time_than_the_whole_upload(vehicle, measure) -> None:
+async def test_a_partial_write_exchanges_less_than_the_whole_upload(vehicle, measure) -> None:
     """17 items (home, take-off, 15 waypoints): the whole verified upload against a partial one that changes the
-    last 10, median of 10 each, in wall time."""
+    last 10, 10 of each. The partial path sends only the 10 changed items and reads only those back: fewer
+    mission-protocol messages every time. Their wall times are measured and printed, not asserted (a shared
+    machine's timing is noise: ArduCopter SITL once took 26.8 ms for the partial path against 24.1 ms for the
+    whole one)."""
     a = mission()
     b = raised_tail(a, 10)
     await vehicle.client.upload_verified(a)
-    whole, partial = [], []
+    whole, partial, whole_sent, partial_sent = [], [], [], []
     for _ in range(RUNS):
         t0 = time.perf_counter()
-        await vehicle.client.upload_verified(a)
+        with sent_by(vehicle.link) as sent:
+            await vehicle.client.upload_verified(a)
         whole.append(time.perf_counter() - t0)
+        whole_sent.append(sent)
     previous = a
     for i in range(RUNS):
         nxt = b if i % 2 == 0 else a
         t0 = time.perf_counter()
-        assert await vehicle.client.upload_changed_verified(nxt, previous) == "partial 7-16"
+        with sent_by(vehicle.link) as sent:
+            assert await vehicle.client.upload_changed_verified(nxt, previous) == "partial 7-16"
         partial.append(time.perf_counter() - t0)
+        partial_sent.append(sent)
         previous = nxt
     w, p = statistics.median(whole), statistics.median(partial)
     measure(f"17 items, whole upload_verified median {w * 1e3:.1f} ms (min {min(whole) * 1e3:.1f}, "
             f"max {max(whole) * 1e3:.1f}); partial 7-16 median {p * 1e3:.1f} ms (min {min(partial) * 1e3:.1f}, "
             f"max {max(partial) * 1e3:.1f}); ratio {p / w:.2f}")
-    assert p < w
+
+    def items_written(sent: list[Message]) -> set[int]:
+        return {m.seq for m in sent if m.get_type() in ("MISSION_ITEM_INT", "MISSION_ITEM")}
+
+    assert all(items_written(s) == set(range(7, 17)) for s in partial_sent)
+    assert all(items_written(s) >= set(range(1, 17)) for s in whole_sent)
+    assert max(len(s) for s in partial_sent) < min(len(s) for s in whole_sent)
