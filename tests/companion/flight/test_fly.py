@@ -37,8 +37,16 @@ def test_fly_sim_completes_and_writes_the_report(tmp_path) -> None:
     assert fl["upload_s"] > 0 and fl["autopilot"] == "ardupilot"
     assert fl["min_clearance_m"] >= fl["d_coll_m"]  # the flown (truth) track kept clear
     n_wp = len(json.loads((report / "PLAN.json").read_text())["waypoints"])
-    assert len(fl["items_reached"]) >= n_wp - 1  # every route waypoint after the start
     records = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    # every route waypoint after the start was flown: each became the current item (MISSION_CURRENT is streamed,
+    # so a lost one is repeated; a lost MISSION_ITEM_REACHED is not, and at 5 % loss two of ten go missing about
+    # one flight in twelve, which is why items_reached is not counted here)
+    currents = {r["seq"] for r in records if r["event"] == "current"}
+    loaded = mavwp.MAVWPLoader()
+    assert loaded.load(str(report / "mission.waypoints")) == fl["mission_items"]
+    route = {i for i in range(1, loaded.count()) if loaded.wp(i).command == mavutil.mavlink.MAV_CMD_NAV_WAYPOINT}
+    assert len(route) >= n_wp - 1 and route <= currents | set(fl["items_reached"])
+    assert len(fl["items_reached"]) >= (n_wp - 1) // 2
     assert records[0]["event"] == "scene" and len(records[0]["route"]) >= 10  # the status page's map, first
     assert records[1]["event"] == "sim_started" and records[1]["loss"] == 0.05
     events = [r["event"] for r in records]
@@ -46,8 +54,6 @@ def test_fly_sim_completes_and_writes_the_report(tmp_path) -> None:
     order = [events.index(e) for e in ("vehicle_limits", "connected", "ready", "vehicle_fix", "departure",
                                        "upload_verified", "mission", "armed", "mission_start", "position", "finished")]
     assert order == sorted(order)
-    loaded = mavwp.MAVWPLoader()
-    assert loaded.load(str(report / "mission.waypoints")) == fl["mission_items"]
 
 
 @pytest.mark.slow(covered_by="companion/flight/test_faults.py::"
