@@ -274,8 +274,9 @@ def start_px4(
         raise
     env = dict(os.environ, TMPDIR=str(root), PX4_SIM_MODEL=model, PX4_SIM_SPEED_FACTOR=f"{speedup:g}")
     # PX4's flight log (ulog) off unless asked for: it is deleted with the instance, and at 20x it wrote 3.6 MB/s
-    # and took a quarter of a core (rcS turns PX4_PARAM_<NAME> variables into parameters)
-    env.setdefault("PX4_PARAM_SDLOG_MODE", "-1")
+    # and took a quarter of a core (rcS turns PX4_PARAM_<NAME> variables into parameters). rc.logging starts the
+    # logger unless SDLOG_BACKEND is 0; SDLOG_MODE -1, set here before, did not stop it (~68 MB per VTOL flight)
+    env.setdefault("PX4_PARAM_SDLOG_BACKEND", "0")
     env["PX4_INSTANCE"] = str(instance)
     links = _make_command_links(px4_dir, root / "bin")
     if links is not None:

@@ -202,7 +202,9 @@ def px4_sitl(home: tuple[float, float, float], folder: Path, speedup: float = 10
         root = Path(tempfile.mkdtemp(prefix=f"fuseplan-px4-i{instance}-")).resolve()
         env = dict(os.environ, TMPDIR=str(root), PX4_SIM_MODEL=model, PX4_SIM_SPEED_FACTOR=f"{speedup:g}",
                    PX4_INSTANCE=str(instance))
-        env.setdefault("PX4_PARAM_SDLOG_MODE", "-1")  # no flight log: it is deleted with the directory anyway
+        # no flight log (it would be deleted with the directory anyway): PX4 starts its logger unless SDLOG_BACKEND
+        # is 0 (rc.logging); SDLOG_MODE -1 did not stop it, ~68 MB per flight
+        env.setdefault("PX4_PARAM_SDLOG_BACKEND", "0")
         if any(not os.access(p, os.X_OK) for p in (folder / "bin").glob("px4-*") if not p.name.endswith(".sh")):
             links = root / "bin"
             links.mkdir()
