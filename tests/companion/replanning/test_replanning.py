@@ -401,8 +401,9 @@ def test_replan_latency_bench_writes_its_report(dynamic_plan: Path, tmp_path: Pa
     assert run.status != NO_CONFLICT
     if run.status == NOT_LIVE:
         assert run.held and "| rescue_dynamic | 10× | 1 | 0 |" in md and "MISSES" in md
-    else:
-        assert run.status in ("exact", "approximate")
+    else:  # a plan whose only faults are turns tighter than the vehicle's goes live too when the path it will fly
+        # through them is clear (LiveReplanner.replan, "replan_flown_check"): status infeasible, as CI once saw
+        assert run.status in ("exact", "approximate", "infeasible")
         assert 0 < run.plan_s <= run.latency_s and run.sep_after_m >= 10.0
         assert "| rescue_dynamic | 10× | 1 | 1 |" in md
 
