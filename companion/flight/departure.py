@@ -105,6 +105,14 @@ def _densify(path: np.ndarray, spacing: float = SAMPLE_M) -> np.ndarray:
     return np.vstack(out)
 
 
+def _to_start(top: np.ndarray, heading: np.ndarray, start: np.ndarray, alt: float, radius: float) -> np.ndarray:
+    """(M, 3) from just after ``top`` (2-D, at ``alt``) to ``start``: :func:`turn_then_straight` at ``alt``, the last
+    point at the start's own altitude."""
+    flat = turn_then_straight(top, heading, start[:2], radius)
+    z = np.concatenate([[alt] * (len(flat) - 1), [start[2]]])
+    return np.column_stack([flat, z])[1:]
+
+
 def departure_paths(fix: VehicleFix, start: np.ndarray, takeoff_alt: float,
                     limits: AutopilotLimits) -> list[np.ndarray]:
     """The envelope of paths (M, 3) from the vehicle to the route's ``start``."""
@@ -117,9 +125,8 @@ def departure_paths(fix: VehicleFix, start: np.ndarray, takeoff_alt: float,
         for deg in np.arange(VTOL_HEADINGS) * 360.0 / VTOL_HEADINGS:
             heading = _unit(float(deg))
             top = p0[:2] + VTOL_TRANSITION_RUN_M * heading
-            flat = turn_then_straight(top, heading, start[:2], limits.wide_turn_radius())
-            z = np.concatenate([[alt] * (len(flat) - 1), [start[2]]])
-            paths.append(_densify(np.vstack([p0, up, [*top, alt], np.column_stack([flat, z])[1:]])))
+            turn = _to_start(top, heading, start, alt, limits.wide_turn_radius())
+            paths.append(_densify(np.vstack([p0, up, [*top, alt], turn])))
         return paths
     if limits.vehicle_type != "plane":
         return [_densify(np.stack([p0, up, start]))]
@@ -130,11 +137,9 @@ def departure_paths(fix: VehicleFix, start: np.ndarray, takeoff_alt: float,
         for radius, roll_in in ((limits.turn_radius, 0.0),
                                 (limits.wide_turn_radius(PLANE_TAKEOFF_SPEED_M_S), PLANE_ROLL_IN_S)):
             top = p0[:2] + (run + roll_in * PLANE_TAKEOFF_SPEED_M_S) * heading
-            flat = turn_then_straight(top, heading, start[:2], radius)
-            z = np.concatenate([[alt] * (len(flat) - 1), [start[2]]])
             climb = np.stack([p0, [*(p0[:2] + PLANE_GROUND_ROLL_M * heading), p0[2]], [*(p0[:2] + run * heading), alt],
                               [*top, alt]])
-            paths.append(_densify(np.vstack([climb, np.column_stack([flat, z])[1:]])))
+            paths.append(_densify(np.vstack([climb, _to_start(top, heading, start, alt, radius)])))
     return paths
 
 

@@ -43,10 +43,12 @@ from planner.plan import json_safe
 BACKENDS = ("sim", "sitl-plane", "sitl-copter", "px4", "px4-vtol")
 SPEEDUP = {"sim": 20.0, "sitl-plane": 10.0, "sitl-copter": 10.0, "px4": 10.0,  # px4: 2 cores keep up with 10x
            "px4-vtol": 10.0}
+PX4_MODELS = {"px4": autopilots.PX4_MODEL, "px4-vtol": autopilots.PX4_VTOL_MODEL}  # the PX4 backends' SIH models
 COPTER = ('vehicle.type="copter"',)
 # PX4's SIH standard VTOL: it flies its route as a fixed-wing at its trim airspeed (FW_AIRSPD_TRIM 10 m/s; 18 would
 # be capped at its 12 m/s maximum), and PX4 rejects a VTOL mission without a landing (MIS_TKO_LAND_REQ)
 VTOL = ('vehicle.cruise_speed=10', 'vehicle.end_action="land"')
+OVERRIDES = {"sitl-copter": COPTER, "px4": COPTER, "px4-vtol": VTOL}  # what each backend's flights are flown with
 DEFAULT_RUNS = 5
 EXIT_BAD_INPUT, EXIT_INTERRUPTED = 2, 130  # fly's exit codes that are not a flight's result
 
@@ -81,8 +83,7 @@ class FlightsSettings:
 
     @property
     def fly_overrides(self) -> tuple[str, ...]:
-        return (*self.overrides, *(COPTER if self.backend in ("sitl-copter", "px4") else
-                                   VTOL if self.backend == "px4-vtol" else ()))
+        return (*self.overrides, *OVERRIDES.get(self.backend, ()))
 
     @property
     def fingerprint(self) -> str:
@@ -110,7 +111,7 @@ def missing(backend: str, folder: Path | None) -> str | None:
     """Why ``backend`` cannot fly here (one line), or None."""
     if backend == "sim":
         return None
-    if backend.startswith("px4"):
+    if backend in PX4_MODELS:
         return autopilots.px4_missing(folder)
     return autopilots.ardupilot_missing(backend.removeprefix("sitl-"), folder)
 
@@ -119,8 +120,7 @@ def autopilot_folder(backend: str, folder: Path | None) -> Path | None:
     """``--sitl-dir``, else the backend's environment variable (FUSEPLAN_SITL_DIR, FUSEPLAN_PX4_DIR)."""
     if backend == "sim":
         return None
-    return autopilots.folder_of(autopilots.PX4_ENV if backend.startswith("px4") else autopilots.ARDUPILOT_ENV,
-                                folder)
+    return autopilots.folder_of(autopilots.PX4_ENV if backend in PX4_MODELS else autopilots.ARDUPILOT_ENV, folder)
 
 
 @contextlib.contextmanager
@@ -128,9 +128,8 @@ def _autopilot(s: FlightsSettings, home: tuple[float, float, float]) -> Iterator
     """A fresh autopilot for one flight (None on the simulator, which ``fly --sim`` runs itself)."""
     if s.backend == "sim":
         yield None
-    elif s.backend.startswith("px4"):
-        model = autopilots.PX4_VTOL_MODEL if s.backend == "px4-vtol" else autopilots.PX4_MODEL
-        with autopilots.px4_sitl(home, s.folder or Path(), SPEEDUP[s.backend], model) as ep:
+    elif s.backend in PX4_MODELS:
+        with autopilots.px4_sitl(home, s.folder or Path(), SPEEDUP[s.backend], PX4_MODELS[s.backend]) as ep:
             yield ep
     else:
         with autopilots.ardupilot_sitl(s.backend.removeprefix("sitl-"), home, s.folder or Path(),

@@ -140,6 +140,9 @@ class AutopilotProfile:
     #    take up to one circle to be back on its route when resumed) or stops dead
     hold_mode: str
     hold_circles: bool
+    # the circle is one of ours, commanded with MAV_CMD_DO_REPOSITION (GUIDED, a centre and radius), as ArduPlane
+    # takes it; else a circling hold is the hold mode's own circle around where the vehicle is
+    hold_reposition: bool
 
     # -- waypoints: how far before a waypoint it may count it reached, beyond its acceptance radius (m)
     early_switch_m: float
@@ -233,6 +236,7 @@ ARDUPLANE = AutopilotProfile(
     pilot_arm_sequence=("mode:AUTO", "pilot_arm", "start"),  # it may be armed in AUTO: waits there
     hold_mode="LOITER",  # circles the spot
     hold_circles=True,
+    hold_reposition=True,
     early_switch_m=PLANE_EARLY_SWITCH_M,
     # it keeps flying its active command from a copy and reads the next slot from storage when it gets there
     flies_copy_during_upload=True,
@@ -254,6 +258,7 @@ ARDUCOPTER = replace(  # also Rover and Sub, and any ArduPilot vehicle that is n
     pilot_arm_sequence=("pilot_arm", "mode:AUTO", "start"),  # so it is armed outside AUTO, then switched
     hold_mode="BRAKE",  # LOITER would need the pilot's sticks for throttle
     hold_circles=False,  # stops dead
+    hold_reposition=False,
     early_switch_m=0.0,
     # ArduCopter (and Rover) re-read the current and the next two NAV items from storage as soon as one of them
     # changes (AP_Mission's change detector), so an upload in progress is flown at once
@@ -280,6 +285,7 @@ PX4_MULTICOPTER = AutopilotProfile(
     pilot_arm_sequence=("mode:AUTO", "pilot_arm", "start"),
     hold_mode="HOLD",  # AUTO.LOITER
     hold_circles=False,
+    hold_reposition=False,
     early_switch_m=0.0,
     flies_copy_during_upload=False,  # its behaviour during an upload is not ours to assume
     # PX4 keeps its current item across uploads (and judges a new mission from it): a mission flown before, or a

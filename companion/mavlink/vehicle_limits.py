@@ -12,6 +12,8 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+from pymavlink.dialects.v20.common import MAV_AUTOPILOT_PX4 as PX4_AUTOPILOT
+
 from companion.mavlink.profiles import mission_layout
 from planner.world.config import G0, VehicleLimits
 
@@ -56,7 +58,7 @@ COPTER_ACCEL = 2.5  # m/s², a copter's braking when the autopilot does not say 
 def parameter_names(autopilot: str, vehicle_type: str) -> Mapping[str, tuple[str, float]]:
     """The parameters to read for an autopilot layout ("ardupilot", "px4", "px4-vtol") and vehicle type (a VTOL
     flies its route as a fixed-wing: "plane")."""
-    if autopilot in ("px4", "px4-vtol"):
+    if mission_layout(autopilot).qgc_firmware_type == PX4_AUTOPILOT:
         return PX4_FIXED_WING if vehicle_type == "plane" else PX4_MULTICOPTER
     return ARDUPLANE if vehicle_type == "plane" else ARDUCOPTER
 

@@ -65,7 +65,7 @@ CMD_VTOL_LAND = mavlink.MAV_CMD_NAV_VTOL_LAND
 TAKEOFF_COMMANDS = frozenset({CMD_TAKEOFF, CMD_VTOL_TAKEOFF})
 CMD_CHANGE_SPEED = mavlink.MAV_CMD_DO_CHANGE_SPEED
 CMD_FENCE_CIRCLE_EXCLUSION = mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION
-LOCATION_COMMANDS = frozenset({CMD_WAYPOINT, CMD_TAKEOFF, CMD_LOITER_UNLIM, CMD_LAND, CMD_VTOL_TAKEOFF, CMD_VTOL_LAND})
+LOCATION_COMMANDS = TAKEOFF_COMMANDS | {CMD_WAYPOINT, CMD_LOITER_UNLIM, CMD_LAND, CMD_VTOL_LAND}
 
 
 @dataclass(frozen=True)
@@ -152,12 +152,10 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
         items.append(MissionItem(0, FRAME_GLOBAL, CMD_WAYPOINT, x=to_int_e7(home.lat), y=to_int_e7(home.lon),
                                  z=float(home.alt)))
     takeoff_alt = max(vehicle.takeoff_alt, float(wps[0, 2]))
-    vtol = spec.layout.vtol
-    if vtol:  # param1 0: PX4's default transition heading (towards the item's position, the start)
-        items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_VTOL_TAKEOFF, param4=yaw, x=x[0], y=y[0], z=takeoff_alt))
-    else:
-        items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_TAKEOFF, param1=TAKEOFF_MIN_PITCH_DEG if plane else 0.0,
-                                 param4=yaw, x=x[0], y=y[0], z=takeoff_alt))
+    vtol = spec.layout.vtol  # VTOL_TAKEOFF's param1 0: PX4's transition heading, towards the item's position
+    items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_VTOL_TAKEOFF if vtol else CMD_TAKEOFF,
+                             param1=TAKEOFF_MIN_PITCH_DEG if plane and not vtol else 0.0, param4=yaw, x=x[0], y=y[0],
+                             z=takeoff_alt))
     items.append(MissionItem(0, FRAME_MISSION, CMD_CHANGE_SPEED,
                              param1=SPEED_TYPE_AIRSPEED if plane else SPEED_TYPE_GROUNDSPEED,
                              param2=float(vehicle.cruise_speed), param3=NO_CHANGE))

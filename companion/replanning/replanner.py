@@ -984,7 +984,7 @@ class LiveReplanner:
             self.events.log("hold_refused", reason=reason, decision="no checked hold pattern: the vehicle keeps "
                             "flying its current, already-cleared leg")
             return
-        if pattern.kind == "circle" and self._commands_circles:
+        if pattern.kind == "circle" and self.link.profile.hold_reposition:
             try:
                 await self._circle(pattern)
                 self.held_in = "GUIDED"
@@ -1035,24 +1035,26 @@ class LiveReplanner:
 
     def _checked_hold(self) -> HoldPattern | None:
         """The hold pattern for where the vehicle is now, checked against the static world and the traffic
-        (:mod:`companion.replanning.holds`): a plane on ArduPilot circles a centre and radius of ours; any other
-        vehicle stops (its stopping run checked, and flown whatever the verdict: stopping is a copter's safest
-        move). None: no circle is clear (or, for a plane, no position to check one from)."""
-        circles = self.link.profile.hold_circles and self._commands_circles
-        if self.position is None:
-            return None if self.link.profile.hold_circles else HoldPattern(
-                "brake", np.zeros(3), 0.0, True, np.zeros((1, 3)), math.inf, None, math.inf)
-        if self.link.profile.hold_circles and not circles:  # PX4 VTOL: its own loiter around where it is
-            return self._loiter_here()
-        d_coll = self.scenario.hazard.d_coll
-        env = self.scenario.environment
-        if circles:
+        (:mod:`companion.replanning.holds`): a plane on ArduPilot circles a centre and radius of ours, a PX4 VTOL its
+        own loiter around where it is (profile ``hold_reposition``); any other vehicle stops (its stopping run
+        checked, and flown whatever the verdict: stopping is a copter's safest move). None: no circle is clear (or,
+        for a circling vehicle, no position to check one from)."""
+        profile = self.link.profile
+        if profile.hold_circles:
+            if self.position is None:
+                return None
+            if not profile.hold_reposition:  # PX4 VTOL: its own loiter around where it is
+                return self._loiter_here()
             now = self.now()
-            return plane_hold(self.position, self.velocity, self.loiter_radius, env, d_coll,
-                              self.flying_speed, self.threats(now), now,
+            return plane_hold(self.position, self.velocity, self.loiter_radius, self.scenario.environment,
+                              self.scenario.hazard.d_coll, self.flying_speed, self.threats(now), now,
                               min_radius=MIN_HOLD_RADIUS_TURNS * self._turn_radius(),
                               turn_radius=WIDE_TURNS * self._wide_turn_radius(self.flying_speed),
                               lag_m=HOLD_TURN_LAG_S * self.flying_speed)
+        if self.position is None:
+            return HoldPattern("brake", np.zeros(3), 0.0, True, np.zeros((1, 3)), math.inf, None, math.inf)
+        d_coll = self.scenario.hazard.d_coll
+        env = self.scenario.environment
         stop = self.limits.stopping_distance if self.limits is not None else \
             self.scenario.vehicle.cruise_speed ** 2 / 5.0
         speed_share = min(self.groundspeed / max(self.scenario.vehicle.cruise_speed, 0.1), 1.0) ** 2
@@ -1061,12 +1063,6 @@ class LiveReplanner:
             self.events.log("hold_unclear", pattern=pattern.summary(),
                             note="the stopping run comes within d_coll; stopping is still the safest move")
         return pattern
-
-    @property
-    def _commands_circles(self) -> bool:
-        """A circle of ours is commanded (DO_REPOSITION in GUIDED, as ArduPlane takes it); elsewhere a circling hold
-        is the autopilot's own loiter around where it is (PX4 VTOL: AUTO.LOITER at NAV_LOITER_RAD)."""
-        return self.link.profile.layout == "ardupilot"
 
     async def _circle(self, pattern: HoldPattern) -> None:
         """ArduPlane: MAV_CMD_DO_REPOSITION (COMMAND_INT: ArduPlane answers it UNSUPPORTED as COMMAND_LONG) with
