@@ -253,7 +253,8 @@ def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str]
         sc = load_scenario(named, overrides)
         _check_plan_matches(source, doc, sc)
         return doc, sc
-    sc = load_scenario(source, overrides + ([f"planner.seed={seed}"] if seed is not None else []))
+    sc = load_scenario(source, with_flight_margins(source, overrides)
+                       + ([f"planner.seed={seed}"] if seed is not None else []))
     start_time = None
     if len(sc.environment.threats):
         from companion.mission.builder import time_to_start
@@ -264,6 +265,15 @@ def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str]
     if feasible_only and not res.feasible:
         raise FuseplanError(f"{source}: no feasible plan ({res.status.value}); nothing exported")
     return plan_to_json(res, sc, start_time), sc
+
+
+def with_flight_margins(source: Path, overrides: list[str]) -> list[str]:
+    """``overrides`` and what a plan to be flown needs beyond the scenario's vehicle (a plane's swing past each new
+    leg, vehicle_limits.flight_overrides): plan, fly and export plan with them; the paper's benches do not."""
+    from companion.mavlink.vehicle_limits import flight_overrides
+    from planner.world.scenario import load_scenario
+
+    return list(overrides) + flight_overrides(load_scenario(source, overrides).vehicle)
 
 
 def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
@@ -510,6 +520,7 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         if args.command == "plan":
+            args.overrides = with_flight_margins(args.scenario, args.overrides)
             return planner_cli.cmd_plan(args)
         if args.command == "compare":
             return planner_cli.cmd_compare(args)

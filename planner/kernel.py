@@ -214,6 +214,16 @@ def _sin_or_one(cos_turn):  # noqa: ANN001, ANN202
 
 
 @_inline
+def _after_turn(acc_r, overshoot, cos_turn):  # noqa: ANN001, ANN202
+    """What a turn does to the segment after it: the corner's cut or the swing past it, the larger
+    (smoothing.corner_cut_bound, overshoot_bound)."""
+    cut = 0.5 * acc_r * _sin_or_one(cos_turn)
+    if overshoot <= 0.0:
+        return cut
+    return max(cut, overshoot * math.acos(min(max(cos_turn, -1.0), 1.0)))
+
+
+@_inline
 def _peak_climb(ux, uy, uz, vx, vy, vz):  # noqa: ANN001, ANN202
     """tan² of the largest |flight-path angle| on a segment's Bézier (smoothing.peak_climb)."""
     dx, dy, dz = vx - ux, vy - uy, vz - uz
@@ -504,6 +514,7 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
     n_cyl = cyl_x.shape[0]
     n_sph = sph_r.shape[0]
     broad = sc[30] > 0  # skip obstacles out of the swarm's reach (FUSEPLAN_BROAD_PHASE)
+    overshoot = sc[31]  # m per radian of turn (VehicleLimits.turn_overshoot)
     climb_tan2 = math.tan(max_climb) ** 2 * (1.0 - 1e-9) if max_climb < 0.5 * math.pi else math.inf
     peak_max = peak_table.max()
     gap_cap = d_safe - d_coll
@@ -525,10 +536,10 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
         nxt = s + 1 if s + 1 < n_s else n_s - 1  # v: the next direction; the last segment stays straight
         for p in range(n_p):
             cos_t[s, p] = u[s, 0, p] * u[nxt, 0, p] + u[s, 1, p] * u[nxt, 1, p] + u[s, 2, p] * u[nxt, 2, p]
-        for p in range(n_p):  # the chord's deviation: the curve's bulge or either corner's cut, the larger
-            so = _sin_or_one(cos_t[s, p])
-            cut_prev = 0.5 * acc_r * _sin_or_one(cos_t[s - 1, p]) if s > 0 else 0.0
-            dev[s, p] = max((4.0 / 27.0) * seg_len[s, p] * so, max(0.5 * acc_r * so, cut_prev))
+        for p in range(n_p):  # the chord's deviation: the curve's bulge, either corner's cut or the swing past
+            so = _sin_or_one(cos_t[s, p])  # it after the turn at its start, the largest
+            prev = _after_turn(acc_r, overshoot, cos_t[s - 1, p]) if s > 0 else 0.0
+            dev[s, p] = max((4.0 / 27.0) * seg_len[s, p] * so, max(0.5 * acc_r * so, prev))
         for i in range(3):
             for p in range(n_p):
                 q2[s, i, p] = pt[s + 1, i, p] - (seg_len[s, p] / 3.0) * u[nxt, i, p]
@@ -541,7 +552,7 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
     if has_heading:
         for p in range(n_p):
             c0 = u[0, 0, p] * heading[0] + u[0, 1, p] * heading[1] + u[0, 2, p] * heading[2]
-            dev[0, p] = max(dev[0, p], 0.5 * acc_r * _sin_or_one(c0))
+            dev[0, p] = max(dev[0, p], _after_turn(acc_r, overshoot, c0))
     # -- J2 hazard (§4.3, §4.5, §4.6) -------------------------------------------------------------------------
     box = np.empty((n_pts, 4))  # plan-view box of each waypoint over the swarm: x_lo, x_hi, y_lo, y_hi
     for w in range(n_pts):
@@ -798,7 +809,7 @@ def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -
         ter.x0 if ter is not None else 0.0, ter.y0 if ter is not None else 0.0,
         ter.dx if ter is not None else 1.0, ter.dy if ter is not None else 1.0, problem._terrain_slope,
         *problem.weights.by_term().values(),  # J1…J5's weights: the total is summed here, in the reference's order
-        float(broad),
+        float(broad), veh.turn_overshoot,
     ], dtype=float)
 
     def f(a, shape=(-1,)):  # noqa: ANN001, ANN202 - a writeable copy: one compiled signature for every problem

@@ -251,6 +251,7 @@ def plan_to_json(result: PlanResult, scenario: Scenario, start_time: float | Non
         **_phases(result.optimiser),
         "home": {"lat": scenario.home.lat, "lon": scenario.home.lon, "alt": scenario.home.alt},
         "vehicle": {"type": scenario.vehicle.type, "cruise_speed": scenario.vehicle.cruise_speed,
-                    "min_turn_radius_m": scenario.vehicle.min_turn_radius},
+                    "min_turn_radius_m": scenario.vehicle.min_turn_radius,
+                    "turn_overshoot": scenario.vehicle.turn_overshoot},
         "hazard": {"d_safe": scenario.hazard.d_safe, "d_coll": scenario.hazard.d_coll},
     })

@@ -17,6 +17,7 @@ from planner.trajectory.smoothing import (
     corner_cut_bound,
     cubic_range,
     flown_deviation,
+    overshoot_bound,
     peak_climb,
     peak_curvature,
 )
@@ -174,10 +175,12 @@ class PlanningProblem:
         u = seg / np.maximum(seg_len, _EPS)[..., None]
         v = np.concatenate([u[:, 1:], u[:, -1:]], axis=1)  # next direction; the last segment stays straight
         cos_turn = _dot3(u, v)
-        dev = flown_deviation(seg_len, cos_turn, self.vehicle.acceptance_radius)  # (P, S) m off each chord
+        veh = self.vehicle
+        dev = flown_deviation(seg_len, cos_turn, veh.acceptance_radius, veh.turn_overshoot)  # (P, S) m off each chord
         if self.start_heading is not None:  # the corner the autopilot cuts at the start, as at any waypoint
-            cut0 = corner_cut_bound(self.vehicle.acceptance_radius, _dot3(u[:, 0], self.start_heading))
-            dev[:, 0] = np.maximum(dev[:, 0], cut0)
+            c0 = _dot3(u[:, 0], self.start_heading)
+            dev[:, 0] = np.maximum(dev[:, 0], np.maximum(corner_cut_bound(veh.acceptance_radius, c0),
+                                                         overshoot_bound(veh.turn_overshoot, c0)))
         q2 = b - (seg_len / 3.0)[..., None] * v  # Q1 = a + seg/3 lies on the chord
         z_lo, z_hi = _height_range(a[..., 2], a[..., 2] + seg[..., 2] / 3.0, q2[..., 2], b[..., 2], self.env)
 

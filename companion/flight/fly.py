@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import dataclasses
 import logging
 import math
 from collections.abc import Callable
@@ -157,11 +158,24 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                                 feed, limits)
 
 
+def as_planned(plan_doc: dict[str, Any], scenario: Scenario) -> Scenario:
+    """The scenario with the vehicle's turn allowance the plan was made with (PLAN.json ``vehicle.turn_overshoot``;
+    `plan`, `fly` and `export` add it for a plane, the scenario file need not say it), so that the check against
+    the autopilot and every replan use what the plan allowed."""
+    swing = (plan_doc.get("vehicle") or {}).get("turn_overshoot") if isinstance(plan_doc.get("vehicle"), dict) \
+        else None
+    if not isinstance(swing, (int, float)) or not math.isfinite(swing) or swing <= scenario.vehicle.turn_overshoot:
+        return scenario
+    return dataclasses.replace(scenario, vehicle=dataclasses.replace(scenario.vehicle, turn_overshoot=float(swing)))
+
+
 async def _plan_within(plan_doc: dict[str, Any], scenario: Scenario, limits: AutopilotLimits, opts: FlyOptions,
                  events: EventLog) -> tuple[dict[str, Any], Scenario]:
     """The plan, made again within the vehicle's own limits when it asks for more than the autopilot will fly: a
-    bank beyond its roll limit, or (a plane) a climb steeper than its climb-rate limit allows at the plan's speed.
-    A PLAN.json that does so is refused (nothing uploaded)."""
+    bank beyond its roll limit, (a plane) a climb steeper than its climb-rate limit allows at the plan's speed, or
+    less room after turns than its path-follower swings past a new leg (``turn_overshoot``). A PLAN.json that does
+    so is refused (nothing uploaded)."""
+    scenario = as_planned(plan_doc, scenario)
     v = scenario.vehicle
     stricter: list[str] = []
     if limits.read and v.max_bank_deg > limits.max_bank_deg + 1e-6:
@@ -170,6 +184,9 @@ async def _plan_within(plan_doc: dict[str, Any], scenario: Scenario, limits: Aut
         climb = math.degrees(math.asin(min(min(limits.climb_rate, limits.sink_rate) / v.cruise_speed, 1.0)))
         if v.max_climb_deg > climb + 0.05:
             stricter.append(f"vehicle.max_climb_deg={math.floor(climb * 10) / 10:g}")
+    swing = limits.turn_overshoot(v.cruise_speed)  # at the speed the mission sets (DO_CHANGE_SPEED)
+    if v.turn_overshoot < swing - 0.05:  # its path-follower swings wider than the plan allows
+        stricter.append(f"vehicle.turn_overshoot={math.ceil(swing * 10) / 10:g}")
     if not stricter:
         return plan_doc, scenario
     events.log("plan_beyond_vehicle", overrides=stricter, plan_again=opts.plan_again is not None)

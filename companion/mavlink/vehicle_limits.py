@@ -52,6 +52,14 @@ PX4_MULTICOPTER = {
     "MPC_Z_V_AUTO_DN": ("sink_rate", 1.0),
 }
 ARDUPLANE_L1_PERIOD_S, ARDUPLANE_L1_DAMPING = 17.0, 0.75  # ArduPlane's defaults when they are not read
+# How far ArduPlane swings past a new leg after a turn, per radian of turn and per metre of its L1 distance
+# (ζ·P·v/π): measured on SITL at 18-20 m/s, 6.0 m after 21°, 10.4 m after 29°, 14.1 m after 45° and 34-39 m after
+# 90° (0.25-0.35 of L1 per radian); the largest ratio is used (docs/design.md, "Turns flown wider than planned")
+OVERSHOOT_PER_L1 = 0.35
+# ArduPlane SITL's plane turns at this share of the rate its bank implies (g·tan φ / v): with it, the L1 law flies a
+# 90° turn 34-39 m past the new leg and an 80 m loiter at 96.8 m, as SITL does (tests/conformance/test_hold_turn.py,
+# docs/design.md "The simulator against SITL"). The simulator flies it; the companion's turn envelope covers it.
+ARDUPLANE_TURN_EFFICIENCY = 0.58
 COPTER_ACCEL = 2.5  # m/s², a copter's braking when the autopilot does not say (WPNAV_ACCEL default)
 
 
@@ -79,6 +87,7 @@ class AutopilotLimits:
     l1_damping: float
     read: dict[str, float] = field(default_factory=dict)  # the parameters the autopilot answered, as it sent them
     vertical_takeoff: bool = False  # a VTOL: it climbs vertically where it stands, then transitions
+    follows_l1: bool = False  # ArduPlane: its turns are flown by the L1 law (l1_period_s, l1_damping)
 
     @property
     def turn_radius(self) -> float:
@@ -95,6 +104,12 @@ class AutopilotLimits:
         l1 = self.l1_damping * self.l1_period_s * v / math.pi
         return max(l1 / (4.0 * self.l1_damping**2), self.turn_radius)
 
+    def turn_overshoot(self, speed: float | None = None) -> float:
+        """How far its path-follower swings past a new leg after a turn, m per radian (VehicleLimits.turn_overshoot),
+        at ``speed`` (the mission's; default cruise): :func:`l1_overshoot` for ArduPlane, 0 where not measured."""
+        v = self.cruise_speed if speed is None else speed
+        return l1_overshoot(v, self.l1_period_s, self.l1_damping) if self.follows_l1 else 0.0
+
     @property
     def climb_angle_deg(self) -> float:
         """A plane's steady climb angle at cruise speed from its climb-rate limit."""
@@ -110,10 +125,25 @@ class AutopilotLimits:
         d: dict[str, float | str | dict[str, float]] = {
             k: round(v, 3) for k, v in self.__dict__.items() if isinstance(v, float)}
         d["turn_radius_m"] = round(self.turn_radius, 1)
+        d["turn_overshoot_m_per_rad"] = round(self.turn_overshoot(), 1)
         d["vehicle_type"] = self.vehicle_type
         d["vertical_takeoff"] = self.vertical_takeoff
         d["read"] = dict(self.read)
         return d
+
+
+def l1_overshoot(cruise_speed: float, period_s: float = ARDUPLANE_L1_PERIOD_S,
+                 damping: float = ARDUPLANE_L1_DAMPING) -> float:
+    """ArduPlane's swing past a new leg, m per radian of turn: :data:`OVERSHOOT_PER_L1` of L1 = ζ·P·v/π."""
+    return OVERSHOOT_PER_L1 * damping * period_s * cruise_speed / math.pi
+
+
+def flight_overrides(vehicle: VehicleLimits) -> list[str]:
+    """``--set`` overrides a plan to be flown needs beyond the scenario's: a plane's turns are flown by a path
+    follower that swings past each new leg, so its plan allows at least ArduPlane's default swing at the plan's
+    speed (an autopilot that swings wider is found at connect, and the plan made again)."""
+    need = l1_overshoot(vehicle.cruise_speed) if vehicle.type == "plane" else 0.0
+    return [f"vehicle.turn_overshoot={math.ceil(need * 10) / 10:g}"] if vehicle.turn_overshoot < need else []
 
 
 def limits_from(params: Mapping[str, float], autopilot: str, vehicle: VehicleLimits,
@@ -133,4 +163,5 @@ def limits_from(params: Mapping[str, float], autopilot: str, vehicle: VehicleLim
         if v is not None and math.isfinite(v) and v > 0:
             values[key] = float(v) * scale
             read[name] = float(v)
-    return AutopilotLimits(vehicle.type, read=read, vertical_takeoff=mission_layout(autopilot).vtol, **values)
+    return AutopilotLimits(vehicle.type, read=read, vertical_takeoff=mission_layout(autopilot).vtol,
+                           follows_l1=names is ARDUPLANE, **values)

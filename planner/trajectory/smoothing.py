@@ -154,13 +154,24 @@ def corner_cut_bound(acceptance_radius: float, cos_turn: np.ndarray) -> np.ndarr
     return 0.5 * acceptance_radius * np.where(c >= 0.0, np.sqrt(1.0 - c * c), 1.0)
 
 
-def flown_deviation(seg_len: np.ndarray, cos_turn: np.ndarray, acceptance_radius: float) -> np.ndarray:
-    """(..., S) metres the flown path may stray from each chord: the Bézier the plan describes, or the corner an
-    autopilot cuts when it takes a waypoint at its acceptance radius, at either end of the segment (docs/method.md
-    §4.4). ``cos_turn[..., k]`` is the turn at the end of segment k; the last axis runs along the route."""
+def overshoot_bound(turn_overshoot: float, cos_turn: np.ndarray) -> np.ndarray:
+    """How far a path-follower swings past the new leg after a turn θ: ``turn_overshoot`` metres per radian
+    (docs/method.md §4.4; 0 for a vehicle that flies the curve). Shapes broadcast → metres."""
+    if turn_overshoot <= 0.0:
+        return np.zeros_like(np.asarray(cos_turn, dtype=float))
+    return turn_overshoot * np.arccos(np.clip(cos_turn, -1.0, 1.0))
+
+
+def flown_deviation(seg_len: np.ndarray, cos_turn: np.ndarray, acceptance_radius: float,
+                    turn_overshoot: float = 0.0) -> np.ndarray:
+    """(..., S) metres the flown path may stray from each chord: the Bézier the plan describes, the corner an
+    autopilot cuts when it takes a waypoint at its acceptance radius, at either end of the segment, or its swing past
+    the segment after the turn at its start (docs/method.md §4.4). ``cos_turn[..., k]`` is the turn at the end of
+    segment k; the last axis runs along the route."""
     cut = corner_cut_bound(acceptance_radius, cos_turn)  # at the end of each segment
-    cut_start = np.concatenate([np.zeros_like(cut[..., :1]), cut[..., :-1]], axis=-1)
-    return np.maximum(deviation_bound(seg_len, cos_turn), np.maximum(cut, cut_start))
+    after = np.maximum(cut, overshoot_bound(turn_overshoot, cos_turn))  # what the turn does to the next segment
+    after_start = np.concatenate([np.zeros_like(after[..., :1]), after[..., :-1]], axis=-1)
+    return np.maximum(deviation_bound(seg_len, cos_turn), np.maximum(cut, after_start))
 
 
 def segment_samples(counts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -32,6 +32,9 @@ class VehicleLimits:
     max_turn_deg: float = 60.0  # largest heading change at one waypoint
     takeoff_alt: float = 50.0  # m above home
     acceptance_radius: float = 20.0  # m
+    # m per radian of turn: how far past the new leg the vehicle's path-follower swings after a waypoint, on the
+    # outside of the turn (docs/method.md §4.4); 0 for a vehicle that flies the smoothed curve
+    turn_overshoot: float = 0.0
     end_action: Literal["loiter", "rtl", "land"] = "loiter"
 
     @property

@@ -466,6 +466,8 @@ def _check_configs(file: str, vehicle: VehicleLimits, hazard: HazardConfig, plan
         ("vehicle.max_turn_deg", vehicle.max_turn_deg, 0 < vehicle.max_turn_deg <= 180, "must be in (0, 180] deg"),
         ("vehicle.takeoff_alt", vehicle.takeoff_alt, vehicle.takeoff_alt > 0, "must be > 0 m"),
         ("vehicle.acceptance_radius", vehicle.acceptance_radius, vehicle.acceptance_radius > 0, "must be > 0 m"),
+        ("vehicle.turn_overshoot", vehicle.turn_overshoot, vehicle.turn_overshoot >= 0,
+         "must be >= 0 m per radian"),
         ("hazard.d_coll", hazard.d_coll, hazard.d_coll >= 0, "must be >= 0 m"),
         ("hazard.d_safe", hazard.d_safe, hazard.d_safe > 0 and hazard.d_safe >= hazard.d_coll,
          f"must be > 0 and >= d_coll ({hazard.d_coll:g} m)"),

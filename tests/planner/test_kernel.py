@@ -98,16 +98,17 @@ def every_family() -> Environment:
     )
 
 
+@pytest.mark.parametrize("overshoot", [0.0, 22.0], ids=["curve", "overshoot"])
 @pytest.mark.parametrize("terrain", [True, False], ids=["terrain", "flat"])
 @pytest.mark.parametrize("heading", [None, (0.6, -0.8, 0.0), (-1.0, 0.2, 0.1)], ids=["none", "h1", "h2"])
-def test_kernel_matches_the_reference_with_every_family(terrain: bool, heading) -> None:  # noqa: ANN001
+def test_kernel_matches_the_reference_with_every_family(terrain: bool, heading, overshoot: float) -> None:  # noqa: ANN001
     env = every_family()
     if not terrain:
         env = Environment(env.size_x, env.size_y, env.z_min, env.z_max, env.cylinders, env.spheres, env.radars,
                           None, env.threats)
     problem = PlanningProblem(env, np.array([100.0, 100.0, 120.0]), np.array([1900.0, 1850.0, 200.0]),
-                              VehicleLimits(), HazardConfig(d_safe=120.0, d_coll=20.0), start_time=3.0,
-                              start_heading=heading)
+                              VehicleLimits(turn_overshoot=overshoot), HazardConfig(d_safe=120.0, d_coll=20.0),
+                              start_time=3.0, start_heading=heading)
     rng = np.random.default_rng(11)
     for n_wp, spread in ((1, 0.1), (6, 0.05), (8, 0.2), (20, 0.1)):
         assert_same(problem, swarm(problem, rng, n_wp=n_wp, spread=spread))

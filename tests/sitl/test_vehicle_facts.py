@@ -73,12 +73,13 @@ def _set_params(url: str, values: dict[str, float]) -> None:
 
 
 def test_the_plan_and_the_hold_follow_roll_limit_and_wp_loiter_rad(sitl_factory_fn, tmp_path: Path) -> None:
-    """ROLL_LIMIT_DEG 30 (below the scenario's 45° bank) makes fly plan again within 30°; WP_LOITER_RAD 120 is the
+    """ROLL_LIMIT_DEG 30 (below the scenario's 45° bank) makes fly plan again within 30°; NAVL1_PERIOD 20 (ArduPlane's
+    default is 17) makes it plan again with room for the wider swing past each turn; WP_LOITER_RAD 120 is the
     radius of every hold circle it commands (the plane is held while the replanned mission is swapped in)."""
     scenario = SCENARIOS / "rescue_dynamic.toml"
     sc = load_scenario(scenario)
     sitl = sitl_factory_fn("plane", sc.home, speedup=10.0)
-    _set_params(sitl.serial0_url, {"ROLL_LIMIT_DEG": 30.0, "WP_LOITER_RAD": 120.0})
+    _set_params(sitl.serial0_url, {"ROLL_LIMIT_DEG": 30.0, "WP_LOITER_RAD": 120.0, "NAVL1_PERIOD": 20.0})
     report = tmp_path / "rep"
     with sitl.hold_serial0():
         code = main(["fly", str(scenario), "--connect", sitl.serial1_url, "--arm", "--report", str(report), "-q",
@@ -87,8 +88,11 @@ def test_the_plan_and_the_hold_follow_roll_limit_and_wp_loiter_rad(sitl_factory_
     limits = next(e for e in events if e["event"] == "vehicle_limits")
     assert limits["read"]["ROLL_LIMIT_DEG"] == 30.0 and limits["loiter_radius"] == 120.0
     again = next(e for e in events if e["event"] == "planned_again")
+    swing = 0.35 * 0.75 * 20.0 * 18.0 / np.pi  # OVERSHOOT_PER_L1 of L1 at the mission's 18 m/s: 30.1 m per radian
     assert "vehicle.max_bank_deg=30" in again["overrides"]
+    assert f"vehicle.turn_overshoot={swing:.1f}" in again["overrides"]
     plan = json.loads((report / "PLAN.json").read_text())
+    assert abs(plan["vehicle"]["turn_overshoot"] - swing) < 0.1
     # the plan flown is the one within the vehicle's limits: 18 m/s at 30° turns no tighter than 57 m (45°: 33 m)
     assert abs(plan["vehicle"]["min_turn_radius_m"] - 18.0**2 / (9.80665 * np.tan(np.radians(30.0)))) < 0.1
     flight = json.loads((report / "flight.json").read_text())

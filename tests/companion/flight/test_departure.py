@@ -36,7 +36,12 @@ def test_limits_come_from_the_parameters_read_and_the_scenario_fills_the_rest(dy
     assert lim.read == SITL_PLANE
     assert abs(lim.turn_radius - 22.0**2 / (9.80665 * np.tan(np.radians(65.0)))) < 1e-9
     assert abs(lim.wide_turn_radius(27.0) - 0.75 * 15.0 * 27.0 / np.pi / 2.25) < 1e-9  # L1 / (4 damping²)
+    # ArduPlane's swing past a new leg scales with its L1 distance at the mission's speed (SITL: NAVL1_PERIOD 15)
+    assert lim.turn_overshoot(18.0) == pytest.approx(0.35 * 0.75 * 15.0 * 18.0 / np.pi)
     none = limits_from({}, "ardupilot", dynamic.vehicle, 60.0)
+    assert none.turn_overshoot(18.0) == pytest.approx(0.35 * 0.75 * 17.0 * 18.0 / np.pi)  # ArduPlane's default
+    px4 = limits_from({"NAV_ACC_RAD": 10.0}, "px4-vtol", dynamic.vehicle, 80.0)
+    assert px4.turn_overshoot() == 0.0  # not measured on PX4: its plans allow what the scenario says
     assert (none.max_bank_deg, none.cruise_speed, none.loiter_radius, none.read) == (45.0, 18.0, 60.0, {})
     copter = limits_from({"WPNAV_SPEED": 1000.0, "WPNAV_ACCEL": 250.0}, "ardupilot", VehicleLimits(type="copter"), 60.0)
     assert copter.cruise_speed == 10.0 and copter.stopping_distance == pytest.approx(20.0)

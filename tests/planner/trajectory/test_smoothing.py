@@ -15,6 +15,8 @@ from planner.trajectory.smoothing import (
     bezier_derivatives,
     climb_angle,
     curvature,
+    flown_deviation,
+    overshoot_bound,
     peak_climb,
     peak_curvature,
     peak_factor,
@@ -367,3 +369,16 @@ def test_cubic_range_matches_dense_sampling(q):
     assert hi[0] >= val.max() - 1e-9 * scale
     assert lo[0] >= val.min() - 1e-6 * scale  # dense samples are within 1e-8 in t of the extremes
     assert hi[0] <= val.max() + 1e-6 * scale
+
+
+def test_the_swing_past_a_turn_widens_only_the_segment_after_it() -> None:
+    """docs/method.md §4.4: a path-follower that swings ``turn_overshoot`` m per radian past a new leg adds that to
+    the segment after the turn (not before it, not two segments on); 0 leaves the paper's bound as it was."""
+    seg_len = np.array([300.0, 300.0, 300.0])
+    cos_turn = np.array([math.cos(math.radians(30.0)), 1.0, 1.0])  # a 30° turn between segments 0 and 1
+    plain = flown_deviation(seg_len, cos_turn, 20.0)
+    swung = flown_deviation(seg_len, cos_turn, 20.0, turn_overshoot=24.0)
+    assert np.array_equal(plain, flown_deviation(seg_len, cos_turn, 20.0, turn_overshoot=0.0))
+    assert swung[1] == pytest.approx(24.0 * math.radians(30.0)) and swung[1] > plain[1]
+    assert swung[0] == plain[0] and swung[2] == plain[2]
+    assert overshoot_bound(10.0, np.array([-1.0, 0.0]))[0] == pytest.approx(10.0 * math.pi)
