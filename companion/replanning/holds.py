@@ -19,6 +19,7 @@ from planner.trajectory.checks import nearest_obstacle
 from planner.world.environment import Environment, Threats
 
 HOLD_MARGIN_M = 10.0  # beyond d_coll: the path-follower captures the circle a little wide
+TIGHT_HOLD_MARGIN_M = 5.0  # beyond d_coll: the least a hold circle may keep when none keeps HOLD_MARGIN_M
 # ArduPlane flies its circles wider than asked (SITL: 80 m flown at 96.7 m, 120 m at 135.5 m;
 # tests/conformance/test_hold_turn.py): the check covers the ring out to this much beyond the radius
 FLOWN_WIDER_M = 20.0
@@ -123,22 +124,30 @@ def plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: E
     radii = [radius]
     if min_radius is not None:
         radii += [r for r in (0.75 * radius, 0.5 * radius, min_radius) if min_radius <= r < radius]
+    tight: list[HoldPattern] = []
     for r in radii:
-        found = _plane_hold(position, velocity, r, env, d_coll, speed, threats, t_now, turn_radius, lag_m)
+        found, close = _plane_hold(position, velocity, r, env, d_coll, speed, threats, t_now, turn_radius, lag_m)
         if found is not None:
             return found
-    return None
+        tight += close
+    # none with the whole margin: the circle that clears the obstacles furthest, if by TIGHT_HOLD_MARGIN_M (on the
+    # simulator, with the plan late and an intruder 18 s ahead, the best circle cleared a cylinder by 19.4 m
+    # against the 20 asked; refused, the plane flew on into the intruder: −4 m)
+    return max(tight, key=lambda h: h.clearance_m, default=None)
 
 
 def _plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: Environment, d_coll: float,
                 speed: float, threats: Threats | None, t_now: float, turn_radius: float = 0.0,
-                lag_m: float = 0.0) -> HoldPattern | None:
+                lag_m: float = 0.0) -> tuple[HoldPattern | None, list[HoldPattern]]:
+    """(the pattern :func:`plane_hold` takes at this radius, else None; the circles that keep the traffic by the
+    margin but clear the obstacles only by d_coll + :data:`TIGHT_HOLD_MARGIN_M`)."""
     p = np.asarray(position, dtype=float)
     v = np.asarray(velocity, dtype=float)[:2]
     heading = v / n if (n := float(np.linalg.norm(v))) > 0.5 else np.array([0.0, 1.0])
     right = np.array([heading[1], -heading[0]])
     need = d_coll + HOLD_MARGIN_M
     best: HoldPattern | None = None  # clear of the traffic by d_coll, not yet by the margin
+    tight: list[HoldPattern] = []
     for k in range(AHEAD_STEPS + 1):
         base = p[:2] + k * AHEAD_STEP_M * heading
         for side, clockwise in ((right, True), (-right, False)):
@@ -155,15 +164,19 @@ def _plane_hold(position: np.ndarray, velocity: np.ndarray, radius: float, env: 
             turn = max(turn_radius, radius)
             entry = ring(base + lag_m * heading + turn * side, turn, p[2])
             clearance, nearest = nearest_obstacle(np.vstack([path, flown_ring(centre, radius, p[2]), entry]), env)
-            if clearance < need:
+            if clearance < d_coll + TIGHT_HOLD_MARGIN_M:
                 continue
             sep = _traffic_separation(paths, speed, t_now, threats, HOLD_HORIZON_S)
             pattern = HoldPattern("circle", centre, radius, clockwise, path, clearance, nearest, sep)
+            if clearance < need:
+                if sep >= d_coll + HOLD_MARGIN_M:
+                    tight.append(pattern)
+                continue
             if sep >= d_coll + HOLD_MARGIN_M:
-                return pattern
+                return pattern, tight
             if sep >= d_coll and (best is None or sep > best.traffic_separation_m):
                 best = pattern
-    return best
+    return best, tight
 
 
 def circle_traffic_separation(position: np.ndarray, centre: np.ndarray, radius: float, clockwise: bool,

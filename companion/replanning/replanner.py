@@ -43,7 +43,7 @@ from companion.mavlink.errors import (
 from companion.mavlink.items import MissionItem
 from companion.mavlink.link import MAV_COMP_ID_ADSB, Link, Message, Subscription
 from companion.mavlink.protocol import MissionClient
-from companion.mavlink.vehicle_limits import AutopilotLimits
+from companion.mavlink.vehicle_limits import ARDUPLANE_TURN_EFFICIENCY, AutopilotLimits
 from companion.mission import picture
 from companion.mission.builder import MissionSpec
 from companion.mission.events import EventLog
@@ -51,6 +51,7 @@ from companion.mission.geo import enu_to_geodetic, geodetic_to_enu, to_int_e7
 from companion.mission.restore import restore_mission
 from companion.replanning.guard import GUARD_DT_S, first_breach, predict_own_path
 from companion.replanning.holds import (
+    FLOWN_WIDER_M,
     HOLD_MARGIN_M,
     HoldPattern,
     circle_traffic_separation,
@@ -100,10 +101,18 @@ FLOWN_CHECK_DT_S = 0.5  # vehicle seconds between the points of a plan's flown p
 HOLD_CHECK_WALL_S = 0.5  # wall seconds between two looks for a hold pattern after none was found, and between
 # two traffic checks of the circle being held (each takes CPU the planner needs: under load, 30 a second)
 RESUME_HORIZON_S = 20.0  # vehicle seconds of the path flown on resuming that are checked
+# m beyond d_coll that what a plane flies on resuming must clear: less than a hold's (HOLD_MARGIN_M), as its roll-out
+# from the circle is predicted (_rolling_out) and the route was planned with its turns' swing (turn_overshoot). With
+# the hold's 10 m, the simulator's plane circled for 120 replans: every route planned from the circle kept d_coll plus
+# its own allowance, 19.1-20.0 m from a cylinder, and was refused at 20 m
+RESUME_MARGIN_M = 5.0
+RESUME_ROLL_OUT_S = 3.0  # vehicle seconds a plane held on a circle may circle on after its resume is checked
 # how much wider than its path-follower's bound (AutopilotLimits.wide_turn_radius) a plane may turn (_flown_paths,
 # and onto a hold circle): resuming, ArduPlane SITL at 23.5 m/s turned back from a hold at 58 m against the L1
-# law's 37 m, then flew straight at the item from there, 22.7 m into a cylinder the path predicted at 37 m cleared
-WIDE_TURNS = 1.6
+# law's 37 m, then flew straight at the item from there, 22.7 m into a cylinder the path predicted at 37 m cleared.
+# SITL's plane turns at ARDUPLANE_TURN_EFFICIENCY (0.58) of the rate its bank implies, so up to 1/0.58 = 1.72 times
+# wider; with 1.6, the simulator flying that came 6.5 m from a cylinder on resuming (crossing_traffic, 1 of 10)
+WIDE_TURNS = 1.05 / ARDUPLANE_TURN_EFFICIENCY
 # vehicle seconds a plane may fly on straight after a hold is commanded before it turns onto the circle (ArduPlane
 # SITL at 10x: ~2 s between the acknowledged DO_REPOSITION and the first change of heading, our latency included)
 HOLD_TURN_LAG_S = 2.5
@@ -1126,7 +1135,7 @@ class LiveReplanner:
         """(clearance, obstacle) when what AUTO flies on resuming at item ``seq`` comes too close to a static
         obstacle: the straight leg from the vehicle to the item, or the path a plane flies onto it and on
         (:func:`predict_own_path`, 20 s, straight at the item from where its turn ends, each turn it may make, each
-        item taken as early as the autopilot may), within d_coll + the hold margin; None when both are clear."""
+        item taken as early as the autopilot may), within d_coll + :data:`RESUME_MARGIN_M`; None when both are clear."""
         if self.position is None:
             return None
         hit = np.flatnonzero(self.route.seqs >= seq)
@@ -1135,23 +1144,46 @@ class LiveReplanner:
         target = self.route.points[hit[0]]
         leg = np.linspace(self.position, target, max(int(np.linalg.norm(target - self.position) / 5.0), 1) + 1)
         env, d_coll = self.scenario.environment, self.scenario.hazard.d_coll
+        need = d_coll + RESUME_MARGIN_M
         clearance, worst = nearest_obstacle(leg, env)
-        if clearance < d_coll + HOLD_MARGIN_M:
+        if clearance < need:
             return clearance, worst
         if self.link.profile.hold_circles and float(np.linalg.norm(self.velocity)) > 1.0:
             # AUTO flies to the item straight from wherever the plane ends its turn towards it (no leg to hold to),
             # so every path it may fly is checked (_flown_paths): resumed 101 m from its item, SITL's plane took it
             # early and cut to the next leg 6.5 m from a cylinder the path taking it at its 20 m cleared by 20.3 m
             wide = self._wide_turn_radius(self.groundspeed)
-            behind = float(np.dot(target[:2] - self.position[:2], self.velocity[:2])) < 0.0
-            for path in self._flown_paths(self.position, self.velocity, self.position, self.route.points[hit[0]:],
-                                          wide, RESUME_HORIZON_S, direct=True, behind=behind):
-                # by the margin too: the model starts wings level, and a plane resumed from a hold circle is banked
-                # (on the simulator, resumed 3 s into its circle, a path predicted clear came 6.3 m from a cylinder)
-                breach = first_breach(path, env, d_coll + HOLD_MARGIN_M)
-                if breach is not None:
-                    return breach.clearance_m, breach.obstacle
+            for position, velocity in self._rolling_out():
+                behind = float(np.dot(target[:2] - position[:2], velocity[:2])) < 0.0
+                for path in self._flown_paths(position, velocity, position, self.route.points[hit[0]:],
+                                              wide, RESUME_HORIZON_S, direct=True, behind=behind):
+                    # by the margin too: the model starts wings level, and a plane resumed from a hold circle is
+                    # banked (on the simulator, resumed 3 s into its circle, a path predicted clear came 6.3 m from a
+                    # cylinder)
+                    breach = first_breach(path, env, need)
+                    if breach is not None:
+                        return breach.clearance_m, breach.obstacle
         return None
+
+    def _rolling_out(self) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Where a plane may start its turn back to the route from, with its velocity: where it is now, and, held on
+        a circle, where it is after circling on for :data:`RESUME_ROLL_OUT_S` (the resume's latency and the roll
+        out of the circle's bank; on the simulator flying ArduPlane's L1 law, a plane resumed at heading 340° from
+        a counter-clockwise hold was still turning left at 316° when it rolled out, and its right turn back to the
+        route, predicted 25-66 m clear of a cylinder from where the resume was checked, came 0.6 m from it)."""
+        assert self.position is not None
+        here = [(self.position, self.velocity)]
+        pattern = self.hold_pattern
+        speed = float(np.linalg.norm(self.velocity))
+        if pattern is None or pattern.kind != "circle" or speed < 1.0:
+            return here
+        turn = (1.0 if pattern.clockwise else -1.0) * speed / (pattern.radius + FLOWN_WIDER_M)  # rad/s, right +
+        pos, vel, dt = self.position.copy(), np.asarray(self.velocity, dtype=float).copy(), 0.25
+        for _ in range(round(RESUME_ROLL_OUT_S / dt)):
+            a = -turn * dt  # a right (clockwise) turn rotates the ENU velocity clockwise
+            vel = np.array([vel[0] * math.cos(a) - vel[1] * math.sin(a), vel[0] * math.sin(a) + vel[1] * math.cos(a)])
+            pos = pos + np.array([vel[0] * dt, vel[1] * dt, 0.0])
+        return [*here, (pos, vel)]
 
     async def resume(self) -> None:
         """Back to AUTO at the current item, unless someone else has changed the mode meanwhile. AUTO is not

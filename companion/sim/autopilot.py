@@ -28,7 +28,7 @@ from companion.mavlink.items import FENCE, FRAME_GLOBAL, MISSION, RALLY, Mission
 from companion.mavlink.signing import SigningKey
 from companion.mavlink.storage import Firmware
 from companion.sim import streams
-from companion.sim.flight_model import PLANE_LOITER_RADIUS, FlightModel, wrap_pi
+from companion.sim.flight_model import PLANE_L1_DAMPING, PLANE_L1_PERIOD_S, PLANE_LOITER_RADIUS, FlightModel, wrap_pi
 from companion.sim.intruders import IntruderTrack, adsb_report
 from companion.sim.mission_server import MAX_ITEMS, MissionServer, is_nav
 from companion.sim.navigator import (
@@ -42,7 +42,7 @@ from companion.sim.navigator import (
 )
 from companion.sim.streams import StreamTable
 from companion.sim.transport import SimTransport
-from planner.world.config import G0, VehicleLimits
+from planner.world.config import VehicleLimits
 from planner.world.scenario import Scenario
 
 logger = logging.getLogger(__name__)
@@ -89,7 +89,8 @@ def vehicle_params(limits: VehicleLimits) -> dict[str, float]:
     (the scenario's vehicle) and its loiter radius (SITL's WP_LOITER_RAD, which LOITER and GUIDED circle at)."""
     if limits.type == "plane":
         return {"ROLL_LIMIT_DEG": limits.max_bank_deg, "AIRSPEED_CRUISE": limits.cruise_speed,
-                "WP_RADIUS": limits.acceptance_radius, "WP_LOITER_RAD": PLANE_DEFAULT_LOITER_RAD}
+                "WP_RADIUS": limits.acceptance_radius, "WP_LOITER_RAD": PLANE_DEFAULT_LOITER_RAD,
+                "NAVL1_PERIOD": PLANE_L1_PERIOD_S, "NAVL1_DAMPING": PLANE_L1_DAMPING}
     return {"WPNAV_SPEED": limits.cruise_speed * 100.0, "WPNAV_RADIUS": 200.0, "WPNAV_ACCEL": 250.0}
 
 
@@ -963,7 +964,7 @@ class SimAutopilot:
             return [mavlink.MAVLink_local_position_ned_message(self._time_boot_ms(), s.y, s.x, -s.z, s.vy, s.vx,
                                                                -s.vz)]
         if msg_id == mavlink.MAVLINK_MSG_ID_ATTITUDE:
-            roll = math.atan(s.speed * s.turn_rate / G0)
+            roll = s.bank
             pitch = math.atan2(s.vz, s.speed) if self.is_plane and not s.on_ground else 0.0
             return [mavlink.MAVLink_attitude_message(self._time_boot_ms(), roll, pitch, wrap_pi(s.heading), 0.0,
                                                      0.0, s.turn_rate)]

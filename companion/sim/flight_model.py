@@ -3,7 +3,13 @@
 No aerodynamics: a point with a compass heading (0 = north, clockwise, radians), a horizontal speed and a
 vertical rate. The limits come from :class:`planner.world.config.VehicleLimits`:
 
-- plane: turn rate ≤ g·tan(max bank)/v, climb/descent ≤ v·tan(max climb), never hovers (it circles instead);
+- plane: steered by ArduPlane's L1 guidance law (Park, Deyst and How 2004, as ArduPlane's L1 controller flies it:
+  a lateral acceleration of 4ζ²·v²/L1·sin η towards a point L1 = ζ·P·v/π ahead on the track, or on a loiter
+  circle a PD law on the radius error plus the centripetal term), with NAVL1_PERIOD P and damping ζ of SITL's
+  plane.parm. The bank follows that demand (limited to the max bank) with a lag, and the plane turns at
+  :data:`PLANE_TURN_EFFICIENCY` of the rate g·tan(bank)/v: fitted to ArduPlane SITL, this one law gives its 90°
+  turn (carried 34-39 m past the new leg) and its circles (80 m flown at 96.8 m, 120 m at 135.5 m;
+  tests/conformance/test_hold_turn.py). Climb/descent ≤ v·tan(max climb), never hovers (it circles instead);
   speed changes at most 1.3 m/s² and vertical rate at most 3.7 m/s² (so it overshoots a level-off as ArduPlane
   does). Take-off as measured on ArduPlane SITL: a ground roll on the current heading, then a full-throttle
   climb straight ahead (see :meth:`FlightModel.takeoff_roll` and :meth:`FlightModel.climb_straight`);
@@ -21,6 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from companion.mavlink.vehicle_limits import ARDUPLANE_TURN_EFFICIENCY
 from planner.world.config import G0, VehicleLimits
 
 COPTER_CLIMB_RATE = 2.5  # m/s, WPNAV_SPEED_UP
@@ -31,9 +38,14 @@ COPTER_CLIMB_ACCEL = 1.0  # m/s², vertical acceleration of a copter climb (SITL
 COPTER_CLIMB_DECEL = 0.55  # m/s², the slow-down before the target altitude (SITL: 2.15 m/s 4 m below it)
 COPTER_MIN_CLIMB = 0.3  # m/s, the slowest final approach of a climb
 PLANE_LOITER_RADIUS = 80.0  # m, WP_LOITER_RAD of SITL's plane.parm (ArduPlane's own default is 60)
-# ArduPlane flies its loiter circles wider than asked: WP_LOITER_RAD 80 m was flown at 96.7 m and a DO_REPOSITION
-# radius of 120 m at 135.5 m on SITL (test_hold_turn.py)
-PLANE_CIRCLE_WIDENING_M = 16.0
+PLANE_L1_PERIOD_S = 15.0  # s, NAVL1_PERIOD of SITL's plane.parm (ArduPlane's own default is 17)
+PLANE_L1_DAMPING = 0.75  # NAVL1_DAMPING (ArduPlane's default)
+PLANE_ROLL_TCONST_S = 0.25  # s, RLL2SRV_TCONST of SITL's plane.parm: the bank follows its demand with this lag
+# SITL's plane turns at ARDUPLANE_TURN_EFFICIENCY of the rate its bank implies (g·tan φ / v). Fitted: with 0.58 the
+# L1 law above carries the plane 37 m past the new leg after a 90° turn at 20 m/s (SITL 34-39 m) and flies an 80 m
+# loiter at 96.7 m and a 120 m one at 132 m (SITL 96.8 m and 135.5 m); at 1.0 it would be 17 m, 80 m and 120 m
+PLANE_TURN_EFFICIENCY = ARDUPLANE_TURN_EFFICIENCY
+L1_MAX_SINE_ETA1 = 0.7071  # the track's L1 point is at most 45° off the track (ArduPlane caps sin η1 there)
 ALT_GAIN = 0.5  # 1/s, altitude error → commanded vertical rate (then limited)
 PLANE_SPEED_ACCEL = 2.0  # m/s², SITL: 27.4 → 21.0 m/s in 3.3 s, once over the top of the take-off overshoot
 PLANE_CLIMBING_VZ = 1.0  # m/s: still climbing this fast after take-off, a plane does not slow down yet
@@ -70,7 +82,8 @@ class VehicleState:
     speed: float = 0.0  # horizontal ground speed, m/s
     vz: float = 0.0  # up, m/s
     on_ground: bool = True
-    turn_rate: float = 0.0  # rad/s, clockwise, of the last step (a plane's bank follows from it)
+    turn_rate: float = 0.0  # rad/s, clockwise, of the last step
+    bank: float = 0.0  # rad, right wing down positive (a plane's; a copter's stays 0)
 
     @property
     def vx(self) -> float:
@@ -90,6 +103,7 @@ class FlightModel:
         self.state = VehicleState(heading=heading)
         self.target_speed = vehicle.cruise_speed
         self._after_takeoff = False  # climbing on after a take-off: no slowing down yet
+        self.on_circle = False  # the last :meth:`circle` step flew the circle itself (not its capture)
 
     # --- limits ---------------------------------------------------------------------------------------------
 
@@ -100,13 +114,24 @@ class FlightModel:
     def _max_vz(self) -> float:
         return max(self.airborne_speed * math.tan(self.vehicle.max_climb), 0.5)
 
-    def _turn_towards(self, desired: float, dt: float) -> None:
+    def _l1_distance(self) -> float:
+        """L1 = ζ·P·v/π (m): how far ahead on the track the guidance aims."""
+        return max(PLANE_L1_DAMPING * PLANE_L1_PERIOD_S * max(self.state.speed, 1.0) / math.pi, 1.0)
+
+    def _towards(self, eta: float) -> float:
+        """The L1 lateral acceleration (m/s², right positive) for a point ``eta`` rad off the velocity."""
+        eta = max(-0.5 * math.pi, min(0.5 * math.pi, eta))
+        return 4.0 * PLANE_L1_DAMPING**2 * self.state.speed**2 / self._l1_distance() * math.sin(eta)
+
+    def _steer(self, lateral: float, dt: float) -> None:
+        """Bank towards the demand ``lateral`` (m/s², right positive; limited to the max bank), with the roll
+        lag, and turn at the rate that bank gives this plane."""
         s = self.state
-        rate = G0 * math.tan(self.vehicle.max_bank) / max(s.speed, 1.0)
-        err = wrap_pi(desired - s.heading)
-        turn = max(-rate * dt, min(rate * dt, err))
-        s.heading = wrap_pi(s.heading + turn)
-        s.turn_rate = turn / dt
+        limit = self.vehicle.max_bank
+        demand = max(-limit, min(limit, math.atan(lateral / G0)))
+        s.bank += (demand - s.bank) * min(dt / PLANE_ROLL_TCONST_S, 1.0)
+        s.turn_rate = PLANE_TURN_EFFICIENCY * G0 * math.tan(s.bank) / max(s.speed, 1.0)
+        s.heading = wrap_pi(s.heading + s.turn_rate * dt)
 
     def _hold_altitude(self, z_target: float, dt: float) -> None:
         s = self.state
@@ -131,6 +156,7 @@ class FlightModel:
         s = self.state
         if not turning:
             s.turn_rate = 0.0
+            s.bank = 0.0
         s.x += s.vx * dt
         s.y += s.vy * dt
         s.z += s.vz * dt
@@ -191,8 +217,8 @@ class FlightModel:
         self._advance(dt)
 
     def fly_to(self, target: tuple[float, float, float], origin: tuple[float, float] | None, dt: float) -> None:
-        """Towards ``target``: a plane follows the track origin→target with a look-ahead point, turning at its
-        bank-limited rate; a copter points directly at it and stops there."""
+        """Towards ``target``: a plane follows the track origin→target by the L1 law (without an origin, or on a
+        track shorter than a metre: it heads for the target); a copter points directly at it and stops there."""
         s = self.state
         s.on_ground = False
         tx, ty, tz = target
@@ -203,14 +229,14 @@ class FlightModel:
                 ox, oy = origin
                 lx, ly = tx - ox, ty - oy
                 length = math.hypot(lx, ly)
-                if length > 1.0:
+                if length > 1.0:  # the L1 point: on the track, L1 from the vehicle, at most 45° off the track
                     ux, uy = lx / length, ly / length
                     along = (s.x - ox) * ux + (s.y - oy) * uy
-                    lookahead = max(2.0 * self.vehicle.cruise_speed**2 / (G0 * math.tan(self.vehicle.max_bank)),
-                                    2.0 * s.speed)
-                    ahead = min(max(along, 0.0) + lookahead, length)
+                    l1 = self._l1_distance()
+                    off = min(abs((s.x - ox) * uy - (s.y - oy) * ux), L1_MAX_SINE_ETA1 * l1)
+                    ahead = along + math.sqrt(l1 * l1 - off * off)
                     aim_x, aim_y = ox + ux * ahead, oy + uy * ahead
-            self._turn_towards(bearing(aim_x - s.x, aim_y - s.y), dt)
+            self._steer(self._towards(wrap_pi(bearing(aim_x - s.x, aim_y - s.y) - s.heading)), dt)
             self._hold_altitude(tz, dt)
             self._advance(dt, turning=True)
             return
@@ -226,19 +252,31 @@ class FlightModel:
 
     def circle(self, centre: tuple[float, float], radius: float, z_target: float, clockwise: bool,
                dt: float) -> None:
-        """Plane: circle ``centre`` at ``radius``; copter: hold over the centre."""
+        """Plane: circle ``centre`` at ``radius`` by the L1 loiter law: from outside, the L1 capture of the centre
+        until the circle's own demand (a PD law on the radius error and the radial speed, plus the centripetal
+        term) turns harder; copter: hold over the centre. Sets :attr:`on_circle` (ArduPlane's "loiter target
+        reached", which starts a loiter's timer)."""
         s = self.state
         if not self.is_plane:
             self.fly_to((centre[0], centre[1], z_target), None, dt)
             return
         self._cruise(dt)
-        radius = max(radius + PLANE_CIRCLE_WIDENING_M, self.vehicle.min_turn_radius)
+        side = 1.0 if clockwise else -1.0
         cx, cy = centre
-        d = math.hypot(s.x - cx, s.y - cy)
-        theta = bearing(s.x - cx, s.y - cy)  # where we are, seen from the centre
-        correction = math.atan((d - radius) / max(0.5 * radius, 20.0))
-        desired = theta + math.pi / 2 + correction if clockwise else theta - math.pi / 2 - correction
-        self._turn_towards(desired, dt)
+        rx, ry = s.x - cx, s.y - cy
+        d = math.hypot(rx, ry)
+        ux, uy = (rx / d, ry / d) if d > 0.1 else (-math.sin(s.heading), -math.cos(s.heading))
+        omega = 2.0 * math.pi / PLANE_L1_PERIOD_S
+        outward = s.vx * ux + s.vy * uy  # radial speed
+        tangential = side * (s.vx * uy - s.vy * ux)  # along the circle, in its direction
+        error = d - radius
+        pd = error * omega**2 + outward * 2.0 * PLANE_L1_DAMPING * omega
+        if outward > 0.0 and tangential < 0.0:  # flying out the wrong way round: never steer away from the centre
+            pd = max(pd, 0.0)
+        on_circle = side * (pd + tangential**2 / max(0.5 * radius, d))
+        capture = self._towards(wrap_pi(bearing(-rx, -ry) - s.heading))
+        self.on_circle = not (error > 0.0 and side * capture < side * on_circle)
+        self._steer(on_circle if self.on_circle else capture, dt)
         self._hold_altitude(z_target, dt)
         self._advance(dt, turning=True)
 

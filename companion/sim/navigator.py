@@ -163,8 +163,7 @@ class Loiter(NavTask):
         s = model.state
         cx, cy, cz = self.centre
         model.circle((cx, cy), self.radius, cz, self.clockwise, dt)
-        dist = math.hypot(s.x - cx, s.y - cy)
-        arrived = dist <= (max(self.radius, model.vehicle.min_turn_radius) + 10.0 if model.is_plane else 2.0)
+        arrived = model.on_circle if model.is_plane else math.hypot(s.x - cx, s.y - cy) <= 2.0
         if self._elapsed is None and arrived:
             self._elapsed = 0.0
         if self._elapsed is not None:

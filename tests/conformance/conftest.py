@@ -63,7 +63,7 @@ try:
 except ImportError:  # companion.mavlink.telemetry not there yet: ask ArduPilot for every stream group ourselves
     request_rates = None
 from planner.world.home import Home
-from planner.world.scenario import load_scenario
+from planner.world.scenario import Scenario, load_scenario
 
 STATIC = Path(__file__).resolve().parents[2] / "sitl_scenarios" / "rescue_static.toml"
 HOME: Home = load_scenario(STATIC).home  # -35.363261, 149.165230, 584 m
@@ -247,8 +247,19 @@ SIM_AS_SITL = {"boot_s": None, "ready_after_s": None, "streams_unasked": None, "
                "wait_for_client": True}
 
 
+SITL_PLANE_ROLL_LIMIT_DEG = 65.0  # ROLL_LIMIT_DEG of SITL's plane.parm: the simulator flies the same bank limit
+
+
 def _sim_as_sitl() -> dict[str, Any]:
     return dict(SIM_AS_SITL)
+
+
+def _sim_scenario(vehicle: str) -> Scenario:
+    """rescue_static as the simulator flies it here: a plane with SITL's roll limit (the scenario says 45°)."""
+    scenario = load_scenario(STATIC)
+    if vehicle != "plane":
+        return scenario
+    return replace(scenario, vehicle=replace(scenario.vehicle, max_bank_deg=SITL_PLANE_ROLL_LIMIT_DEG))
 
 
 @contextlib.asynccontextmanager
@@ -261,7 +272,7 @@ async def connect(backend: str, sitl_factory: Callable[..., SitlInstance] | None
     sim = sitl = None
     try:
         if kind == "sim":
-            sim = SimAutopilot(load_scenario(STATIC), "tcp:127.0.0.1:0", speedup=SPEEDUP, vehicle=vehicle,
+            sim = SimAutopilot(_sim_scenario(vehicle), "tcp:127.0.0.1:0", speedup=SPEEDUP, vehicle=vehicle,
                                **_sim_as_sitl())
             await sim.start()
             url = f"tcp:127.0.0.1:{sim.port}"

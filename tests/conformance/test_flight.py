@@ -43,6 +43,9 @@ PLANE_ALT, COPTER_ALT = 50.0, 20.0
 PLANE_ROUTE = ((450.0, 0.0, 30.0), (450.0, 250.0, 60.0), (200.0, 250.0, 30.0))  # north m, east m, param2 m
 COPTER_ROUTE = ((150.0, 0.0), (150.0, 150.0), (0.0, 150.0))
 PLANE_LOITER_RADIUS = 60.0
+# ArduPlane flies a loiter wider than its radius (its L1 loiter law): 60 m was flown 77.3-78.6 m from the point
+# on SITL at 10x (the simulator, flying the same law: 76.3-81.5 m)
+PLANE_LOITER_FLOWN_M, PLANE_LOITER_FLOWN_TOLERANCE_M = 78.0, 6.0
 AUTO = {True: 10, False: 3}  # custom mode, by plane
 RTL_PLANE = 11
 PLANE_TOLERANCE_M = 5.0  # |distance at REACHED - param2|: ArduPlane checks at 10 Hz, positions are ≤ 0.1 s old
@@ -214,7 +217,7 @@ async def test_waypoints_are_reached_at_the_acceptance_radius(loiter_flight, ope
 # ------------------------------------------------------------------------------------------------ the end
 async def test_final_loiter_unlim_keeps_the_vehicle_there_in_auto(loiter_flight, measure) -> None:
     """After a final NAV_LOITER_UNLIM the mission does not end: mode stays AUTO (armed), the loiter item stays
-    current, a plane circles it at its radius (param3), a copter holds over it."""
+    current, a plane circles it (wider than its radius, param3, as ArduPlane does), a copter holds over it."""
     flight = loiter_flight
     _flown(flight)
     loiter = flight.items[-1]
@@ -228,7 +231,7 @@ async def test_final_loiter_unlim_keeps_the_vehicle_there_in_auto(loiter_flight,
     measure(f"loitering {min(distances):.1f}-{max(distances):.1f} m from the loiter point (radius "
             f"{loiter.param3:g}), {min(alts):.1f}-{max(alts):.1f} m up")
     if flight.plane:
-        assert all(abs(d - PLANE_LOITER_RADIUS) <= 20.0 for d in distances)
+        assert all(abs(d - PLANE_LOITER_FLOWN_M) <= PLANE_LOITER_FLOWN_TOLERANCE_M for d in distances)
     else:
         assert max(distances) <= 3.0
     assert all(abs(a - loiter.z) <= 5.0 for a in alts)

@@ -11,12 +11,13 @@ import numpy as np
 from companion.replanning.holds import (
     FLOWN_WIDER_M,
     HOLD_MARGIN_M,
+    TIGHT_HOLD_MARGIN_M,
     circle_traffic_separation,
     copter_hold,
     plane_hold,
 )
 from planner.trajectory.checks import obstacle_distances
-from planner.world.environment import Threat, Threats
+from planner.world.environment import Cylinders, Environment, Threat, Threats
 from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -192,3 +193,26 @@ def test_a_turn_flown_wide_with_its_item_taken_late_is_one_of_the_paths_checked(
 
     assert clearance(36.6, 20.0) > 10.0
     assert clearance(1.6 * 36.6, 20.0) < 10.0
+
+
+def _walls(gap: float) -> Environment:
+    """Two rows of 30 m cylinders either side of a plane flying north up x = 500: its 80 m circles, flown 20 m
+    wider, clear them by ``gap``."""
+    ys = np.arange(0.0, 1001.0, 40.0)
+    xs = [500.0 + s * (80.0 + FLOWN_WIDER_M + 80.0 + gap + 30.0) for s in (-1.0, 1.0)]
+    x = np.concatenate([np.full(ys.size, xs[0]), np.full(ys.size, xs[1])])
+    y = np.concatenate([ys, ys])
+    n = x.size
+    return Environment(1000.0, 1000.0, 50.0, 300.0, cylinders=Cylinders(x, y, np.full(n, 30.0), np.full(n, np.inf),
+                                                                     np.zeros(n)))
+
+
+def test_with_no_circle_clear_by_the_whole_margin_the_clearest_one_clear_by_the_tight_margin_is_held() -> None:
+    """A plane flying on into a conflict is worse than a circle 3 m short of the hold margin: the clearest circle
+    that keeps d_coll + TIGHT_HOLD_MARGIN_M is held; with none that does, there is no hold."""
+    here, v = np.array([500.0, 200.0, 100.0]), np.array([0.0, 20.0])
+    gap = D_COLL + HOLD_MARGIN_M - 3.0  # between the tight margin and the whole one
+    hold = plane_hold(here, v, 80.0, _walls(gap), D_COLL, 20.0)
+    assert hold is not None and D_COLL + TIGHT_HOLD_MARGIN_M <= hold.clearance_m < D_COLL + HOLD_MARGIN_M
+    assert abs(hold.clearance_m - gap) < 1.0
+    assert plane_hold(here, v, 80.0, _walls(D_COLL + TIGHT_HOLD_MARGIN_M - 2.0), D_COLL, 20.0) is None
