@@ -33,6 +33,7 @@ from companion.mavlink.telemetry import TelemetryRates
 from companion.mavlink.vehicle_limits import (
     AutopilotLimits,
     limits_from,
+    overshoot_override,
     parameter_names,
 )
 from companion.mission import picture
@@ -162,8 +163,8 @@ def as_planned(plan_doc: dict[str, Any], scenario: Scenario) -> Scenario:
     """The scenario with the vehicle's turn allowance the plan was made with (PLAN.json ``vehicle.turn_overshoot``;
     `plan`, `fly` and `export` add it for a plane, the scenario file need not say it), so that the check against
     the autopilot and every replan use what the plan allowed."""
-    swing = (plan_doc.get("vehicle") or {}).get("turn_overshoot") if isinstance(plan_doc.get("vehicle"), dict) \
-        else None
+    vehicle = plan_doc.get("vehicle")
+    swing = vehicle.get("turn_overshoot") if isinstance(vehicle, dict) else None
     if not isinstance(swing, (int, float)) or not math.isfinite(swing) or swing <= scenario.vehicle.turn_overshoot:
         return scenario
     return dataclasses.replace(scenario, vehicle=dataclasses.replace(scenario.vehicle, turn_overshoot=float(swing)))
@@ -186,7 +187,7 @@ async def _plan_within(plan_doc: dict[str, Any], scenario: Scenario, limits: Aut
             stricter.append(f"vehicle.max_climb_deg={math.floor(climb * 10) / 10:g}")
     swing = limits.turn_overshoot(v.cruise_speed)  # at the speed the mission sets (DO_CHANGE_SPEED)
     if v.turn_overshoot < swing - 0.05:  # its path-follower swings wider than the plan allows
-        stricter.append(f"vehicle.turn_overshoot={math.ceil(swing * 10) / 10:g}")
+        stricter.append(overshoot_override(swing))
     if not stricter:
         return plan_doc, scenario
     events.log("plan_beyond_vehicle", overrides=stricter, plan_again=opts.plan_again is not None)

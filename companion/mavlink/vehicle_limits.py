@@ -101,7 +101,7 @@ class AutopilotLimits:
         if self.vehicle_type != "plane":
             return 0.0
         v = self.cruise_speed if speed is None else speed
-        l1 = self.l1_damping * self.l1_period_s * v / math.pi
+        l1 = l1_distance(v, self.l1_period_s, self.l1_damping)
         return max(l1 / (4.0 * self.l1_damping**2), self.turn_radius)
 
     def turn_overshoot(self, speed: float | None = None) -> float:
@@ -132,10 +132,20 @@ class AutopilotLimits:
         return d
 
 
+def l1_distance(speed: float, period_s: float = ARDUPLANE_L1_PERIOD_S, damping: float = ARDUPLANE_L1_DAMPING) -> float:
+    """L1 = ζ·P·v/π (m): how far ahead on its track ArduPlane's L1 law aims."""
+    return damping * period_s * speed / math.pi
+
+
 def l1_overshoot(cruise_speed: float, period_s: float = ARDUPLANE_L1_PERIOD_S,
                  damping: float = ARDUPLANE_L1_DAMPING) -> float:
-    """ArduPlane's swing past a new leg, m per radian of turn: :data:`OVERSHOOT_PER_L1` of L1 = ζ·P·v/π."""
-    return OVERSHOOT_PER_L1 * damping * period_s * cruise_speed / math.pi
+    """ArduPlane's swing past a new leg, m per radian of turn: :data:`OVERSHOOT_PER_L1` of :func:`l1_distance`."""
+    return OVERSHOOT_PER_L1 * l1_distance(cruise_speed, period_s, damping)
+
+
+def overshoot_override(swing: float) -> str:
+    """The ``--set`` override that plans with ``swing`` m per radian, rounded up to 0.1 (never below it)."""
+    return f"vehicle.turn_overshoot={math.ceil(swing * 10) / 10:g}"
 
 
 def flight_overrides(vehicle: VehicleLimits) -> list[str]:
@@ -143,7 +153,7 @@ def flight_overrides(vehicle: VehicleLimits) -> list[str]:
     follower that swings past each new leg, so its plan allows at least ArduPlane's default swing at the plan's
     speed (an autopilot that swings wider is found at connect, and the plan made again)."""
     need = l1_overshoot(vehicle.cruise_speed) if vehicle.type == "plane" else 0.0
-    return [f"vehicle.turn_overshoot={math.ceil(need * 10) / 10:g}"] if vehicle.turn_overshoot < need else []
+    return [overshoot_override(need)] if vehicle.turn_overshoot < need else []
 
 
 def limits_from(params: Mapping[str, float], autopilot: str, vehicle: VehicleLimits,

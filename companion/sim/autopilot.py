@@ -27,8 +27,9 @@ from pymavlink.dialects.v20 import ardupilotmega as mavlink
 from companion.mavlink.items import FENCE, FRAME_GLOBAL, MISSION, RALLY, MissionItem
 from companion.mavlink.signing import SigningKey
 from companion.mavlink.storage import Firmware
+from companion.mavlink.vehicle_limits import ARDUPLANE_L1_DAMPING
 from companion.sim import streams
-from companion.sim.flight_model import PLANE_L1_DAMPING, PLANE_L1_PERIOD_S, PLANE_LOITER_RADIUS, FlightModel, wrap_pi
+from companion.sim.flight_model import PLANE_L1_PERIOD_S, PLANE_LOITER_RADIUS, FlightModel, wrap_pi
 from companion.sim.intruders import IntruderTrack, adsb_report
 from companion.sim.mission_server import MAX_ITEMS, MissionServer, is_nav
 from companion.sim.navigator import (
@@ -90,7 +91,7 @@ def vehicle_params(limits: VehicleLimits) -> dict[str, float]:
     if limits.type == "plane":
         return {"ROLL_LIMIT_DEG": limits.max_bank_deg, "AIRSPEED_CRUISE": limits.cruise_speed,
                 "WP_RADIUS": limits.acceptance_radius, "WP_LOITER_RAD": PLANE_DEFAULT_LOITER_RAD,
-                "NAVL1_PERIOD": PLANE_L1_PERIOD_S, "NAVL1_DAMPING": PLANE_L1_DAMPING}
+                "NAVL1_PERIOD": PLANE_L1_PERIOD_S, "NAVL1_DAMPING": ARDUPLANE_L1_DAMPING}
     return {"WPNAV_SPEED": limits.cruise_speed * 100.0, "WPNAV_RADIUS": 200.0, "WPNAV_ACCEL": 250.0}
 
 

@@ -7,7 +7,7 @@ vertical rate. The limits come from :class:`planner.world.config.VehicleLimits`:
   a lateral acceleration of 4ζ²·v²/L1·sin η towards a point L1 = ζ·P·v/π ahead on the track, or on a loiter
   circle a PD law on the radius error plus the centripetal term), with NAVL1_PERIOD P and damping ζ of SITL's
   plane.parm. The bank follows that demand (limited to the max bank) with a lag, and the plane turns at
-  :data:`PLANE_TURN_EFFICIENCY` of the rate g·tan(bank)/v: fitted to ArduPlane SITL, this one law gives its 90°
+  ARDUPLANE_TURN_EFFICIENCY of the rate g·tan(bank)/v: fitted to ArduPlane SITL, this one law gives its 90°
   turn (carried 34-39 m past the new leg) and its circles (80 m flown at 96.8 m, 120 m at 135.5 m;
   tests/conformance/test_hold_turn.py). Climb/descent ≤ v·tan(max climb), never hovers (it circles instead);
   speed changes at most 1.3 m/s² and vertical rate at most 3.7 m/s² (so it overshoots a level-off as ArduPlane
@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from companion.mavlink.vehicle_limits import ARDUPLANE_TURN_EFFICIENCY
+from companion.mavlink.vehicle_limits import ARDUPLANE_L1_DAMPING, ARDUPLANE_TURN_EFFICIENCY, l1_distance
 from planner.world.config import G0, VehicleLimits
 
 COPTER_CLIMB_RATE = 2.5  # m/s, WPNAV_SPEED_UP
@@ -39,12 +39,11 @@ COPTER_CLIMB_DECEL = 0.55  # m/s², the slow-down before the target altitude (SI
 COPTER_MIN_CLIMB = 0.3  # m/s, the slowest final approach of a climb
 PLANE_LOITER_RADIUS = 80.0  # m, WP_LOITER_RAD of SITL's plane.parm (ArduPlane's own default is 60)
 PLANE_L1_PERIOD_S = 15.0  # s, NAVL1_PERIOD of SITL's plane.parm (ArduPlane's own default is 17)
-PLANE_L1_DAMPING = 0.75  # NAVL1_DAMPING (ArduPlane's default)
 PLANE_ROLL_TCONST_S = 0.25  # s, RLL2SRV_TCONST of SITL's plane.parm: the bank follows its demand with this lag
 # SITL's plane turns at ARDUPLANE_TURN_EFFICIENCY of the rate its bank implies (g·tan φ / v). Fitted: with 0.58 the
 # L1 law above carries the plane 37 m past the new leg after a 90° turn at 20 m/s (SITL 34-39 m) and flies an 80 m
-# loiter at 96.7 m and a 120 m one at 132 m (SITL 96.8 m and 135.5 m); at 1.0 it would be 17 m, 80 m and 120 m
-PLANE_TURN_EFFICIENCY = ARDUPLANE_TURN_EFFICIENCY
+# loiter at 96.7 m and a 120 m one at 132 m (SITL 96.8 m and 135.5 m); at 1.0 it would be 17 m, 80 m and 120 m.
+# NAVL1_DAMPING is ArduPlane's default (ARDUPLANE_L1_DAMPING) in SITL's plane.parm too.
 L1_MAX_SINE_ETA1 = 0.7071  # the track's L1 point is at most 45° off the track (ArduPlane caps sin η1 there)
 ALT_GAIN = 0.5  # 1/s, altitude error → commanded vertical rate (then limited)
 PLANE_SPEED_ACCEL = 2.0  # m/s², SITL: 27.4 → 21.0 m/s in 3.3 s, once over the top of the take-off overshoot
@@ -116,12 +115,12 @@ class FlightModel:
 
     def _l1_distance(self) -> float:
         """L1 = ζ·P·v/π (m): how far ahead on the track the guidance aims."""
-        return max(PLANE_L1_DAMPING * PLANE_L1_PERIOD_S * max(self.state.speed, 1.0) / math.pi, 1.0)
+        return max(l1_distance(max(self.state.speed, 1.0), PLANE_L1_PERIOD_S, ARDUPLANE_L1_DAMPING), 1.0)
 
     def _towards(self, eta: float) -> float:
         """The L1 lateral acceleration (m/s², right positive) for a point ``eta`` rad off the velocity."""
         eta = max(-0.5 * math.pi, min(0.5 * math.pi, eta))
-        return 4.0 * PLANE_L1_DAMPING**2 * self.state.speed**2 / self._l1_distance() * math.sin(eta)
+        return 4.0 * ARDUPLANE_L1_DAMPING**2 * self.state.speed**2 / self._l1_distance() * math.sin(eta)
 
     def _steer(self, lateral: float, dt: float) -> None:
         """Bank towards the demand ``lateral`` (m/s², right positive; limited to the max bank), with the roll
@@ -130,7 +129,7 @@ class FlightModel:
         limit = self.vehicle.max_bank
         demand = max(-limit, min(limit, math.atan(lateral / G0)))
         s.bank += (demand - s.bank) * min(dt / PLANE_ROLL_TCONST_S, 1.0)
-        s.turn_rate = PLANE_TURN_EFFICIENCY * G0 * math.tan(s.bank) / max(s.speed, 1.0)
+        s.turn_rate = ARDUPLANE_TURN_EFFICIENCY * G0 * math.tan(s.bank) / max(s.speed, 1.0)
         s.heading = wrap_pi(s.heading + s.turn_rate * dt)
 
     def _hold_altitude(self, z_target: float, dt: float) -> None:
@@ -270,7 +269,7 @@ class FlightModel:
         outward = s.vx * ux + s.vy * uy  # radial speed
         tangential = side * (s.vx * uy - s.vy * ux)  # along the circle, in its direction
         error = d - radius
-        pd = error * omega**2 + outward * 2.0 * PLANE_L1_DAMPING * omega
+        pd = error * omega**2 + outward * 2.0 * ARDUPLANE_L1_DAMPING * omega
         if outward > 0.0 and tangential < 0.0:  # flying out the wrong way round: never steer away from the centre
             pd = max(pd, 0.0)
         on_circle = side * (pd + tangential**2 / max(0.5 * radius, d))

@@ -12,10 +12,10 @@ from conformance.conftest import home_item, numbered, ready, takeoff, waypoint
 from conformance.test_hold_turn import _track_until, change_speed
 
 from companion.mavlink.vehicle_limits import l1_overshoot
+from companion.sim.flight_model import PLANE_L1_PERIOD_S  # SITL's NAVL1_PERIOD (plane.parm), flown by both
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 ALT = 60.0
-SITL_L1_PERIOD_S = 15.0  # NAVL1_PERIOD of SITL's plane.parm, which the simulator flies too
 
 
 @pytest.mark.parametrize("turn_deg", [21.0, 45.0])
@@ -50,6 +50,6 @@ async def test_a_small_turn_swings_outside_no_further_than_plans_allow(backend, 
     measure(f"{turn_deg:g} deg right turn at 18 m/s: cross-track after the corner min {cross[after].min():.1f} "
             f"max {cross[after].max():.1f} m (left/outside negative)")
     swing = -float(cross[after].min())
-    allowed = l1_overshoot(18.0, SITL_L1_PERIOD_S) * a
+    allowed = l1_overshoot(18.0, PLANE_L1_PERIOD_S) * a
     measure(f"… allowed {allowed:.1f} m")
     assert 0.5 * allowed < swing <= allowed
