@@ -193,20 +193,26 @@ def warm_starts(tail: np.ndarray, offsets_m: Sequence[float], n_points: int = 10
 
 def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, threats: Threats,
                    start_time: float, speed: float | None = None,
-                   heading: np.ndarray | None = None, threat_margin: float = 0.0) -> PlanningProblem:
+                   heading: np.ndarray | None = None, threat_margin: float = 0.0,
+                   static_margin: float = 0.0) -> PlanningProblem:
     """The scenario's static world with the current threat picture, from ``start`` to ``goal``, flown from
     mission time ``start_time`` (time-aware threats, docs/method.md §4.6) at ``speed`` (default: the scenario's cruise
     speed; the replanner passes the vehicle's measured pace), arriving at ``start`` flying along ``heading`` (the
     turn onto the new route is held to the vehicle's limits: an autopilot overshoots a sharper one). Each threat's
     radius grows by ``threat_margin`` m: the replanner calls a route clear at d_coll + its margin, so a replan
-    that kept only d_coll would be a new conflict at once."""
+    that kept only d_coll would be a new conflict at once. ``static_margin`` m more are kept from everything: a
+    route planned from a hold is flown from the circle once its resume is checked, at d_coll + that margin."""
+    hazard = scenario.hazard
+    if static_margin:
+        d_coll = hazard.d_coll + static_margin
+        hazard = dataclasses.replace(hazard, d_coll=d_coll, d_safe=max(hazard.d_safe, d_coll))
     if threat_margin:
         threats = threats.grown(threat_margin)
     env = dataclasses.replace(scenario.environment, threats=threats)
     s = scenario.planner
     vehicle = scenario.vehicle if speed is None else dataclasses.replace(scenario.vehicle, cruise_speed=speed)
     return PlanningProblem(env, np.asarray(start, dtype=float), np.asarray(goal, dtype=float), vehicle,
-                           scenario.hazard, s.weights, s.penalty, start_time, heading)
+                           hazard, s.weights, s.penalty, start_time, heading)
 
 
 def replan_settings(settings: PlannerSettings, cfg: ReplanConfig) -> PlannerSettings:

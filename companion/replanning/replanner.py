@@ -101,11 +101,11 @@ FLOWN_CHECK_DT_S = 0.5  # vehicle seconds between the points of a plan's flown p
 HOLD_CHECK_WALL_S = 0.5  # wall seconds between two looks for a hold pattern after none was found, and between
 # two traffic checks of the circle being held (each takes CPU the planner needs: under load, 30 a second)
 RESUME_HORIZON_S = 20.0  # vehicle seconds of the path flown on resuming that are checked
-# m beyond d_coll that what a plane flies on resuming must clear: less than a hold's (HOLD_MARGIN_M), as its roll-out
-# from the circle is predicted (_rolling_out) and the route was planned with its turns' swing (turn_overshoot). With
-# the hold's 10 m, the simulator's plane circled for 120 replans: every route planned from the circle kept d_coll plus
-# its own allowance, 19.1-20.0 m from a cylinder, and was refused at 20 m
-RESUME_MARGIN_M = 5.0
+# m beyond d_coll that what a plane flies on resuming must clear, as a hold's: with 5 m, a plane resumed on ArduPlane
+# SITL (under load) came 7.2 m from a cylinder the check had passed at 15 m; with 10 m the simulator's plane once
+# circled through 120 replans, every route planned from its circle 19.1-20.0 m from a cylinder (before holds took
+# circles a little short of their margin and kept the route where it kept the traffic further; docs/design.md)
+RESUME_MARGIN_M = HOLD_MARGIN_M
 RESUME_ROLL_OUT_S = 3.0  # vehicle seconds a plane held on a circle may circle on after its resume is checked
 # how much wider than its path-follower's bound (AutopilotLimits.wide_turn_radius) a plane may turn (_flown_paths,
 # and onto a hold circle): resuming, ArduPlane SITL at 23.5 m/s turned back from a hold at 58 m against the L1
@@ -619,8 +619,11 @@ class LiveReplanner:
         # the way the vehicle will fly through the commit point (along the old route; held: its own track), so the
         # new route cannot begin with a turn it cannot fly (a hairpin there carried SITL's plane 29-38 m into a
         # cylinder); now that holds are checked, a plan that fails for it holds safely (docs/design.md)
+        # held on a circle, the route is planned with the margin its resume will be checked with (leg_blocked):
+        # planned with d_coll alone, every route from one circle was refused on resuming, for 197 replans
+        resumed = RESUME_MARGIN_M if self.holding is not None and self.link.profile.hold_circles else 0.0
         problem = replan_problem(self.scenario, cp.point, self.route.goal, threats, cp.t, self.speed,
-                                 heading=self._start_heading(cp), threat_margin=cfg.margin_m)
+                                 heading=self._start_heading(cp), threat_margin=cfg.margin_m, static_margin=resumed)
         settings = replan_settings(self.scenario.planner, cfg)
         rec.budget_s = budget
         t0 = time.monotonic()
@@ -631,7 +634,8 @@ class LiveReplanner:
         plan = asyncio.create_task(worker.plan(problem, settings, [self.seed, rec.n], seeds, budget),
                                    name="replan-plan")
         await self._guarded(plan, cp.first_new_seq, self._guard_threshold_s(),
-                            "the plan is late: the vehicle could reach the commit point before it is ready", rec)
+                            "the plan is late: the vehicle could reach the commit point before it is ready", rec,
+                            route_separation=rec.sep_before_m)
         job = plan.result()
         rec.plan_s = round(time.monotonic() - t0, 3)
         rec.plan_status = status = job.status
@@ -762,18 +766,19 @@ class LiveReplanner:
         return v / n if n > 1e-6 else None
 
     async def _guarded(self, task: asyncio.Task, first_new_seq: int, threshold_s: float, reason: str,
-                       rec: ReplanRecord) -> None:
+                       rec: ReplanRecord, route_separation: float | None = None) -> None:
         """Wait for ``task`` (a plan or an upload) watching the vehicle meanwhile: hold it, saying ``reason``,
         once it could step into item ``first_new_seq`` or a later one within ``threshold_s`` of vehicle time
-        while the task still runs. On any exception (a cancel included) the task is cancelled first."""
+        while the task still runs (``route_separation``: see :meth:`hold`). On any exception (a cancel included)
+        the task is cancelled first."""
         try:
             while not task.done():
                 await asyncio.wait({task}, timeout=0.01)
                 self._pump()
                 if self.holding is None and not task.done() and \
                         self._eta_leave_prefix(first_new_seq) < threshold_s:
-                    await self.hold(reason)
-                    rec.held = True
+                    await self.hold(reason, route_separation)
+                    rec.held = rec.held or self.holding is not None
         except BaseException:
             task.cancel()
             await asyncio.gather(task, return_exceptions=True)
@@ -976,8 +981,11 @@ class LiveReplanner:
         await self.client.command_long(mavlink.MAV_CMD_DO_SET_MODE, *self.link.profile.set_mode_params(custom))
         self.custom_mode = custom  # accepted; the next HEARTBEAT will say so too
 
-    async def hold(self, reason: str) -> None:
-        """Stop the vehicle advancing through its mission where it is (its profile's ``hold_mode``)."""
+    async def hold(self, reason: str, route_separation: float | None = None) -> None:
+        """Stop the vehicle advancing through its mission where it is (its profile's ``hold_mode``).
+        ``route_separation``: what the route it flies keeps from the traffic (m, predicted; a plan that is only
+        late): a circle keeping the traffic less far than that, and the route keeping d_coll, is no hold (on SITL,
+        a plan 4 s from an intruder the route passed at 23.9 m: the circle predicted at 22.8 m was flown at 5.0 m)."""
         if self.holding is not None:
             return
         if self.custom_mode is not None and self.custom_mode != self._number("AUTO"):
@@ -987,6 +995,14 @@ class LiveReplanner:
         if time.monotonic() - self._hold_refused_at < HOLD_CHECK_WALL_S:
             return  # just refused: checking again takes the CPU the planner needs (under load, 30 checks a second)
         pattern = self._checked_hold()
+        if pattern is not None and route_separation is not None \
+                and route_separation >= self.scenario.hazard.d_coll \
+                and pattern.traffic_separation_m < route_separation:
+            self._hold_refused_at = time.monotonic()
+            self.events.log("hold_refused", reason=reason, decision=(
+                f"the route keeps the traffic further ({route_separation:.1f} m) than the best hold "
+                f"({pattern.traffic_separation_m:.1f} m): the vehicle keeps flying it"))
+            return
         if pattern is None:
             # no circle clear of the obstacles and the traffic: the leg it flies was cleared when it was planned
             self._hold_refused_at = time.monotonic()
