@@ -28,6 +28,9 @@ AHEAD_STEP_M = 40.0  # centres tried this far apart along the track
 AHEAD_STEPS = 8
 HOLD_HORIZON_S = 60.0  # vehicle seconds of circling checked against traffic
 TRAFFIC_DT_S = 1.0
+# an exit whose route turns this much more than the best-aligned one's is taken if it comes sooner: a plane turns 30°
+# at its route's start in a few seconds, and circling on for the best one takes up to a whole circle (35 s on SITL)
+EXIT_TURN_DEG = 30.0
 
 
 @dataclass(frozen=True)
@@ -200,3 +203,46 @@ def copter_hold(position: np.ndarray, velocity: np.ndarray, stopping_distance: f
     run = np.linspace(p, p + direction * stopping_distance, 20)
     clearance, nearest = nearest_obstacle(run, env)
     return HoldPattern("brake", run[-1], 0.0, True, run, clearance, nearest, math.inf)
+
+
+@dataclass(frozen=True)
+class CircleExit:
+    """Where a plane circling a hold leaves it for a new route: ``point`` on the circle it flies, the unit
+    ``heading`` it flies there (the circle's tangent), and the ``arc_m`` it still circles to get there."""
+
+    point: np.ndarray
+    heading: np.ndarray
+    arc_m: float
+
+
+def circle_angle(p: np.ndarray, centre: np.ndarray) -> float:
+    """The angle (rad, from east, counter-clockwise) of ``p`` seen from ``centre``."""
+    return math.atan2(float(p[1] - centre[1]), float(p[0] - centre[0]))
+
+
+def arc_to(position: np.ndarray, centre: np.ndarray, clockwise: bool, angle: float) -> float:
+    """The angle (rad, in [0, 2π)) still to circle from ``position`` to the point at ``angle`` on the circle."""
+    turn = circle_angle(position, centre) - angle if clockwise else angle - circle_angle(position, centre)
+    return turn % (2.0 * math.pi)
+
+
+def circle_exit(position: np.ndarray, centre: np.ndarray, clockwise: bool, toward: np.ndarray,
+                min_arc_m: float) -> CircleExit:
+    """The exit from a hold circle (docs/design.md, "Leaving a hold"): the point, at least ``min_arc_m`` of
+    circling ahead of ``position``, whose tangent points most nearly at ``toward`` (the goal). The circle is the
+    one flown (its radius is the vehicle's distance from ``centre``: ArduPlane circles wider than asked), so the
+    new route starts where the plane will be, flying the way it will fly, and it is planned without a turn
+    the plane cannot make from its circle."""
+    r = max(float(np.linalg.norm(position[:2] - centre[:2])), 1.0)
+    sense = -1.0 if clockwise else 1.0
+    a0 = circle_angle(position, centre)
+    turns = np.linspace(0.0, 2.0 * math.pi, CIRCLE_POINTS, endpoint=False)
+    angles = a0 + sense * (min_arc_m / r + turns)
+    pts = centre[:2] + r * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    tangents = sense * np.stack([-np.sin(angles), np.cos(angles)], axis=1)
+    to = toward[:2] - pts
+    cos = np.einsum("ij,ij->i", tangents, to) / np.maximum(np.linalg.norm(to, axis=1), 1e-6)
+    off = np.arccos(np.clip(cos, -1.0, 1.0))
+    k = int(np.flatnonzero(off <= off.min() + math.radians(EXIT_TURN_DEG))[0])  # the nearest of the best-aligned
+    point = np.array([pts[k, 0], pts[k, 1], float(position[2])])
+    return CircleExit(point, np.array([tangents[k, 0], tangents[k, 1], 0.0]), min_arc_m + r * float(turns[k]))

@@ -34,7 +34,8 @@ class ReplanConfig:
     budget_s: float = 0.15  # wall seconds the planner may use for one replan
     # after a plan that was not safe, the next one for the same conflict gets twice the budget, up to this, when the
     # conflict is far enough off for the longer commit lead (a loaded machine gives the planner less of a core);
-    # never less than budget_s
+    # never less than budget_s. A plan made while the vehicle holds on a checked pattern gets it at once: nothing
+    # is flown into while it plans, and its route keeps a wider margin (replan_problem's static_margin)
     max_budget_s: float = 0.6
     population: int = 100  # swarm size for a replan (the scenario's other planner settings are kept)
     # replans run the roadmap pipeline (docs/method.md §15) whatever [planner.roadmap] says of the first route;

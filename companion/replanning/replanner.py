@@ -53,7 +53,11 @@ from companion.replanning.guard import GUARD_DT_S, first_breach, predict_own_pat
 from companion.replanning.holds import (
     FLOWN_WIDER_M,
     HOLD_MARGIN_M,
+    CircleExit,
     HoldPattern,
+    arc_to,
+    circle_angle,
+    circle_exit,
     circle_traffic_separation,
     copter_hold,
     flown_ring,
@@ -106,6 +110,16 @@ RESUME_HORIZON_S = 20.0  # vehicle seconds of the path flown on resuming that ar
 # circled through 120 replans, every route planned from its circle 19.1-20.0 m from a cylinder (before holds took
 # circles a little short of their margin and kept the route where it kept the traffic further; docs/design.md)
 RESUME_MARGIN_M = HOLD_MARGIN_M
+# vehicle seconds before the exit point of its hold circle that a plane is resumed onto the route planned from there
+# (ArduPlane rolls out of its bank over about a second), and the least time beyond planning and upload it circles
+# before the exit (docs/design.md, "Leaving a hold")
+EXIT_LEAD_S = 1.0
+EXIT_MARGIN_S = 3.0
+# m beyond d_coll the resume at a circle's exit is checked with (leg_blocked): its route was planned from there with
+# RESUME_MARGIN_M more than d_coll and its turns' swing, and, aligned with its first leg, the plane flies it with
+# little turn; the check's paths turn up to WIDE_TURNS times wider than the path-follower's bound, which is for
+# turning back from anywhere. Checked with a margin, exits were refused at 13.9-19.9 m and planned again, for good
+EXIT_CHECK_MARGIN_M = 0.0
 RESUME_ROLL_OUT_S = 3.0  # vehicle seconds a plane held on a circle may circle on after its resume is checked
 # how much wider than its path-follower's bound (AutopilotLimits.wide_turn_radius) a plane may turn (_flown_paths,
 # and onto a hold circle): resuming, ArduPlane SITL at 23.5 m/s turned back from a hold at 58 m against the L1
@@ -284,6 +298,10 @@ class LiveReplanner:
         self.hold_pattern: HoldPattern | None = None  # the checked pattern it holds on
         self.velocity = np.zeros(2)  # ENU m/s over the ground, from GLOBAL_POSITION_INT
         self._held_since: float | None = None  # mission time the current hold began
+        # a plane held on a circle leaves it where its new route starts: the exit being planned, then the exit
+        # planned (its point, the route item after it, the mission time it is due)
+        self._planning_exit: CircleExit | None = None
+        self._exit: tuple[CircleExit, int, float] | None = None
         self._last_replan = -math.inf  # mission time
         self._hold_refused_at = -math.inf  # wall time no checked hold pattern was found
         self._hold_checked_at = -math.inf  # wall time the hold circle was last checked against the traffic
@@ -538,6 +556,9 @@ class LiveReplanner:
             return
         if self.holding is not None:
             await self._recheck_hold(now, threats)
+            if self._exit is not None:
+                await self._leave_hold(now)
+                return
             if now - self._last_replan >= self.cfg.hold_retry_s:
                 await self._retry_from_hold(now, threats)
             return
@@ -610,6 +631,11 @@ class LiveReplanner:
                              int(self.route.seqs[0]) + 1, self.route.points.copy())
         else:
             cp = commit_point(route, seqs, current, lead_m, self.speed, now)
+        held = self.holding is not None and lead_m == 0.0 and not departing
+        self._planning_exit = exit_ = self._hold_exit(budget) if held else None
+        if exit_ is not None:  # held on a circle: the route starts where the plane leaves it, flying its tangent
+            cp = CommitPoint(exit_.point.copy(), 0.0, now + exit_.arc_m / self.flying_speed, cp.first_new_seq,
+                             np.vstack([exit_.point, cp.old_tail[1:]]), exit_.heading)
         env = self.scenario.environment  # the vehicle's own height may sit a hair outside the band
         ground = float(env.ground(cp.point[0], cp.point[1]))
         cp.point[2] = cp.old_tail[0, 2] = np.clip(cp.point[2], ground + env.z_min + BAND_INSET_M,
@@ -833,6 +859,16 @@ class LiveReplanner:
         self.events.log("replan_verified", n=rec.n, items=len(items), first_new=first_new_seq)
         self.events.log("mission", **picture.mission(items, self.scenario.home))
         self._pump()
+        if self.holding is not None and (exit_ := self._planning_exit) is not None:
+            # the route starts at the hold circle's exit: the plane circles on to it, and is resumed there towards
+            # the item after it once the join is checked again from where it is then (_leave_hold)
+            seq = min(first_new_seq + 1, self.goal_seq)
+            await self.set_current(seq)
+            due = self.now() + exit_.arc_m / self.flying_speed
+            self._exit = (exit_, seq, due)
+            self.events.log("hold_exit", n=rec.n, seq=seq, at=[round(float(v), 1) for v in exit_.point],
+                            in_m=round(exit_.arc_m, 1))
+            return True
         target = self.current_seq
         replaced = self.current_seq >= first_new_seq
         if replaced:  # its active item was replaced: join the new route
@@ -877,8 +913,12 @@ class LiveReplanner:
         """Wall seconds for this plan: the configured budget, doubled for each plan in a row that was not safe (a
         loaded machine gives the planner less of a core: under a CPU hog at 5x the simulated plane flew into an
         intruder after two 0.15 s plans timed out), up to ``max_budget_s`` and only while the commit lead it needs
-        still fits in the first half of the way to the conflict."""
+        still fits in the first half of the way to the conflict. A vehicle that holds has checked time: the
+        longest budget at once (under load, in ``fuseplan demo``, every 0.15 s plan from a hold with the resume's
+        margin timed out and the plane held until the intruder had passed)."""
         cfg = self.cfg
+        if self.holding is not None:
+            return max(cfg.max_budget_s, cfg.budget_s)
         budget = min(cfg.budget_s * 2.0 ** self._failed_plans, max(cfg.max_budget_s, cfg.budget_s))
         room = self._room_m(conflict, now)
         while budget > cfg.budget_s and self._short_lead_m(budget) > room:
@@ -924,16 +964,16 @@ class LiveReplanner:
             return int(seqs[k + 1])
         return first_new_seq
 
-    def _clear_from(self, seq: int) -> bool:
+    def _clear_from(self, seq: int, delays: np.ndarray | None = None) -> bool:
         """Whether the mission from item ``seq`` on, flown from where the vehicle is now (and, if it is held,
-        from whenever it may be back on it: :meth:`rejoin_delays`), keeps every threat at d_coll or more (the
-        plan was checked from the commit point at its ETA; this checks the join)."""
+        from whenever it may be back on it: :meth:`rejoin_delays`, or ``delays`` vehicle seconds), keeps every
+        threat at d_coll or more (the plan was checked from the commit point at its ETA; this checks the join)."""
         if self.position is None:
             return True
         now = self.now()
         route, _ = self.route.remaining(self.position, max(seq, int(self.route.seqs[0])))
         threats = self.threats(now)
-        seps = [c for d in self.rejoin_delays() for c in route_separations(
+        seps = [c for d in (self.rejoin_delays() if delays is None else delays) for c in route_separations(
             route, self.speed, 0.0, now + d, threats, self.cfg.horizon_s, self.cfg.sample_dt_s)]
         worst = min(seps, key=lambda c: c.separation, default=None)
         if worst is not None:
@@ -1056,6 +1096,7 @@ class LiveReplanner:
             self.events.log("hold_circle_refused", error=str(e), pattern=new.summary())
             return
         self.hold_pattern = new
+        self._exit = None  # on another circle: planned again from it
         self.events.log("hold_moved", separation_m=round(sep, 1), pattern=new.summary())
 
     def _checked_hold(self) -> HoldPattern | None:
@@ -1147,11 +1188,11 @@ class LiveReplanner:
             self.events.log("join_ahead", behind=seq, joining=target)
         return target
 
-    def leg_blocked(self, seq: int) -> tuple[float, str | None] | None:
+    def leg_blocked(self, seq: int, margin_m: float = RESUME_MARGIN_M) -> tuple[float, str | None] | None:
         """(clearance, obstacle) when what AUTO flies on resuming at item ``seq`` comes too close to a static
         obstacle: the straight leg from the vehicle to the item, or the path a plane flies onto it and on
         (:func:`predict_own_path`, 20 s, straight at the item from where its turn ends, each turn it may make, each
-        item taken as early as the autopilot may), within d_coll + :data:`RESUME_MARGIN_M`; None when both are clear."""
+        item taken as early as the autopilot may), within d_coll + ``margin_m``; None when both are clear."""
         if self.position is None:
             return None
         hit = np.flatnonzero(self.route.seqs >= seq)
@@ -1160,7 +1201,7 @@ class LiveReplanner:
         target = self.route.points[hit[0]]
         leg = np.linspace(self.position, target, max(int(np.linalg.norm(target - self.position) / 5.0), 1) + 1)
         env, d_coll = self.scenario.environment, self.scenario.hazard.d_coll
-        need = d_coll + RESUME_MARGIN_M
+        need = d_coll + margin_m
         clearance, worst = nearest_obstacle(leg, env)
         if clearance < need:
             return clearance, worst
@@ -1210,11 +1251,52 @@ class LiveReplanner:
                                                                      self._number("AUTO")):
             self.events.log("not_resuming", reason="the mode was changed by someone else",
                             mode=self._name(self.custom_mode))
-            self.holding = self.held_in = self.hold_pattern = None
+            self.holding = self.held_in = self.hold_pattern = self._exit = None
             return
         await self._mode("AUTO")
         self.events.log("resume", reason=self.holding, seq=self.current_seq)
-        self.holding = self.held_in = self.hold_pattern = None
+        self.holding = self.held_in = self.hold_pattern = self._exit = None
+
+    def _hold_exit(self, budget_s: float) -> CircleExit | None:
+        """Where a plane circling its hold will leave it for a route planned now within ``budget_s``: far enough
+        round the circle it flies that the plan and its upload are done first (:func:`circle_exit`). None when it
+        is not circling a hold of ours (a copter, a hold not yet captured: it is planned from where it is)."""
+        pattern = self.hold_pattern
+        if pattern is None or pattern.kind != "circle" or not self.link.profile.hold_circles \
+                or self.position is None or float(np.linalg.norm(self.velocity)) < 1.0:
+            return None
+        if abs(float(np.linalg.norm(self.position[:2] - pattern.centre[:2])) - pattern.radius) > 1.5 * FLOWN_WIDER_M:
+            return None  # still joining its circle
+        wall = budget_s + 2.0 * (self._upload_wall_s + self.cfg.check_interval_wall_s)
+        lead = (wall * self.clock.rate + EXIT_MARGIN_S) * self.flying_speed
+        return circle_exit(self.position, pattern.centre, pattern.clockwise, self.route.goal, lead)
+
+    async def _leave_hold(self, now: float) -> None:
+        """Held with a route planned from the circle's exit: resume towards the item after the exit as the plane
+        comes to it (:data:`EXIT_LEAD_S` early), when the join is clear from there; else hold on and plan again."""
+        assert self._exit is not None and self.position is not None and self.hold_pattern is not None
+        exit_, seq, due = self._exit
+        centre, clockwise = self.hold_pattern.centre, self.hold_pattern.clockwise
+        r = max(float(np.linalg.norm(self.position[:2] - centre[:2])), 1.0)
+        left = arc_to(self.position, centre, clockwise, circle_angle(exit_.point, centre)) * r
+        step = self.flying_speed * self.cfg.check_interval_wall_s * self.clock.rate
+        lead = EXIT_LEAD_S * self.flying_speed + step
+        lap = 2.0 * math.pi * r
+        if lead < left < lap - 2.0 * step:  # not there yet (or long past: due again a circle later)
+            if now > due + lap / self.flying_speed + 1.0:
+                self.events.log("hold_exit_missed", seq=seq, due=round(due, 1))
+                self._exit = None
+                self._last_replan = -math.inf
+            return
+        self._exit = None
+        blocked = self.leg_blocked(seq, EXIT_CHECK_MARGIN_M)
+        # on its way from the exit: it may roll out of the circle a little late, never a circle late
+        if blocked is not None or not self._clear_from(seq, np.array([0.0, RESUME_ROLL_OUT_S])):
+            self.events.log("hold_exit_refused", seq=seq, obstacle=blocked and blocked[1],
+                            clearance_m=blocked and round(blocked[0], 1))
+            self._last_replan = -math.inf  # plan again from the circle at once
+            return
+        await self.resume()
 
     async def _retry_from_hold(self, now: float, threats: Threats) -> None:
         """While holding: resume if the old route is clear again, else plan from here."""

@@ -12,6 +12,9 @@ from companion.replanning.holds import (
     FLOWN_WIDER_M,
     HOLD_MARGIN_M,
     TIGHT_HOLD_MARGIN_M,
+    arc_to,
+    circle_angle,
+    circle_exit,
     circle_traffic_separation,
     copter_hold,
     plane_hold,
@@ -216,3 +219,32 @@ def test_with_no_circle_clear_by_the_whole_margin_the_clearest_one_clear_by_the_
     assert hold is not None and D_COLL + TIGHT_HOLD_MARGIN_M <= hold.clearance_m < D_COLL + HOLD_MARGIN_M
     assert abs(hold.clearance_m - gap) < 1.0
     assert plane_hold(here, v, 80.0, _walls(D_COLL + TIGHT_HOLD_MARGIN_M - 2.0), D_COLL, 20.0) is None
+
+
+def test_a_circle_is_left_where_its_tangent_points_at_the_goal_after_the_time_to_plan() -> None:
+    """The exit from a hold circle: on the circle flown (the vehicle's own distance from the centre), at least the
+    planning lead round it in the circling direction, flying the tangent there, which points at the goal within the
+    exit tolerance; of exits that good, the nearest."""
+    centre, here, goal = np.zeros(3), np.array([97.0, 0.0, 80.0]), np.array([0.0, 2000.0, 0.0])
+    for clockwise in (True, False):
+        for lead in (50.0, 200.0, 500.0):
+            ex = circle_exit(here, centre, clockwise, goal, lead)
+            assert abs(float(np.linalg.norm(ex.point[:2])) - 97.0) < 1e-6
+            assert ex.point[2] == here[2]
+            # the arc it reports is the arc to the point, in the circling direction, never less than the lead
+            assert ex.arc_m >= lead - 1e-6
+            left = arc_to(here, centre, clockwise, circle_angle(ex.point, centre)) * 97.0
+            lap = 2 * math.pi * 97.0
+            assert min((ex.arc_m - left) % lap, lap - (ex.arc_m - left) % lap) < 1e-6
+            # the tangent, in the circling direction: perpendicular to the radius, turning the way it circles
+            radial = ex.point[:2] / np.linalg.norm(ex.point[:2])
+            assert abs(float(np.dot(ex.heading[:2], radial))) < 1e-9
+            assert (np.cross(radial, ex.heading[:2]) < 0) == clockwise
+            to_goal = goal[:2] - ex.point[:2]
+            off = math.degrees(math.acos(float(np.dot(ex.heading[:2], to_goal) / np.linalg.norm(to_goal))))
+            assert off <= 30.0 + 5.0  # the best exit on a circle points at a far goal; 30° sooner is taken
+    # counter-clockwise from the east point, the tangent already points north: with a short lead it leaves soon,
+    # not a whole circle later
+    assert circle_exit(here, centre, False, goal, 50.0).arc_m < 150.0
+    # clockwise, it leaves on the west side, where its tangent turns north
+    assert circle_exit(here, centre, True, goal, 50.0).point[0] < 0.0
