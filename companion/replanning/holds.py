@@ -28,9 +28,10 @@ AHEAD_STEP_M = 40.0  # centres tried this far apart along the track
 AHEAD_STEPS = 8
 HOLD_HORIZON_S = 60.0  # vehicle seconds of circling checked against traffic
 TRAFFIC_DT_S = 1.0
-# an exit whose route turns this much more than the best-aligned one's is taken if it comes sooner: a plane turns 30°
-# at its route's start in a few seconds, and circling on for the best one takes up to a whole circle (35 s on SITL)
-EXIT_TURN_DEG = 30.0
+# an exit whose route turns this much more than the best-aligned one's is taken if it comes sooner (circling on for
+# the best one takes up to a whole circle, 35 s on SITL). With 30°, a plane on the simulator resumed into a 38° turn
+# at the exit and swung 11.4 m from a cylinder its route had passed at d_coll + 10 m and its swing
+EXIT_TURN_DEG = 15.0
 
 
 @dataclass(frozen=True)
