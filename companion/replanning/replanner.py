@@ -115,6 +115,7 @@ RESUME_MARGIN_M = HOLD_MARGIN_M
 # before the exit (docs/design.md, "Leaving a hold")
 EXIT_LEAD_S = 1.0
 EXIT_MARGIN_S = 3.0
+EXIT_LATE_S = 3.0  # vehicle seconds after the exit was due that it counts as missed (the plan's time is gone)
 # m beyond d_coll the resume at a circle's exit is checked with (leg_blocked): its route was planned from there with
 # RESUME_MARGIN_M more than d_coll and its turns' swing, and, aligned with its first leg, the plane flies it with
 # little turn; the check's paths turn up to WIDE_TURNS times wider than the path-follower's bound, which is for
@@ -300,10 +301,12 @@ class LiveReplanner:
         self._held_since: float | None = None  # mission time the current hold began
         # a plane held on a circle leaves it where its new route starts: the exit being planned, then the exit
         # planned (its point, the route item after it, the mission time it is due)
-        self._planning_exit: CircleExit | None = None
+        self._planning_exit: tuple[CircleExit, float] | None = None
         self._exit: tuple[CircleExit, int, float] | None = None
         self._last_replan = -math.inf  # mission time
         self._hold_refused_at = -math.inf  # wall time no checked hold pattern was found
+        self._route_kept_at = -math.inf  # wall time a late plan's hold was refused for the route being flown
+        self._exit_left_m: float | None = None  # the arc still to circle to the exit, at the last look
         self._hold_checked_at = -math.inf  # wall time the hold circle was last checked against the traffic
         self._failed_plans = 0  # plans in a row that were not safe enough to use (each next one gets more budget)
         self._last_check = -math.inf  # wall
@@ -632,10 +635,12 @@ class LiveReplanner:
         else:
             cp = commit_point(route, seqs, current, lead_m, self.speed, now)
         held = self.holding is not None and lead_m == 0.0 and not departing
-        self._planning_exit = exit_ = self._hold_exit(budget) if held else None
+        exit_ = self._hold_exit(budget) if held else None
+        self._planning_exit = None
         if exit_ is not None:  # held on a circle: the route starts where the plane leaves it, flying its tangent
             cp = CommitPoint(exit_.point.copy(), 0.0, now + exit_.arc_m / self.flying_speed, cp.first_new_seq,
                              np.vstack([exit_.point, cp.old_tail[1:]]), exit_.heading)
+            self._planning_exit = (exit_, cp.t)
         env = self.scenario.environment  # the vehicle's own height may sit a hair outside the band
         ground = float(env.ground(cp.point[0], cp.point[1]))
         cp.point[2] = cp.old_tail[0, 2] = np.clip(cp.point[2], ground + env.z_min + BAND_INSET_M,
@@ -859,13 +864,14 @@ class LiveReplanner:
         self.events.log("replan_verified", n=rec.n, items=len(items), first_new=first_new_seq)
         self.events.log("mission", **picture.mission(items, self.scenario.home))
         self._pump()
-        if self.holding is not None and (exit_ := self._planning_exit) is not None:
+        planned_exit, self._planning_exit = self._planning_exit, None
+        if self.holding is not None and planned_exit is not None:
             # the route starts at the hold circle's exit: the plane circles on to it, and is resumed there towards
             # the item after it once the join is checked again from where it is then (_leave_hold)
+            exit_, due = planned_exit
             seq = min(first_new_seq + 1, self.goal_seq)
             await self.set_current(seq)
-            due = self.now() + exit_.arc_m / self.flying_speed
-            self._exit = (exit_, seq, due)
+            self._exit, self._exit_left_m = (exit_, seq, due), None
             self.events.log("hold_exit", n=rec.n, seq=seq, at=[round(float(v), 1) for v in exit_.point],
                             in_m=round(exit_.arc_m, 1))
             return True
@@ -878,7 +884,8 @@ class LiveReplanner:
         if not self._clear_from(target):
             reason = "no safe plan: the new route is no longer clear from where the vehicle is"
             await self.hold(reason)
-            self.holding = reason  # retried from here like any plan that is not safe
+            if self.holding is not None:  # retried from here like any plan that is not safe (a hold refused: the
+                self.holding = reason      # vehicle flies on, and its conflicts are predicted again)
             rec.held = True
             if target != self.current_seq:
                 await self.set_current(target)
@@ -1032,13 +1039,15 @@ class LiveReplanner:
             # not flying the mission (a failsafe, the pilot): it cannot step into a mixed item; leave it be
             self.events.log("not_holding", reason=reason, mode=self._name(self.custom_mode))
             return
-        if time.monotonic() - self._hold_refused_at < HOLD_CHECK_WALL_S:
+        if time.monotonic() - self._hold_refused_at < HOLD_CHECK_WALL_S or (
+                route_separation is not None and time.monotonic() - self._route_kept_at < HOLD_CHECK_WALL_S):
             return  # just refused: checking again takes the CPU the planner needs (under load, 30 checks a second)
         pattern = self._checked_hold()
         if pattern is not None and route_separation is not None \
                 and route_separation >= self.scenario.hazard.d_coll \
                 and pattern.traffic_separation_m < route_separation:
-            self._hold_refused_at = time.monotonic()
+            # only holds for a late plan wait for the next look: a swap's or the guard's hold is taken
+            self._route_kept_at = time.monotonic()
             self.events.log("hold_refused", reason=reason, decision=(
                 f"the route keeps the traffic further ({route_separation:.1f} m) than the best hold "
                 f"({pattern.traffic_separation_m:.1f} m): the vehicle keeps flying it"))
@@ -1267,6 +1276,9 @@ class LiveReplanner:
             return None
         if abs(float(np.linalg.norm(self.position[:2] - pattern.centre[:2])) - pattern.radius) > 1.5 * FLOWN_WIDER_M:
             return None  # still joining its circle
+        out = self.position[:2] - pattern.centre[:2]
+        if (float(out[0] * self.velocity[1] - out[1] * self.velocity[0]) < 0.0) != pattern.clockwise:
+            return None  # circling the other way than the pattern says (an autopilot's own loiter): not trusted
         wall = budget_s + 2.0 * (self._upload_wall_s + self.cfg.check_interval_wall_s)
         lead = (wall * self.clock.rate + EXIT_MARGIN_S) * self.flying_speed
         return circle_exit(self.position, pattern.centre, pattern.clockwise, self.route.goal, lead)
@@ -1282,9 +1294,11 @@ class LiveReplanner:
         step = self.flying_speed * self.cfg.check_interval_wall_s * self.clock.rate
         lead = EXIT_LEAD_S * self.flying_speed + step
         lap = 2.0 * math.pi * r
-        if lead < left < lap - 2.0 * step:  # not there yet (or long past: due again a circle later)
-            if now > due + lap / self.flying_speed + 1.0:
-                self.events.log("hold_exit_missed", seq=seq, due=round(due, 1))
+        prev, self._exit_left_m = self._exit_left_m, left
+        if lead < left < lap - 2.0 * step:  # not there yet, or passed between two looks (a loaded machine)
+            crossed = prev is not None and left > prev + 0.5 * lap
+            if crossed or now > due + EXIT_LATE_S:  # the route's timing is gone: plan again from the circle
+                self.events.log("hold_exit_missed", seq=seq, due=round(due, 1), left_m=round(left, 1))
                 self._exit = None
                 self._last_replan = -math.inf
             return
@@ -1296,7 +1310,10 @@ class LiveReplanner:
                             clearance_m=blocked and round(blocked[0], 1))
             self._last_replan = -math.inf  # plan again from the circle at once
             return
-        await self.resume()
+        if self.current_seq != seq:  # someone moved it meanwhile: resume towards the item checked
+            await self.set_current(seq, then=self.resume)
+        else:
+            await self.resume()
 
     async def _retry_from_hold(self, now: float, threats: Threats) -> None:
         """While holding: resume if the old route is clear again, else plan from here."""
