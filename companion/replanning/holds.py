@@ -61,7 +61,7 @@ def _circle_path(p: np.ndarray, centre: np.ndarray, radius: float, clockwise: bo
     (M, 3) at the vehicle's altitude, in flying order."""
     c2, p2 = centre[:2], p[:2]
     d = float(np.linalg.norm(p2 - c2))
-    a0 = math.atan2(p2[1] - c2[1], p2[0] - c2[0]) if d > 1e-6 else 0.0
+    a0 = circle_angle(p2, c2) if d > 1e-6 else 0.0
     entry = c2 + radius * np.array([math.cos(a0), math.sin(a0)])
     approach = np.linspace(p2, entry, max(int(abs(d - radius) / 5.0), 1) + 1)
     sign = -1.0 if clockwise else 1.0  # counter-clockwise is increasing angle
@@ -221,10 +221,10 @@ def circle_angle(p: np.ndarray, centre: np.ndarray) -> float:
     return math.atan2(float(p[1] - centre[1]), float(p[0] - centre[0]))
 
 
-def arc_to(position: np.ndarray, centre: np.ndarray, clockwise: bool, angle: float) -> float:
-    """The angle (rad, in [0, 2π)) still to circle from ``position`` to the point at ``angle`` on the circle."""
-    turn = circle_angle(position, centre) - angle if clockwise else angle - circle_angle(position, centre)
-    return turn % (2.0 * math.pi)
+def arc_to(position: np.ndarray, centre: np.ndarray, clockwise: bool, point: np.ndarray) -> float:
+    """The angle (rad, in [0, 2π)) still to circle from ``position`` to ``point``, seen from ``centre``."""
+    turn = circle_angle(position, centre) - circle_angle(point, centre)
+    return (turn if clockwise else -turn) % (2.0 * math.pi)
 
 
 def circle_exit(position: np.ndarray, centre: np.ndarray, clockwise: bool, toward: np.ndarray,

@@ -56,7 +56,6 @@ from companion.replanning.holds import (
     CircleExit,
     HoldPattern,
     arc_to,
-    circle_angle,
     circle_exit,
     circle_traffic_separation,
     copter_hold,
@@ -265,6 +264,18 @@ class ReplanRecord:
         return {k: round(v, 3) if isinstance(v, float) else v for k, v in d.items()}
 
 
+@dataclass
+class Leaving:
+    """A plane's way off its hold circle: the ``exit`` its route is planned from, the mission time it is ``due``
+    there and, once that route is live, the item after the exit (``seq``) and the arc still to circle at the last
+    look (``left_m``)."""
+
+    exit: CircleExit
+    due: float
+    seq: int | None = None
+    left_m: float | None = None
+
+
 class LiveReplanner:
     """Watches the flight and replaces the mission when a threat will come too close.
 
@@ -299,14 +310,12 @@ class LiveReplanner:
         self.hold_pattern: HoldPattern | None = None  # the checked pattern it holds on
         self.velocity = np.zeros(2)  # ENU m/s over the ground, from GLOBAL_POSITION_INT
         self._held_since: float | None = None  # mission time the current hold began
-        # a plane held on a circle leaves it where its new route starts: the exit being planned, then the exit
-        # planned (its point, the route item after it, the mission time it is due)
-        self._planning_exit: tuple[CircleExit, float] | None = None
-        self._exit: tuple[CircleExit, int, float] | None = None
+        # a plane held on a circle leaves it where its new route starts: the exit being planned, then the one live
+        self._planning_exit: Leaving | None = None
+        self._exit: Leaving | None = None
         self._last_replan = -math.inf  # mission time
         self._hold_refused_at = -math.inf  # wall time no checked hold pattern was found
         self._route_kept_at = -math.inf  # wall time a late plan's hold was refused for the route being flown
-        self._exit_left_m: float | None = None  # the arc still to circle to the exit, at the last look
         self._hold_checked_at = -math.inf  # wall time the hold circle was last checked against the traffic
         self._failed_plans = 0  # plans in a row that were not safe enough to use (each next one gets more budget)
         self._last_check = -math.inf  # wall
@@ -634,13 +643,14 @@ class LiveReplanner:
                              int(self.route.seqs[0]) + 1, self.route.points.copy())
         else:
             cp = commit_point(route, seqs, current, lead_m, self.speed, now)
-        held = self.holding is not None and lead_m == 0.0 and not departing
-        exit_ = self._hold_exit(budget) if held else None
+        # held (planned from the hold's retries, at the vehicle: lead 0) on a circle: the route starts where the
+        # plane leaves it, flying its tangent
+        exit_ = self._hold_exit(budget) if self.holding is not None and not departing else None
         self._planning_exit = None
-        if exit_ is not None:  # held on a circle: the route starts where the plane leaves it, flying its tangent
+        if exit_ is not None:
             cp = CommitPoint(exit_.point.copy(), 0.0, now + exit_.arc_m / self.flying_speed, cp.first_new_seq,
                              np.vstack([exit_.point, cp.old_tail[1:]]), exit_.heading)
-            self._planning_exit = (exit_, cp.t)
+            self._planning_exit = Leaving(exit_, cp.t)
         env = self.scenario.environment  # the vehicle's own height may sit a hair outside the band
         ground = float(env.ground(cp.point[0], cp.point[1]))
         cp.point[2] = cp.old_tail[0, 2] = np.clip(cp.point[2], ground + env.z_min + BAND_INSET_M,
@@ -864,16 +874,15 @@ class LiveReplanner:
         self.events.log("replan_verified", n=rec.n, items=len(items), first_new=first_new_seq)
         self.events.log("mission", **picture.mission(items, self.scenario.home))
         self._pump()
-        planned_exit, self._planning_exit = self._planning_exit, None
-        if self.holding is not None and planned_exit is not None:
+        leaving, self._planning_exit = self._planning_exit, None
+        if self.holding is not None and leaving is not None:
             # the route starts at the hold circle's exit: the plane circles on to it, and is resumed there towards
             # the item after it once the join is checked again from where it is then (_leave_hold)
-            exit_, due = planned_exit
-            seq = min(first_new_seq + 1, self.goal_seq)
-            await self.set_current(seq)
-            self._exit, self._exit_left_m = (exit_, seq, due), None
-            self.events.log("hold_exit", n=rec.n, seq=seq, at=[round(float(v), 1) for v in exit_.point],
-                            in_m=round(exit_.arc_m, 1))
+            leaving.seq = min(first_new_seq + 1, self.goal_seq)
+            await self.set_current(leaving.seq)
+            self._exit = leaving
+            self.events.log("hold_exit", n=rec.n, seq=leaving.seq, at=[round(float(v), 1) for v in leaving.exit.point],
+                            in_m=round(leaving.exit.arc_m, 1))
             return True
         target = self.current_seq
         replaced = self.current_seq >= first_new_seq
@@ -1286,19 +1295,20 @@ class LiveReplanner:
     async def _leave_hold(self, now: float) -> None:
         """Held with a route planned from the circle's exit: resume towards the item after the exit as the plane
         comes to it (:data:`EXIT_LEAD_S` early), when the join is clear from there; else hold on and plan again."""
-        assert self._exit is not None and self.position is not None and self.hold_pattern is not None
-        exit_, seq, due = self._exit
-        centre, clockwise = self.hold_pattern.centre, self.hold_pattern.clockwise
+        leaving = self._exit
+        assert leaving is not None and leaving.seq is not None and self.position is not None \
+            and self.hold_pattern is not None
+        seq, centre, clockwise = leaving.seq, self.hold_pattern.centre, self.hold_pattern.clockwise
         r = max(float(np.linalg.norm(self.position[:2] - centre[:2])), 1.0)
-        left = arc_to(self.position, centre, clockwise, circle_angle(exit_.point, centre)) * r
+        left = arc_to(self.position, centre, clockwise, leaving.exit.point) * r
         step = self.flying_speed * self.cfg.check_interval_wall_s * self.clock.rate
         lead = EXIT_LEAD_S * self.flying_speed + step
         lap = 2.0 * math.pi * r
-        prev, self._exit_left_m = self._exit_left_m, left
+        prev, leaving.left_m = leaving.left_m, left
         if lead < left < lap - 2.0 * step:  # not there yet, or passed between two looks (a loaded machine)
             crossed = prev is not None and left > prev + 0.5 * lap
-            if crossed or now > due + EXIT_LATE_S:  # the route's timing is gone: plan again from the circle
-                self.events.log("hold_exit_missed", seq=seq, due=round(due, 1), left_m=round(left, 1))
+            if crossed or now > leaving.due + EXIT_LATE_S:  # the route's timing is gone: plan again from the circle
+                self.events.log("hold_exit_missed", seq=seq, due=round(leaving.due, 1), left_m=round(left, 1))
                 self._exit = None
                 self._last_replan = -math.inf
             return

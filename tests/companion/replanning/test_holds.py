@@ -14,7 +14,6 @@ from companion.replanning.holds import (
     HOLD_MARGIN_M,
     TIGHT_HOLD_MARGIN_M,
     arc_to,
-    circle_angle,
     circle_exit,
     circle_traffic_separation,
     copter_hold,
@@ -234,7 +233,7 @@ def test_a_circle_is_left_where_its_tangent_points_at_the_goal_after_the_time_to
             assert ex.point[2] == here[2]
             # the arc it reports is the arc to the point, in the circling direction, never less than the lead
             assert ex.arc_m >= lead - 1e-6
-            left = arc_to(here, centre, clockwise, circle_angle(ex.point, centre)) * 97.0
+            left = arc_to(here, centre, clockwise, ex.point) * 97.0
             lap = 2 * math.pi * 97.0
             assert min((ex.arc_m - left) % lap, lap - (ex.arc_m - left) % lap) < 1e-6
             # the tangent, in the circling direction: perpendicular to the radius, turning the way it circles
