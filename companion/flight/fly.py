@@ -51,8 +51,9 @@ from companion.mission.exports import (
 )
 from companion.mission.geo import geodetic_to_enu, lonlatalt
 from companion.replanning.replan import ReplanConfig, with_room
-from companion.replanning.replanner import LiveReplanner, PlanWorker, expects_traffic
+from companion.replanning.replanner import LiveReplanner
 from companion.replanning.separation import min_separations
+from companion.replanning.worker import PlanWorker, expects_traffic
 from planner.world.scenario import Scenario
 
 if TYPE_CHECKING:

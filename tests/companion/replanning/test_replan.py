@@ -252,7 +252,7 @@ def test_the_latency_report_says_which_planner_made_the_replans(tmp_path: Path) 
 async def test_a_planner_process_started_before_the_route_is_known_plans_once_warmed_on_it() -> None:
     """`fly` starts the planner process as soon as the link is open (no route yet: process start and imports only)
     and the replanner warms it on the route later; a plan then comes from that process, within its budget."""
-    from companion.replanning.replanner import PlanWorker
+    from companion.replanning.worker import PlanWorker
 
     worker = PlanWorker()
     try:
