@@ -1,0 +1,186 @@
+"""A plane held on its circle leaves it where its new route starts (LiveReplanner._leave_hold), on the simulated
+autopilot over real UDP: resumed at the exit, an exit whose join is no longer clear refused and planned again, an
+exit missed (a loaded machine looked too late) planned again, never flown late.
+
+Each flight makes every plan not made from an exit come back not safe, so the plane holds on a checked circle
+and its route is planned from the circle's exit (docs/design.md, "Leaving a hold").
+"""
+
+from __future__ import annotations
+
+import asyncio
+import math
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from companion.flight.fly import truth_separations
+from companion.flight.latency_bench import fly_on_sim
+from companion.replanning import replanner as rp_module
+from companion.replanning.holds import arc_to
+from companion.replanning.replan import ReplanConfig
+from companion.replanning.replanner import EXIT_CHECK_MARGIN_M, EXIT_LATE_S, LiveReplanner
+from companion.sim import SimAutopilot
+from planner.world.scenario import load_scenario
+
+ROOT = Path(__file__).resolve().parents[3]
+DYNAMIC = ROOT / "sitl_scenarios" / "rescue_dynamic.toml"
+SPEEDUP = 10.0
+
+
+@pytest.fixture(scope="module")
+def dynamic_doc(tmp_path_factory: pytest.TempPathFactory) -> dict:
+    from companion.cli import _plan_doc_for
+
+    doc, _ = _plan_doc_for(DYNAMIC, None, [], None, feasible_only=True, for_flight=True)
+    return doc
+
+
+def _only_exits_safe(rp: LiveReplanner) -> None:
+    """Every plan not made from a hold circle's exit comes back infeasible (what a loaded machine gives): the plane
+    holds, and its route goes live only by way of an exit."""
+    worker = rp._worker  # noqa: SLF001
+    real = worker.plan
+
+    async def plan(*args, **kwargs):  # noqa: ANN202
+        out = await real(*args, **kwargs)
+        if rp._planning_exit is None:  # noqa: SLF001
+            return replace(out, status="infeasible", violations={"collision": 1})
+        return out
+
+    worker.plan = plan
+
+
+def _fly(doc: dict, during) -> tuple:  # noqa: ANN001
+    sc = load_scenario(DYNAMIC)
+    out, records, rp, sim = asyncio.run(fly_on_sim(doc, sc, speedup=SPEEDUP, cfg=ReplanConfig(), seed=3,
+                                                   during=during, flight_timeout=150.0))
+    return sc, out, records, rp, sim
+
+
+def _kept_d_coll(sc, sim: SimAutopilot) -> None:  # noqa: ANN001
+    seps = truth_separations(sim, sc)
+    assert seps and min(s.separation for s in seps.values()) >= sc.hazard.d_coll, seps
+
+
+def _index(records: list[dict], event: str, start: int = 0) -> int:
+    return next(i for i, r in enumerate(records) if i >= start and r["event"] == event)
+
+
+def test_a_held_plane_is_resumed_at_its_circles_exit_towards_the_item_after_it(dynamic_doc: dict) -> None:
+    """Held, the plane's route is planned from the exit with the held plane's whole budget, made live with the item
+    after the exit current while it circles on, and AUTO resumed as it comes to the exit."""
+    seen: dict[str, object] = {}
+
+    async def during(sim: SimAutopilot, rp: LiveReplanner) -> None:
+        _only_exits_safe(rp)
+        resume = rp.resume
+
+        async def watched() -> None:
+            if "at" not in seen and rp._exit is None and rp.hold_pattern is not None:  # noqa: SLF001
+                seen["at"] = None if rp.position is None else rp.position.copy()
+                seen["pattern"] = rp.hold_pattern
+                seen["current"] = rp.current_seq
+            await resume()
+
+        rp.resume = watched
+
+    sc, out, records, rp, sim = _fly(dynamic_doc, during)
+    assert out.completed, out.reason
+    hold = _index(records, "hold")
+    # held for the plan made not safe, or already while it ran (at 10x its commit point is near: the guard's hold)
+    assert records[hold]["reason"].startswith(("no safe plan", "the plan is late"))
+    exit_ = _index(records, "hold_exit", hold)
+    resume = _index(records, "resume", exit_)
+    assert "hold_exit_refused" not in [r["event"] for r in records[exit_:resume]]
+    planned = [r for r in records[hold:exit_] if r["event"] == "replan_planned"]
+    assert planned and planned[-1]["budget_s"] == ReplanConfig().max_budget_s  # a held plane has time: all of it
+    # the route was planned from the exit: its first point is the exit point
+    assert np.allclose(planned[-1]["new_route"][0], records[exit_]["at"], atol=0.2)
+    # resumed as it came to the exit, a second early (EXIT_LEAD_S) plus one look at most: not a circle early or late
+    position, pattern = np.asarray(seen["at"]), seen["pattern"]
+    at = np.asarray(records[exit_]["at"])
+    r = float(np.linalg.norm(position[:2] - pattern.centre[:2]))
+    ahead = arc_to(position, pattern.centre, pattern.clockwise, at) * r
+    ahead = min(ahead, 2.0 * math.pi * r - ahead)  # or just past it, between two looks
+    speed = rp.flying_speed
+    assert ahead <= (rp_module.EXIT_LEAD_S + 2.0 * rp.cfg.check_interval_wall_s * SPEEDUP) * speed + 10.0, ahead
+    assert seen["current"] == records[exit_]["seq"]  # towards the item after the exit
+    _kept_d_coll(sc, sim)
+
+
+def test_an_exit_whose_join_is_no_longer_clear_is_refused_and_planned_again(dynamic_doc: dict) -> None:
+    """The exit's own check (the leg from there to the item after it) finds it blocked, once: the plane is not
+    resumed there; it holds on and is looked at again at once."""
+    async def during(sim: SimAutopilot, rp: LiveReplanner) -> None:
+        _only_exits_safe(rp)
+        real = rp.leg_blocked
+        refuse = [True]
+
+        def leg_blocked(seq: int, margin_m: float = rp_module.RESUME_MARGIN_M):  # noqa: ANN202
+            if margin_m == EXIT_CHECK_MARGIN_M and refuse:  # the exit's own check, once
+                refuse.pop()
+                return 4.0, "cylinders[3]"
+            return real(seq, margin_m)
+
+        rp.leg_blocked = leg_blocked
+
+    sc, out, records, _rp, sim = _fly(dynamic_doc, during)
+    assert out.completed, out.reason
+    first = _index(records, "hold_exit")
+    refused = _index(records, "hold_exit_refused", first)
+    assert records[refused]["seq"] == records[first]["seq"] and records[refused]["clearance_m"] == 4.0
+    assert "resume" not in [r["event"] for r in records[first:refused]]
+    # not resumed on the refused exit: still held, it looks again at once, and resumes only after that look has
+    # planned a new exit or found the traffic gone (here, seconds later, the intruder has often passed)
+    names = [r["event"] for r in records]
+    resume = _index(records, "resume", refused)
+    looked = [n for n in names[refused:resume] if n in ("replan_planned", "threat_cleared")]
+    assert looked, names[refused:resume]
+    assert "threat_cleared" in looked or "hold_exit" in names[refused:resume]  # resumed by a check, never blind
+    assert records[resume]["t"] - records[refused]["t"] < 2.0  # at once (hold_retry_s is 0.3 s of wall at 10x)
+    _kept_d_coll(sc, sim)
+
+
+def test_an_exit_passed_before_it_was_looked_at_is_planned_again_not_flown_late(dynamic_doc: dict) -> None:
+    """The loop does not look at the exit until it is past it and its time is gone (what a starved event loop
+    does): the plane must not be resumed from there onto a route timed for the exit; it plans again."""
+    async def during(sim: SimAutopilot, rp: LiveReplanner) -> None:
+        _only_exits_safe(rp)
+        real = rp._leave_hold  # noqa: SLF001
+        starved = [True]
+
+        async def leave_hold(now: float) -> None:
+            leaving = rp._exit  # noqa: SLF001
+            if starved and leaving is not None and rp.position is not None:
+                centre, clockwise = rp.hold_pattern.centre, rp.hold_pattern.clockwise
+                r = float(np.linalg.norm(rp.position[:2] - centre[:2]))
+                left = arc_to(rp.position, centre, clockwise, leaving.exit.point) * r
+                if now <= leaving.due + EXIT_LATE_S or left < 100.0:
+                    return  # not looked at: not yet late, or too near the exit (a look there would take it)
+                starved.pop()
+            await real(now)
+
+        rp._leave_hold = leave_hold  # noqa: SLF001
+
+    sc, out, records, _rp, sim = _fly(dynamic_doc, during)
+    assert out.completed, out.reason
+    first = _index(records, "hold_exit")
+    missed = _index(records, "hold_exit_missed", first)
+    assert records[missed]["seq"] == records[first]["seq"]
+    assert "resume" not in [r["event"] for r in records[first:missed]]
+    # looked at again at once: a new plan from the circle (and its exit), or the traffic found gone, before a resume
+    names = [r["event"] for r in records]
+    resume = _index(records, "resume", missed)
+    looked = [n for n in names[missed:resume] if n in ("replan_planned", "threat_cleared")]
+    assert looked, names[missed:resume]
+    assert "threat_cleared" in looked or "hold_exit" in names[missed:resume]  # resumed by a check, never blind
+    assert records[resume]["t"] - records[missed]["t"] < 2.0
+    _kept_d_coll(sc, sim)
+
+
+def test_the_exit_check_is_the_one_monkeypatched_here() -> None:
+    """The flights above single out the exit's own check by its margin: it must differ from the other resumes'."""
+    assert EXIT_CHECK_MARGIN_M != rp_module.RESUME_MARGIN_M and math.isfinite(EXIT_LATE_S)
