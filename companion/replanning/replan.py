@@ -38,6 +38,10 @@ class ReplanConfig:
     # is flown into while it plans, and its route keeps a wider margin (replan_problem's static_margin)
     max_budget_s: float = 0.6
     population: int = 100  # swarm size for a replan (the scenario's other planner settings are kept)
+    # a replan stops searching this many swarm iterations after its route first became feasible (clear of the
+    # obstacles and of the traffic by d_coll + margin, flyable), colonies skipped: the vehicle needs a safe route
+    # now more than the shortest one (planner.pso.feasible_iters); 0: search the whole budget
+    settle_iters: int = 10
     # replans run the roadmap pipeline (docs/method.md §15) whatever [planner.roadmap] says of the first route;
     # the worker builds the roadmap once, at its warm-up. False: the scenario's own planner (the paper's fusion)
     roadmap: bool = True
@@ -217,9 +221,10 @@ def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, thre
 
 
 def replan_settings(settings: PlannerSettings, cfg: ReplanConfig) -> PlannerSettings:
-    """The scenario's planner settings with the replanning swarm size, and the roadmap on if ``cfg.roadmap`` (else
-    as the scenario says)."""
-    out = dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=cfg.population))
+    """The scenario's planner settings with the replanning swarm size and its early stop once feasible, and the
+    roadmap on if ``cfg.roadmap`` (else as the scenario says)."""
+    out = dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=cfg.population,
+                                                                feasible_iters=cfg.settle_iters))
     if cfg.roadmap:
         out = dataclasses.replace(out, roadmap=dataclasses.replace(out.roadmap, enabled=True))
     return out

@@ -20,6 +20,7 @@ from planner.search.roadmap_colony import RoadmapColony
 from planner.search.roadmap_colony import setup_s as colony_setup_s
 from planner.search.spso import SphericalPSO
 from planner.search.swarm import OptimiserResult
+from planner.search.termination import Settled
 from planner.world.config import ACOConfig, PlannerSettings
 
 
@@ -119,7 +120,7 @@ class Fusion:
         pso = SphericalPSO(guided).run(problem, rng, initial_paths=seeds, encoding=enc, progress=progress,
                                       budget_s=first)
         done: list[tuple[str, OptimiserResult]] = [("pso", pso)]
-        if self.swarm_only:
+        if self.swarm_only or pso.stop_reason == Settled.name:  # a safe route was all that was asked for
             return self._finish(done, t0, extra, lattice=False, trace=trace)
         budget = left()
         step_s = _iteration_s(pso)  # what one swarm iteration took: the guess at any later phase's first step

@@ -21,7 +21,16 @@ from typing import Protocol
 import numpy as np
 
 from planner.problem import Evaluation, PlanningProblem
-from planner.search.termination import AnyOf, Clock, Diversity, MaxIterations, Progress, Stagnation, deadline
+from planner.search.termination import (
+    AnyOf,
+    Clock,
+    Diversity,
+    MaxIterations,
+    Progress,
+    Settled,
+    Stagnation,
+    deadline,
+)
 from planner.world.config import SPSOConfig
 
 log = logging.getLogger(__name__)
@@ -55,6 +64,7 @@ class SwarmState:
     w: float = math.nan  # inertia of the last step (mean over particles if per particle)
     stagnant: int = 0  # iterations since gbest last improved
     tol: float = 0.0  # relative improvement below which an iteration counts as stagnant
+    feasible: int = 0  # iterations since gbest became feasible (0: it is not)
 
     @classmethod
     def start(cls, x: np.ndarray, ev: Evaluation) -> SwarmState:
@@ -80,6 +90,7 @@ class SwarmState:
             self.stagnant = self.stagnant + 1 if small else 0
         else:
             self.stagnant += 1
+        self.feasible = self.feasible + 1 if int(self.gbest_eval.n_violations[0]) == 0 else 0
 
 
 @dataclass
@@ -135,7 +146,7 @@ def run_swarm(
     t0 = clock()
     wall = deadline(budget_s, clock=clock)  # its clock starts now: the budget counts init too
     stop = AnyOf([MaxIterations(budget.max_iter), Stagnation(budget.stagnation_iters),
-                  Diversity(budget.diversity_min)])
+                  Diversity(budget.diversity_min), Settled(budget.feasible_iters)])
     st = SwarmState.start(x0, problem.evaluate(space.decode(x0)))
     st.v = v0
     st.tol = budget.stagnation_tol
@@ -154,7 +165,7 @@ def run_swarm(
             history.append(st.gbest_f)
             # σ² costs a pass over the swarm; only the diversity criterion reads it
             div = diversity(st.x, space.lo, space.hi) if budget.diversity_min > 0 else math.nan
-            prog = Progress(it, st.gbest_f, st.stagnant, div, stop.elapsed())
+            prog = Progress(it, st.gbest_f, st.stagnant, div, stop.elapsed(), st.feasible)
             if progress is not None:
                 progress(it, budget.max_iter, st.gbest_f)
             if wall is not None:

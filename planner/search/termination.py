@@ -18,6 +18,7 @@ class Progress:
     stagnant_iters: int  # iterations since gbest last improved
     diversity: float  # normalised swarm diversity σ²(t)
     elapsed_s: float
+    feasible_iters: int = 0  # iterations since gbest became feasible (0: it is not)
 
 
 class Criterion(Protocol):
@@ -45,6 +46,17 @@ class Stagnation:
 
     def done(self, p: Progress) -> bool:
         return p.stagnant_iters >= self.iters
+
+
+@dataclass(frozen=True)
+class Settled:
+    """gbest feasible for ``iters`` iterations (0 disables): a search that needs a safe route, not the best one."""
+
+    iters: int
+    name: str = "feasible"
+
+    def done(self, p: Progress) -> bool:
+        return self.iters > 0 and p.feasible_iters >= self.iters
 
 
 @dataclass(frozen=True)

@@ -121,6 +121,9 @@ class SPSOConfig:
     stagnation_iters: int = 60  # stop after this many iterations without gbest improvement
     stagnation_tol: float = 0.0  # ... improvement by less than this share of the cost (0: any improvement counts)
     diversity_min: float = 0.0  # stop when normalised swarm diversity σ² falls below this (0 = off)
+    # stop once gbest has been feasible for this many iterations (0 = off): a replan wants a safe route now, and the
+    # roadmap pipeline then skips its colonies (docs/method.md §15.3)
+    feasible_iters: int = 0
     cartesian_spread: float = 0.25  # V2 init: perturbation around S→G as a fraction of ‖SG‖
 
     def __post_init__(self) -> None:
@@ -129,6 +132,8 @@ class SPSOConfig:
                 raise ValueError(f"{name} must be >= 1")
         if self.n_pop < 2:
             raise ValueError("n_pop must be >= 2")
+        if self.feasible_iters < 0:
+            raise ValueError("feasible_iters must be >= 0")
 
 
 @dataclass(frozen=True)

@@ -5,13 +5,14 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
 from scipy.sparse.csgraph import dijkstra
 
 from planner.bench import hardmaps
-from planner.plan import PlanStatus, plan
+from planner.plan import PlanStatus, plan, problem_from_scenario
 from planner.problem import PlanningProblem
 from planner.search import roadmap as rmap
 from planner.search.encoding import guided_encoding, make_encoding, resample_keeping_vertices
@@ -19,6 +20,7 @@ from planner.search.roadmap_colony import DETOUR_SCALE, adjacency, gkdm_pheromon
 from planner.trajectory.checks import obstacle_clearance
 from planner.world.config import ACOConfig, HazardConfig, PlannerSettings, RoadmapConfig, SPSOConfig, VehicleLimits
 from planner.world.environment import Cylinders, Environment, Threat, Threats
+from planner.world.scenario import load_scenario
 
 VEHICLE = VehicleLimits()
 HAZARD = HazardConfig(d_safe=60.0, d_coll=15.0)
@@ -269,3 +271,22 @@ def test_a_budgeted_plan_skips_a_roadmap_colony_whose_set_up_does_not_fit() -> N
     assert not _affords_colony(2.0 * need, q, 0.0)  # half of it is short of the estimate with its margin
     assert _affords_colony(max(3.0 * need, 0.06), q, 0.0)
     assert not _affords_colony(0.04, q, 0.0)  # below MIN_COLONY_BUDGET_S whatever the map
+
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def test_a_roadmap_plan_asked_for_a_safe_route_skips_the_colonies_once_its_swarm_has_one() -> None:
+    """A replan's settings (pso.feasible_iters): the guided swarm stops once its route has been feasible for that
+    many iterations and the plan ends there, feasible, with no colony run; without it the colonies run."""
+    sc = load_scenario(ROOT / "sitl_scenarios" / "rescue_dynamic.toml",
+                       ["planner.roadmap.enabled=true", "planner.pso.n_pop=100", "planner.pso.feasible_iters=10"])
+    prob = problem_from_scenario(sc)
+    quick = plan(prob, sc.planner, np.random.default_rng(2))
+    assert quick.status is PlanStatus.EXACT and quick.optimiser.stop_reason == "feasible"
+    assert set(quick.optimiser.phases) == {"roadmap", "repair", "pso"}
+    full_sc = load_scenario(ROOT / "sitl_scenarios" / "rescue_dynamic.toml",
+                            ["planner.roadmap.enabled=true", "planner.pso.n_pop=100"])
+    full = plan(prob, full_sc.planner, np.random.default_rng(2))
+    assert "aco" in full.optimiser.phases and full.optimiser.phases["aco"].iterations > 0
+    assert full.optimiser.evaluations > quick.optimiser.evaluations

@@ -157,3 +157,20 @@ def test_warm_start_accepts_paths_with_another_point_count(rescue_static) -> Non
     np.testing.assert_allclose(gaps, gaps.mean(), rtol=0.35)  # evenly spread along the length
     seeded = SphericalPSO(sc.planner.pso).run(prob, np.random.default_rng(0), initial_paths=short)
     assert seeded.history[0] <= prob.evaluate(enc.decode(enc.encode(short))).total[0] + 1e-9
+
+
+def test_a_swarm_asked_for_a_safe_route_stops_once_its_best_has_been_feasible_for_the_iterations_asked(
+        rescue_static) -> None:
+    """pso.feasible_iters (a replan's early stop): the search ends that many iterations after its best became
+    feasible, and not before; 0 leaves the search as it was."""
+    sc = load_scenario(rescue_static, ["planner.pso.n_pop=300", "planner.pso.feasible_iters=4"])
+    prob = problem_from_scenario(sc)
+    res = SphericalPSO(sc.planner.pso).run(prob, np.random.default_rng(0))
+    assert res.stop_reason == "feasible"
+    assert int(res.evaluation.n_violations[0]) == 0
+    assert res.state is not None and res.state.feasible == 4  # feasible for exactly the last 4 iterations
+    off = load_scenario(rescue_static, ["planner.pso.n_pop=300"])
+    full = SphericalPSO(off.planner.pso).run(prob, np.random.default_rng(0))
+    assert full.stop_reason != "feasible" and full.iterations > res.iterations
+    # the same search until it stopped: the stop changes when, not what
+    assert full.history[: res.iterations + 1] == res.history
