@@ -232,6 +232,9 @@ def test_replan_settings_take_the_swarm_size_and_the_roadmap_unless_told_not_to(
     assert plain.pso.n_pop == 37 and not plain.roadmap.enabled and plain.aco == SC.planner.aco
     on = replan_settings(SC.planner, ReplanConfig())  # the default: replans by the roadmap
     assert on.roadmap.enabled and on.roadmap.spacing == SC.planner.roadmap.spacing and on.pso.n_pop == 100
+    # a safe route now: the swarm stops once feasible, around one guide route (the old route seeds the others)
+    assert on.pso.feasible_iters == ReplanConfig().settle_iters > 0 and SC.planner.pso.feasible_iters == 0
+    assert on.roadmap.n_routes == ReplanConfig().guide_routes == 1 != SC.planner.roadmap.n_routes
 
 
 def test_the_latency_report_says_which_planner_made_the_replans(tmp_path: Path) -> None:
