@@ -246,16 +246,21 @@ class LiveReplanner:
         self._guard_at = -math.inf  # wall time of the last guard action
 
     def _start_worker(self, started: PlanWorker | None = None) -> PlanWorker:
-        """The planner process, warmed up on the whole route: ``started`` (a process already running) or a new one."""
+        """The planner process, warmed up on the whole route: ``started`` (a process already running) or a new one.
+        A vehicle that holds on circles is also warmed with the wider margin its routes from a hold keep: that is
+        another roadmap (its clearance is part of the graph), and building it at the first held plan made that plan
+        0.07 s slower on an idle core, 0.1 s under load on SITL."""
         if self._worker is None:
-            problem = replan_problem(self.scenario, self.route.points[0], self.route.goal,
-                                     self.scenario.environment.threats, 0.0)
             settings = replan_settings(self.scenario.planner, self.cfg)
+            margins = (0.0, RESUME_MARGIN_M) if self.link.profile.hold_circles else (0.0,)
+            problems = [replan_problem(self.scenario, self.route.points[0], self.route.goal,
+                                       self.scenario.environment.threats, 0.0, static_margin=m) for m in margins]
             if started is not None:
-                started.warm(problem, settings)
                 self._worker = started
             else:
-                self._worker = PlanWorker(problem, settings)
+                self._worker = PlanWorker(problems.pop(0), settings)
+            for problem in problems:
+                self._worker.warm(problem, settings)
         return self._worker
 
     # -- picture ------------------------------------------------------------------------------------
