@@ -252,15 +252,11 @@ class LiveReplanner:
         0.07 s slower on an idle core, 0.1 s under load on SITL."""
         if self._worker is None:
             settings = replan_settings(self.scenario.planner, self.cfg)
-            margins = (0.0, RESUME_MARGIN_M) if self.link.profile.hold_circles else (0.0,)
-            problems = [replan_problem(self.scenario, self.route.points[0], self.route.goal,
-                                       self.scenario.environment.threats, 0.0, static_margin=m) for m in margins]
-            if started is not None:
-                self._worker = started
-            else:
-                self._worker = PlanWorker(problems.pop(0), settings)
-            for problem in problems:
-                self._worker.warm(problem, settings)
+            self._worker = started if started is not None else PlanWorker()
+            for margin in (0.0, RESUME_MARGIN_M) if self.link.profile.hold_circles else (0.0,):
+                self._worker.warm(replan_problem(self.scenario, self.route.points[0], self.route.goal,
+                                                 self.scenario.environment.threats, 0.0, static_margin=margin),
+                                  settings)
         return self._worker
 
     # -- picture ------------------------------------------------------------------------------------
@@ -802,8 +798,10 @@ class LiveReplanner:
         if not self._clear_from(target):
             reason = "no safe plan: the new route is no longer clear from where the vehicle is"
             await self.hold(reason)
-            if self.holding is not None:  # retried from here like any plan that is not safe (a hold refused: the
-                self.holding = reason      # vehicle flies on, and its conflicts are predicted again)
+            # retried from here like any plan that is not safe; a hold refused leaves the vehicle flying on, and its
+            # conflicts are predicted again
+            if self.holding is not None:
+                self.holding = reason
             rec.held = True
             if target != self.current_seq:
                 await self.set_current(target)

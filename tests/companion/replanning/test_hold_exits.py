@@ -70,6 +70,19 @@ def _index(records: list[dict], event: str, start: int = 0) -> int:
     return next(i for i, r in enumerate(records) if i >= start and r["event"] == event)
 
 
+def _looked_again_at_once(records: list[dict], after: int) -> None:
+    """After the exit at ``records[after]`` was refused or missed, the plane was not resumed blind: it looked again at
+    once (within a second of wall, not a circle later: 2.6 s at 10x), planning a new exit or finding the traffic gone
+    (seconds later, the intruder has often passed), and was resumed only after that look."""
+    names = [r["event"] for r in records]
+    resume = _index(records, "resume", after)
+    looked = [n for n in names[after:resume] if n in ("replan_planned", "threat_cleared")]
+    assert looked, names[after:resume]
+    assert "threat_cleared" in looked or "hold_exit" in names[after:resume]  # resumed by a check, never blind
+    look = next(r for r in records[after:resume] if r["event"] in ("replan_planned", "threat_cleared"))
+    assert look["t"] - records[after]["t"] < 1.0
+
+
 def test_a_held_plane_is_resumed_at_its_circles_exit_towards_the_item_after_it(dynamic_doc: dict) -> None:
     """Held, the plane's route is planned from the exit with the held plane's whole budget, made live with the item
     after the exit current while it circles on, and AUTO resumed as it comes to the exit."""
@@ -134,15 +147,7 @@ def test_an_exit_whose_join_is_no_longer_clear_is_refused_and_planned_again(dyna
     refused = _index(records, "hold_exit_refused", first)
     assert records[refused]["seq"] == records[first]["seq"] and records[refused]["clearance_m"] == 4.0
     assert "resume" not in [r["event"] for r in records[first:refused]]
-    # not resumed on the refused exit: still held, it looks again at once, and resumes only after that look has
-    # planned a new exit or found the traffic gone (here, seconds later, the intruder has often passed)
-    names = [r["event"] for r in records]
-    resume = _index(records, "resume", refused)
-    looked = [n for n in names[refused:resume] if n in ("replan_planned", "threat_cleared")]
-    assert looked, names[refused:resume]
-    assert "threat_cleared" in looked or "hold_exit" in names[refused:resume]  # resumed by a check, never blind
-    look = next(r for r in records[refused:resume] if r["event"] in ("replan_planned", "threat_cleared"))
-    assert look["t"] - records[refused]["t"] < 1.0  # at once: not a circle (2.6 s of wall at 10x) later
+    _looked_again_at_once(records, refused)
     _kept_d_coll(sc, sim)
 
 
@@ -173,14 +178,7 @@ def test_an_exit_passed_before_it_was_looked_at_is_planned_again_not_flown_late(
     missed = _index(records, "hold_exit_missed", first)
     assert records[missed]["seq"] == records[first]["seq"]
     assert "resume" not in [r["event"] for r in records[first:missed]]
-    # looked at again at once: a new plan from the circle (and its exit), or the traffic found gone, before a resume
-    names = [r["event"] for r in records]
-    resume = _index(records, "resume", missed)
-    looked = [n for n in names[missed:resume] if n in ("replan_planned", "threat_cleared")]
-    assert looked, names[missed:resume]
-    assert "threat_cleared" in looked or "hold_exit" in names[missed:resume]  # resumed by a check, never blind
-    look = next(r for r in records[missed:resume] if r["event"] in ("replan_planned", "threat_cleared"))
-    assert look["t"] - records[missed]["t"] < 1.0  # at once: not a circle (2.6 s of wall at 10x) later
+    _looked_again_at_once(records, missed)
     _kept_d_coll(sc, sim)
 
 
