@@ -256,6 +256,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     safety = flown_safety(flown, scenario.environment, scenario.hazard.d_coll,
                           {k: v.separation for k, v in seps.items()})
     records = replanner.records if replanner is not None else []
+    pace = replanner.prediction.pace if replanner is not None else None
     done = [r for r in records if r.latency_s is not None]
     doc = {
         "completed": out.completed,
@@ -280,7 +281,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         "min_separation_t_s": {k: round(v.t, 2) for k, v in seps.items()},
         "separation_source": "simulator truth" if sim is not None else (
             "GLOBAL_POSITION_INT against the scripted intruders (traffic feed)" if feed is not None else None),
-        "pace_m_s": None if replanner is None or replanner.pace is None else round(replanner.pace, 2),
+        "pace_m_s": None if pace is None else round(pace, 2),
         "replan_latency_s": _stats([r.latency_s for r in done]),
         "replan_plan_s": _stats([r.plan_s for r in records]),
         "replan_log": [r.summary() for r in records],

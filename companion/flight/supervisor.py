@@ -12,6 +12,7 @@ import math
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field, replace
+from typing import Protocol
 
 import numpy as np
 from pymavlink.dialects.v20 import common as mavlink
@@ -33,7 +34,7 @@ from companion.mission import picture
 from companion.mission.events import EventLog
 from companion.mission.geo import geodetic_to_enu
 from companion.mission.restore import restore_mission
-from companion.replanning.replanner import LiveReplanner
+from companion.mission.vehicle_state import VehicleState, subscribe
 from planner.world.home import Home
 
 log = logging.getLogger(__name__)
@@ -76,6 +77,64 @@ def _booting(hb: object) -> bool:
 def _mode_name(hb: object) -> str:
     """The mode a HEARTBEAT reports, by name."""
     return profile_for(hb.autopilot, hb.type).mode_name(hb.custom_mode)  # type: ignore[attr-defined]
+
+
+class Pilot(Protocol):
+    """Who flies the mission beside the supervisor: a :class:`FixedMission`, or a
+    replanner (:class:`~companion.replanning.replanner.LiveReplanner`) that changes it in flight."""
+
+    state: VehicleState  # the vehicle, fed by the supervisor's one subscription
+
+    @property
+    def holding(self) -> str | None: ...  # why the pilot holds the vehicle, or None
+
+    @property
+    def goal_seq(self) -> int: ...  # the goal waypoint's item in the live mission
+
+    @property
+    def mission(self) -> list[MissionItem]: ...  # the mission last verified on the vehicle
+
+    def near_goal(self) -> bool: ...  # a completion report may end the flight (not one from before a swap)
+
+    def note_upload(self, seconds: float) -> None: ...
+
+    async def ready(self) -> None: ...
+
+    async def run(self) -> None: ...  # beside the flight until cancelled; raising ends the flight
+
+    async def hold(self, reason: str) -> None: ...
+
+
+class FixedMission:
+    """The mission flown as uploaded, with nobody changing it: the pilot of a flight without replanning."""
+
+    holding: str | None = None
+
+    def __init__(self, items: Sequence[MissionItem], state: VehicleState) -> None:
+        self.items, self.state = list(items), state
+
+    @property
+    def goal_seq(self) -> int:
+        return max(it.seq for it in self.items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
+
+    @property
+    def mission(self) -> list[MissionItem]:
+        return self.items
+
+    def near_goal(self) -> bool:
+        return True
+
+    def note_upload(self, seconds: float) -> None:
+        pass
+
+    async def ready(self) -> None:
+        pass
+
+    async def run(self) -> None:
+        await asyncio.Event().wait()  # nothing to do beside the flight: waits to be cancelled
+
+    async def hold(self, reason: str) -> None:
+        raise CompanionError(f"nobody can hold the vehicle ({reason})")
 
 
 class FlightSupervisor:
@@ -314,74 +373,71 @@ class FlightSupervisor:
                                  "(pass --arm to let the companion arm it)") from None
 
     # -- monitor -----------------------------------------------------------------------------------
-    MONITORED = ("MISSION_ITEM_REACHED", "MISSION_CURRENT", "GLOBAL_POSITION_INT", "STATUSTEXT", "HEARTBEAT")
-
-    async def monitor(self, items: Sequence[MissionItem], timeout: float, outcome: FlightOutcome,
-                      sub: Subscription | None = None, replanner: LiveReplanner | None = None) -> None:
-        """Follow progress until the goal waypoint is reached (or the autopilot says the mission is
-        complete); fills ``outcome``. ``timeout`` in wall seconds. Pass a subscription opened before the
-        start so nothing sent right after MISSION_START is missed. With a ``replanner`` (run here as its own
-        task) the goal is that of the mission it made live, and its failure (vehicle held) ends the flight."""
+    async def monitor(self, pilot: Pilot, timeout: float, outcome: FlightOutcome,
+                      sub: Subscription | None = None) -> None:
+        """Follow progress until the goal waypoint is reached (or the autopilot says the mission is complete);
+        fills ``outcome``. ``timeout`` in wall seconds. Every message of the flight's one subscription (pass it
+        opened before the start, so nothing sent right after MISSION_START is missed) goes to the pilot's vehicle
+        state first. The pilot (a :class:`FixedMission`, or a replanner run here as its own task) says where the
+        goal is and which mission is verified on the vehicle; its failure ends the flight with the vehicle held."""
         t0 = time.monotonic()
-        task = asyncio.create_task(replanner.run(), name="replanner") if replanner is not None else None
+        task = asyncio.create_task(pilot.run(), name="pilot")
         try:
-            with sub if sub is not None else self.link.subscribe(*self.MONITORED) as sub:
-                await self._follow(sub, items, timeout, outcome, replanner, task)
+            with sub if sub is not None else subscribe(self.link) as sub:
+                await self._follow(sub, pilot, timeout, outcome, task)
         finally:
-            if task is not None and not task.done():
+            if not task.done():
                 task.cancel()
                 done, _ = await asyncio.wait({task}, timeout=REPLANNER_STOP_S)
                 if not done:
                     log.error("the replanner did not stop within %.0f s of being cancelled", REPLANNER_STOP_S)
         outcome.flight_s = time.monotonic() - t0
-        outcome.holding = replanner is not None and replanner.holding is not None
+        outcome.holding = pilot.holding is not None
 
-    async def _follow(self, sub: Subscription, items: Sequence[MissionItem], timeout: float,
-                      outcome: FlightOutcome, replanner: LiveReplanner | None, task: asyncio.Task | None) -> None:
-        fixed_goal = max(it.seq for it in items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
+    async def _follow(self, sub: Subscription, pilot: Pilot, timeout: float, outcome: FlightOutcome,
+                      task: asyncio.Task) -> None:
+        state = pilot.state
         t0 = time.monotonic()
         last_current = None
         lost_at: float | None = None  # when the link was found lost
         while True:
-            if task is not None and task.done():
+            if task.done():
                 exc = task.exception()
                 outcome.reason = str(exc) if exc is not None else "replanner stopped"
                 self.events.log("replanner_failed", error=outcome.reason)
                 if exc is not None and not isinstance(exc, CompanionError):
                     log.error("replanner failed", exc_info=exc)
-                if replanner is not None and replanner.holding is None:
+                if pilot.holding is None:
                     # it saw a conflict it could not resolve, or broke: do not fly on unsupervised into it
                     try:
-                        await replanner.hold(f"replanner stopped: {outcome.reason}")
+                        await pilot.hold(f"replanner stopped: {outcome.reason}")
                     except CompanionError as e:
                         self.events.log("hold_failed", error=str(e))
                 return
-            goal_seq = replanner.goal_seq if replanner is not None else fixed_goal
             left = timeout - (time.monotonic() - t0)
             if left <= 0:
                 outcome.reason = f"timeout after {timeout:.0f} s"
                 self.events.log("timeout", seconds=timeout)
                 return
             try:
-                msg = await sub.get(min(left, 0.2 if task is not None else 1.0))
+                msg = await sub.get(min(left, 0.2))
             except TimeoutError:
                 if self.link.heartbeat_age > self.link.heartbeat_timeout and lost_at is None:
                     age = self.link.heartbeat_age
                     lost_at = time.monotonic() - (age if math.isfinite(age) else 0.0)  # the last HEARTBEAT heard
                     self.events.log("link_lost", age_s=round(age, 1),
                                     decision="the vehicle keeps flying its verified mission; waiting for the link")
-                    if replanner is not None:
-                        replanner.link_lost()
+                    state.link_lost()
                 continue
             if lost_at is not None and msg.get_type() == "HEARTBEAT":
                 self.events.log("link_restored", outage_s=round(time.monotonic() - lost_at, 1))
                 lost_at = None
-                expected = replanner.verified[-1][1] if replanner is not None else items
-                await self.resync(expected)
-                if replanner is not None:
-                    replanner.link_restored()
+                await self.resync(pilot.mission)
+                state.link_restored()
+            state.observe(msg)
             kind = msg.get_type()
             t = time.monotonic() - t0
+            goal_seq = pilot.goal_seq
             if kind == "GLOBAL_POSITION_INT":
                 outcome.track.append((t, msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0))
                 self._log_position(msg)
@@ -389,13 +445,13 @@ class FlightSupervisor:
                 if msg.seq not in outcome.items_reached:
                     outcome.items_reached.append(msg.seq)
                     self.events.log("reached", seq=msg.seq, of=goal_seq)
-                if msg.seq == goal_seq and (replanner is None or replanner.near_goal()):
+                if msg.seq == goal_seq and pilot.near_goal():
                     outcome.completed, outcome.reason = True, "goal waypoint reached"
                     return
             elif kind == "MISSION_CURRENT" and msg.seq != last_current:
                 last_current = msg.seq
                 self.events.log("current", seq=msg.seq)
-                if msg.seq > goal_seq and (replanner is None or replanner.near_goal()):
+                if msg.seq > goal_seq and pilot.near_goal():
                     # past the goal (its REACHED may have been lost on the link)
                     outcome.completed, outcome.reason = True, f"mission current item {msg.seq} is past the goal"
                     return
@@ -425,7 +481,7 @@ class FlightSupervisor:
 
     async def fly(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (), *,
                   ready_timeout: float = 60.0, flight_timeout: float = 600.0,
-                  replanner: LiveReplanner | None = None,
+                  replanner: Pilot | None = None,
                   departure: Callable[[VehicleFix, bool], None] | None = None) -> FlightOutcome:
         """Ready → where is the vehicle (``departure`` checks it, raising :class:`DepartureRefused`) → upload +
         verify → start → monitor (and replan, with a ``replanner``). Raises on link/upload failures (the CLI maps
@@ -446,15 +502,13 @@ class FlightSupervisor:
         out.upload_s = await self.upload(items, fence)
         if self.home is not None:
             self.events.log("mission", **picture.mission(items, self.home))
-        if replanner is not None:
-            replanner.note_upload(out.upload_s)
-        if replanner is not None:  # its planner process warmed up before take-off, not at the first conflict
-            await replanner.ready()
+        pilot: Pilot = replanner if replanner is not None else FixedMission(items, VehicleState(self.home))
+        pilot.note_upload(out.upload_s)
+        await pilot.ready()  # a replanner's planner process warmed up before take-off, not at the first conflict
         first = next(it.seq for it in items if it.command != mavlink.MAV_CMD_NAV_WAYPOINT or it.seq > 0)
-        with self.link.subscribe(*self.MONITORED) as sub:
+        with subscribe(self.link) as sub:
             await self.start(first)
-            if replanner is not None:
-                replanner.mission_started(time.monotonic())
-            await self.monitor(items, flight_timeout, out, sub, replanner)
+            pilot.state.mission_started(time.monotonic())
+            await self.monitor(pilot, flight_timeout, out, sub)
         self.events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
         return out

@@ -1,5 +1,5 @@
-"""Live replanning, the pure part (docs/design.md, "Live replanning"): vehicle clock, the flown mission as a
-route, commit point, the replanning problem with its warm start, and the splice of a new route into the mission.
+"""Live replanning, the pure part (docs/design.md, "Live replanning"): the flown mission as a route, commit point,
+the replanning problem with its warm start, the splice of a new route into the mission, and the record of a replan.
 
 The MAVLink choreography (upload while flying, guard, hold, set-current) is in :mod:`companion.replanning.replanner`.
 Times here are *mission time*: vehicle seconds since the mission started, the clock the scenario's scripted
@@ -11,7 +11,8 @@ from __future__ import annotations
 import dataclasses
 import itertools
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from typing import Any
 
 import numpy as np
 
@@ -79,42 +80,33 @@ class ReplanConfig:
             raise ValueError(f"invalid replanning settings: {self}")
 
 
-class VehicleClock:
-    """Vehicle time in seconds from ``time_boot_ms`` (simulated time in SITL), extrapolated between messages.
+@dataclass
+class ReplanRecord:
+    """One replan, as written to flight.json and drawn on the report."""
 
-    The rate (vehicle seconds per wall second) is given (our simulator's speed-up) or measured from the
-    messages over at least one wall second; a reboot (time going backwards) restarts the measurement.
-    """
+    n: int
+    reason: str
+    threat: str
+    t_mission: float
+    conflict_in_s: float
+    sep_before_m: float
+    sep_after_m: float | None = None
+    plan_status: str = ""
+    budget_s: float = 0.0  # the planner's time budget for this plan (it doubles after a failed plan)
+    plan_s: float = 0.0
+    upload_s: float = 0.0
+    latency_s: float | None = None  # conflict detected → new mission current (wall)
+    held: bool = False
+    upload_path: str = ""  # "partial FIRST-LAST", "whole" or "unchanged" (MissionClient.upload_changed_verified)
+    outcome: str = ""
+    commit: list[float] = field(default_factory=list)
+    old_route: list[list[float]] = field(default_factory=list)
+    new_route: list[list[float]] = field(default_factory=list)
 
-    def __init__(self, rate: float | None = None) -> None:
-        self._hint = rate
-        self._first: tuple[float, float] | None = None
-        self._last: tuple[float, float] | None = None
-
-    def observe(self, boot_ms: int, wall: float) -> None:
-        t = boot_ms / 1000.0
-        if self._last is not None and t < self._last[0]:
-            self._first = None
-        if self._first is None:
-            self._first = (t, wall)
-        self._last = (t, wall)
-
-    @property
-    def rate(self) -> float:
-        if self._hint is not None:
-            return self._hint
-        if self._first is None or self._last is None or self._last[1] - self._first[1] < 1.0:
-            return 1.0
-        return max((self._last[0] - self._first[0]) / (self._last[1] - self._first[1]), 1e-3)
-
-    @property
-    def synced(self) -> bool:
-        return self._last is not None
-
-    def now(self, wall: float) -> float:
-        if self._last is None:
-            return 0.0
-        return self._last[0] + (wall - self._last[1]) * self.rate
+    def summary(self) -> dict[str, Any]:
+        """The event-log view (routes left out)."""
+        d = {k: v for k, v in self.__dict__.items() if k not in ("old_route", "new_route")}
+        return {k: round(v, 3) if isinstance(v, float) else v for k, v in d.items()}
 
 
 @dataclass(frozen=True)

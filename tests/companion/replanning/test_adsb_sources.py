@@ -15,12 +15,14 @@ import numpy as np
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.flight.supervisor import FlightOutcome, FlightSupervisor
 from companion.mavlink.link import MAV_COMP_ID_ADSB, Link
 from companion.mavlink.protocol import MissionClient
 from companion.mission.builder import mission_from_plan_json, spec_from_plan_json
 from companion.mission.events import EventLog
 from companion.mission.geo import enu_to_geodetic
-from companion.replanning.replanner import LiveReplanner, watch
+from companion.mission.vehicle_state import subscribe
+from companion.replanning.replanner import LiveReplanner
 from companion.replanning.threats import TrackPicture
 from planner.world.home import Home
 from planner.world.scenario import load_scenario
@@ -100,7 +102,7 @@ async def test_extra_components_admit_only_those_components_of_the_target_system
 async def test_replanner_subscription_takes_adsb_from_the_autopilot_and_its_receiver(raw_peer):
     async with Link(f"udpout:127.0.0.1:{raw_peer.port}") as link:
         await _vehicle_identified(raw_peer, link)
-        with watch(link) as sub:
+        with subscribe(link) as sub:
             _send_from_everyone(raw_peer)
             raw_peer.send(heartbeat(custom_mode=11), VEHICLE, 1)
             raw_peer.send(adsb(0xFFFFFF), VEHICLE, 1)
@@ -122,7 +124,8 @@ async def _until(condition, timeout: float = 2.0) -> None:
 
 @pytest.mark.asyncio
 async def test_replanner_track_picture_from_the_autopilot_and_its_receiver(raw_peer, static_plan_doc):
-    """End to end through LiveReplanner.run: tracks from the two accepted sources, none from the others."""
+    """End to end through the flight's one subscription, read by the supervisor's monitor into the vehicle state,
+    and LiveReplanner.run beside it: tracks from the two accepted sources, none from the others."""
     scenario = load_scenario(Path(__file__).resolve().parents[3] / "sitl_scenarios" / "rescue_static.toml")
     doc = static_plan_doc()
     items = mission_from_plan_json(doc, scenario, "ardupilot")
@@ -137,24 +140,25 @@ async def test_replanner_track_picture_from_the_autopilot_and_its_receiver(raw_p
         await _vehicle_identified(raw_peer, link)
         rp = await stack.enter_async_context(
             LiveReplanner(link, MissionClient(link), events, scenario, spec, items, rate=1.0))
-        task = asyncio.create_task(rp.run())
+        sup = FlightSupervisor(link, MissionClient(link), events, arm=False, home=home)
+        task = asyncio.create_task(sup.monitor(rp, 30.0, FlightOutcome(False, "")))
         stack.push_async_callback(asyncio.gather, task, return_exceptions=True)
         stack.callback(task.cancel)
         await asyncio.sleep(0.1)  # subscribed
         raw_peer.send(mavlink.MAVLink_global_position_int_message(
             5000, round(home.lat * 1e7), round(home.lon * 1e7), 0, 0, 0, 0, 0, 0), VEHICLE, 1)
-        await _until(lambda: rp.clock.synced)
-        rp.mission_started(time.monotonic())
+        await _until(lambda: rp.state.clock.synced)
+        rp.state.mission_started(time.monotonic())
         raw_peer.send(heartbeat(custom_mode=10), VEHICLE, 1)  # AUTO
         for source in ((VEHICLE, MAV_COMP_ID_ADSB), GCS):
             raw_peer.send(heartbeat(mavlink.MAV_AUTOPILOT_INVALID, mavlink.MAV_TYPE_ADSB, custom_mode=77), *source)
         for source, icao in SOURCES.items():
             raw_peer.send(adsb(icao, float(far_lat), float(far_lon)), *source)
-        await _until(lambda: len(rp.tracks) >= len(ACCEPTED))
+        await _until(lambda: len(rp.prediction.tracks) >= len(ACCEPTED))
         await asyncio.sleep(0.2)  # anything else would have arrived by now
-        assert set(rp.tracks.tracks) == ACCEPTED
+        assert set(rp.prediction.tracks.tracks) == ACCEPTED
         assert {e["id"] for e in events.records if e["event"] == "track"} == {f"adsb-{i:06x}" for i in ACCEPTED}
-        assert rp.custom_mode == 10  # the receiver's and the GCS's HEARTBEATs were not taken for the mode
+        assert rp.state.custom_mode == 10  # the receiver's and the GCS's HEARTBEATs were not taken for the mode
 
 
 # --- the same report twice -------------------------------------------------------------------------------------

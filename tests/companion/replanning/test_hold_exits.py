@@ -19,6 +19,7 @@ import pytest
 
 from companion.flight.fly import truth_separations
 from companion.flight.latency_bench import fly_on_sim
+from companion.replanning import rejoin
 from companion.replanning import replanner as rp_module
 from companion.replanning.holds import arc_to
 from companion.replanning.replan import ReplanConfig
@@ -42,12 +43,12 @@ def dynamic_doc(tmp_path_factory: pytest.TempPathFactory) -> dict:
 def _only_exits_safe(rp: LiveReplanner) -> None:
     """Every plan not made from a hold circle's exit comes back infeasible (what a loaded machine gives): the plane
     holds, and its route goes live only by way of an exit."""
-    worker = rp._worker  # noqa: SLF001
+    worker = rp.planning.worker
     real = worker.plan
 
     async def plan(*args, **kwargs):  # noqa: ANN202
         out = await real(*args, **kwargs)
-        if rp._planning_exit is None:  # noqa: SLF001
+        if rp.modes.planning_exit is None:
             return replace(out, status="infeasible", violations={"collision": 1})
         return out
 
@@ -90,16 +91,16 @@ def test_a_held_plane_is_resumed_at_its_circles_exit_towards_the_item_after_it(d
 
     async def during(sim: SimAutopilot, rp: LiveReplanner) -> None:
         _only_exits_safe(rp)
-        resume = rp.resume
+        resume = rp.modes.resume
 
         async def watched() -> None:
-            if "at" not in seen and rp._exit is None and rp.hold_pattern is not None:  # noqa: SLF001
-                seen["at"] = None if rp.position is None else rp.position.copy()
-                seen["pattern"] = rp.hold_pattern
-                seen["current"] = rp.current_seq
+            if "at" not in seen and rp.modes.exit is None and rp.modes.pattern is not None:
+                seen["at"] = None if rp.state.position is None else rp.state.position.copy()
+                seen["pattern"] = rp.modes.pattern
+                seen["current"] = rp.state.current_seq
             await resume()
 
-        rp.resume = watched
+        rp.modes.resume = watched
 
     sc, out, records, rp, sim = _fly(dynamic_doc, during)
     assert out.completed, out.reason
@@ -119,8 +120,8 @@ def test_a_held_plane_is_resumed_at_its_circles_exit_towards_the_item_after_it(d
     r = float(np.linalg.norm(position[:2] - pattern.centre[:2]))
     ahead = arc_to(position, pattern.centre, pattern.clockwise, at) * r
     ahead = min(ahead, 2.0 * math.pi * r - ahead)  # or just past it, between two looks
-    speed = rp.flying_speed
-    assert ahead <= (rp_module.EXIT_LEAD_S + 2.0 * rp.cfg.check_interval_wall_s * SPEEDUP) * speed + 10.0, ahead
+    speed = rp.motion.flying_speed
+    assert ahead <= (rp_module.EXIT_LEAD_S + 2.0 * rp.ctx.cfg.check_interval_wall_s * SPEEDUP) * speed + 10.0, ahead
     assert seen["current"] == records[exit_]["seq"]  # towards the item after the exit
     _kept_d_coll(sc, sim)
 
@@ -130,16 +131,16 @@ def test_an_exit_whose_join_is_no_longer_clear_is_refused_and_planned_again(dyna
     resumed there; it holds on and is looked at again at once."""
     async def during(sim: SimAutopilot, rp: LiveReplanner) -> None:
         _only_exits_safe(rp)
-        real = rp.leg_blocked
+        real = rp.rejoin.leg_blocked
         refuse = [True]
 
-        def leg_blocked(seq: int, margin_m: float = rp_module.RESUME_MARGIN_M):  # noqa: ANN202
+        def leg_blocked(seq: int, margin_m: float = rejoin.RESUME_MARGIN_M):  # noqa: ANN202
             if margin_m == EXIT_CHECK_MARGIN_M and refuse:  # the exit's own check, once
                 refuse.pop()
                 return 4.0, "cylinders[3]"
             return real(seq, margin_m)
 
-        rp.leg_blocked = leg_blocked
+        rp.rejoin.leg_blocked = leg_blocked
 
     sc, out, records, _rp, sim = _fly(dynamic_doc, during)
     assert out.completed, out.reason
@@ -160,11 +161,11 @@ def test_an_exit_passed_before_it_was_looked_at_is_planned_again_not_flown_late(
         starved = [True]
 
         async def leave_hold(now: float) -> None:
-            leaving = rp._exit  # noqa: SLF001
-            if starved and leaving is not None and rp.position is not None:
-                centre, clockwise = rp.hold_pattern.centre, rp.hold_pattern.clockwise
-                r = float(np.linalg.norm(rp.position[:2] - centre[:2]))
-                left = arc_to(rp.position, centre, clockwise, leaving.exit.point) * r
+            leaving, position = rp.modes.exit, rp.state.position
+            if starved and leaving is not None and position is not None:
+                centre, clockwise = rp.modes.pattern.centre, rp.modes.pattern.clockwise
+                r = float(np.linalg.norm(position[:2] - centre[:2]))
+                left = arc_to(position, centre, clockwise, leaving.exit.point) * r
                 if now <= leaving.due + EXIT_LATE_S or left < 100.0:
                     return  # not looked at: not yet late, or too near the exit (a look there would take it)
                 starved.pop()
@@ -184,7 +185,7 @@ def test_an_exit_passed_before_it_was_looked_at_is_planned_again_not_flown_late(
 
 def test_the_exit_check_is_the_one_monkeypatched_here() -> None:
     """The flights above single out the exit's own check by its margin: it must differ from the other resumes'."""
-    assert EXIT_CHECK_MARGIN_M != rp_module.RESUME_MARGIN_M and math.isfinite(EXIT_LATE_S)
+    assert EXIT_CHECK_MARGIN_M != rejoin.RESUME_MARGIN_M and math.isfinite(EXIT_LATE_S)
 
 
 def test_a_late_plan_keeps_a_route_that_keeps_the_traffic_further_than_the_hold_and_other_holds_are_still_taken(
@@ -196,21 +197,22 @@ def test_a_late_plan_keeps_a_route_that_keeps_the_traffic_further_than_the_hold_
 
     async def during(sim: SimAutopilot, rp: LiveReplanner) -> None:
         # where a checked circle is clear: a hold refused for want of one would prove nothing here
-        while sim.mode != "AUTO" or sim.mission_time is None or sim.mission_time < 5.0 or rp._checked_hold() is None:  # noqa: SLF001
+        while sim.mode != "AUTO" or sim.mission_time is None or sim.mission_time < 5.0 \
+                or rp.modes.checked_hold() is None:
             await asyncio.sleep(0.01)
-        real = rp._checked_hold  # noqa: SLF001
+        real = rp.modes.checked_hold
 
         def nearer() -> object:
             pattern = real()
             return None if pattern is None else replace(pattern, traffic_separation_m=20.0)
 
-        rp._checked_hold = nearer  # noqa: SLF001
+        rp.modes.checked_hold = nearer
         await rp.hold("test: the plan is late", route_separation=50.0)
         seen["late"] = (rp.holding, sim.mode)
         await rp.hold("test: the swap's hold")
         seen["swap"] = (rp.holding, sim.mode)
-        rp._checked_hold = real  # noqa: SLF001
-        await rp.resume()
+        rp.modes.checked_hold = real
+        await rp.modes.resume()
 
     sc = load_scenario(DYNAMIC)
     out, records, _rp, _sim = asyncio.run(fly_on_sim(dynamic_doc, sc, speedup=20.0, cfg=ReplanConfig(),

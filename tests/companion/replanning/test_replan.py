@@ -10,11 +10,16 @@ import pytest
 
 from companion.mavlink.items import compare_items
 from companion.mavlink.storage import Firmware, changed_range
-from companion.mission.builder import CMD_LOITER_UNLIM, MissionSpec, build_mission, time_to_start
+from companion.mission.builder import (
+    CMD_LOITER_UNLIM,
+    MissionSpec,
+    build_mission,
+    time_to_start,
+)
+from companion.mission.vehicle_state import VehicleClock
 from companion.replanning.replan import (
     MissionRoute,
     ReplanConfig,
-    VehicleClock,
     commit_point,
     padded,
     replan_problem,
@@ -23,7 +28,11 @@ from companion.replanning.replan import (
     warm_starts,
     with_room,
 )
-from companion.replanning.separation import min_separations, separation_to_law, separation_to_track
+from companion.replanning.separation import (
+    min_separations,
+    separation_to_law,
+    separation_to_track,
+)
 from planner.world.environment import Threat, Threats
 from planner.world.scenario import load_scenario
 

@@ -288,7 +288,7 @@ def _slow_first_plan(delay_s: float, guard: bool = True):
     """A ``during`` hook: the replanner's first plan comes back ``delay_s`` of wall time late (a loaded
     machine); ``guard=False`` also turns its hold guards off, to reach the last line of defence."""
     async def during(sim: SimAutopilot, rp: LiveReplanner) -> None:
-        worker = rp._worker  # noqa: SLF001
+        worker = rp.planning.worker
         real = worker.plan
         late = [delay_s]
 
@@ -299,7 +299,7 @@ def _slow_first_plan(delay_s: float, guard: bool = True):
 
         worker.plan = plan
         if not guard:
-            rp._guard_threshold_s = lambda: -math.inf  # noqa: SLF001
+            rp.swap.guard_threshold_s = lambda: -math.inf
 
     return during
 
@@ -437,15 +437,16 @@ def test_a_stale_auto_heartbeat_between_hold_and_resume_does_not_leave_the_vehic
 
     async def hold_then_resume(sim: SimAutopilot, rp: LiveReplanner) -> None:
         # where a checked circle is clear (its entry turn too): a hold refused leaves nothing to resume from
-        while sim.mode != "AUTO" or sim.mission_time is None or sim.mission_time < 5.0 or rp._checked_hold() is None:
+        while sim.mode != "AUTO" or sim.mission_time is None or sim.mission_time < 5.0 \
+                or rp.modes.checked_hold() is None:
             await asyncio.sleep(0.01)
         await rp.hold("test: a hold the vehicle reports late")
         seen["held"] = sim.mode
-        auto = rp.link.profile.mode_number("AUTO")
+        auto = rp.ctx.mode_number("AUTO")
         sim.inject_stale_heartbeat("AUTO")
-        while rp.custom_mode != auto:  # the stale HEARTBEAT has reached the companion
+        while rp.state.custom_mode != auto:  # the stale HEARTBEAT has reached the companion
             await asyncio.sleep(0.001)
-        await rp.resume()
+        await rp.modes.resume()
 
     out, records, _verified, _flown, sim = asyncio.run(
         _harness(sc, doc, 20.0, ReplanConfig(), during=hold_then_resume, flight_timeout=60.0))

@@ -1,0 +1,69 @@
+"""How this vehicle flies, for the replanner's checks (docs/design.md, "Live replanning"): its turn radii at the
+speed it flies, how early it may take an item, and the paths its path-follower may fly along a route."""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterator
+
+import numpy as np
+
+from companion.mavlink.vehicle_limits import ARDUPLANE_TURN_EFFICIENCY
+from companion.replanning.context import ReplanContext
+from companion.replanning.guard import GUARD_DT_S, predict_own_path
+from planner.world.config import G0
+
+# how much wider than its path-follower's bound (AutopilotLimits.wide_turn_radius) a plane may turn (flown_paths,
+# and onto a hold circle): resuming, ArduPlane SITL at 23.5 m/s turned back from a hold at 58 m against the L1
+# law's 37 m, then flew straight at the item from there, 22.7 m into a cylinder the path predicted at 37 m cleared.
+# SITL's plane turns at ARDUPLANE_TURN_EFFICIENCY (0.58) of the rate its bank implies, so up to 1/0.58 = 1.72 times
+# wider; with 1.6, the simulator flying that came 6.5 m from a cylinder on resuming (crossing_traffic, 1 of 10)
+WIDE_TURNS = 1.05 / ARDUPLANE_TURN_EFFICIENCY
+
+
+class VehicleMotion:
+    """The vehicle's turns and paths, from its measured ground speed and its limits (read, else the scenario's)."""
+
+    def __init__(self, ctx: ReplanContext) -> None:
+        self.ctx = ctx
+
+    @property
+    def flying_speed(self) -> float:
+        """The speed it flies turns and circles at: its ground speed, at least the cruise speed (a plane slowed
+        by a climb, or a vehicle not yet up to speed, still turns as wide as at cruise)."""
+        return max(self.ctx.state.groundspeed, self.ctx.scenario.vehicle.cruise_speed)
+
+    def turn_radius(self) -> float:
+        """The vehicle's tightest turn at its ground speed (its roll limit when read, else the scenario's bank)."""
+        limits = self.ctx.limits
+        bank = math.radians(limits.max_bank_deg if limits is not None else self.ctx.scenario.vehicle.max_bank_deg)
+        return self.flying_speed ** 2 / (G0 * math.tan(bank))
+
+    def wide_turn_radius(self, speed: float) -> float:
+        """How wide a plane's path-follower turns onto a track far off its heading (AutopilotLimits.wide_turn_radius;
+        twice the tightest turn without read limits), never less than the tightest turn."""
+        limits = self.ctx.limits
+        wide = limits.wide_turn_radius(speed) if limits is not None else 2.0 * self.turn_radius()
+        return max(wide, self.turn_radius())
+
+    def switch_m(self) -> float:
+        """How far before a waypoint the vehicle may count it reached (ArduPlane switches early)."""
+        return max(self.ctx.scenario.vehicle.acceptance_radius, self.ctx.profile.early_switch_m)
+
+    def flown_paths(self, position: np.ndarray, velocity: np.ndarray, origin: np.ndarray, targets: np.ndarray,
+                    radius: float, horizon_s: float, dt: float = GUARD_DT_S, direct: bool = False,
+                    behind: bool = False) -> Iterator[np.ndarray]:
+        """The paths the vehicle may fly along ``targets`` (:func:`predict_own_path`), one at a time (a check that
+        finds a breach stops predicting). A plane's path-follower is not modelled closely enough for one: it may
+        turn as wide as ``radius`` or WIDE_TURNS times it, take each item at its acceptance radius or as early as
+        ArduPlane switches, and (``behind``: its item behind it) turn round either way. A copter (no circles) has
+        one."""
+        accept = self.ctx.scenario.vehicle.acceptance_radius
+        plane = self.ctx.profile.hold_circles
+        radii = (radius, WIDE_TURNS * radius) if plane else (radius,)
+        accepts = tuple(dict.fromkeys((accept, self.switch_m()))) if plane else (accept,)
+        senses = (-1, 1) if plane and behind else (0,)
+        for r, a, sense in itertools.product(radii, accepts, senses):
+            yield predict_own_path(position, velocity, origin, targets, r, a, horizon_s=horizon_s, dt=dt,
+                                   direct=direct, sense=sense)
