@@ -422,12 +422,16 @@ class FlightSupervisor:
             try:
                 msg = await sub.get(min(left, 0.2))
             except TimeoutError:
-                if self.link.heartbeat_age > self.link.heartbeat_timeout and lost_at is None:
-                    age = self.link.heartbeat_age
-                    lost_at = time.monotonic() - (age if math.isfinite(age) else 0.0)  # the last HEARTBEAT heard
-                    self.events.log("link_lost", age_s=round(age, 1),
-                                    decision="the vehicle keeps flying its verified mission; waiting for the link")
-                    state.link_lost()
+                msg = None
+            # looked at on every pass: ADS-B from a receiver on another path may keep coming when the autopilot's
+            # link is gone
+            if lost_at is None and self.link.heartbeat_age > self.link.heartbeat_timeout:
+                age = self.link.heartbeat_age
+                lost_at = time.monotonic() - (age if math.isfinite(age) else 0.0)  # the last HEARTBEAT heard
+                self.events.log("link_lost", age_s=round(age, 1),
+                                decision="the vehicle keeps flying its verified mission; waiting for the link")
+                state.link_lost()
+            if msg is None:
                 continue
             if lost_at is not None and msg.get_type() == "HEARTBEAT":
                 self.events.log("link_restored", outage_s=round(time.monotonic() - lost_at, 1))
@@ -440,7 +444,7 @@ class FlightSupervisor:
             goal_seq = pilot.goal_seq
             if kind == "GLOBAL_POSITION_INT":
                 outcome.track.append((t, msg.lat / 1e7, msg.lon / 1e7, msg.relative_alt / 1000.0))
-                self._log_position(msg)
+                self._log_position(msg, state)
             elif kind == "MISSION_ITEM_REACHED":
                 if msg.seq not in outcome.items_reached:
                     outcome.items_reached.append(msg.seq)
@@ -468,15 +472,15 @@ class FlightSupervisor:
                 self.events.log("disarmed")
                 return
 
-    def _log_position(self, msg: Message) -> None:
-        """A ``position`` record (local frame, ground speed, heading), at most every :data:`POSITION_EVERY_S`."""
+    def _log_position(self, msg: Message, state: VehicleState) -> None:
+        """A ``position`` record (the vehicle state's position in the local frame, ground speed, heading), at most
+        every :data:`POSITION_EVERY_S`."""
         now = time.monotonic()
-        if self.home is None or now - self._position_at < POSITION_EVERY_S:
+        if self.home is None or state.position is None or now - self._position_at < POSITION_EVERY_S:
             return
         self._position_at = now
-        e, n, _u = geodetic_to_enu(msg.lat / 1e7, msg.lon / 1e7, self.home.alt, self.home)
-        self.events.log("position", x=round(float(e), 1), y=round(float(n), 1), z=round(msg.relative_alt / 1000, 1),
-                        gs=round(math.hypot(msg.vx, msg.vy) / 100, 1),
+        x, y, z = (round(float(v), 1) for v in state.position)
+        self.events.log("position", x=x, y=y, z=z, gs=round(state.groundspeed, 1),
                         hdg=None if msg.hdg == 65535 else round(msg.hdg / 100, 1))
 
     async def fly(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (), *,

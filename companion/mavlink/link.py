@@ -26,6 +26,7 @@ import asyncio
 import logging
 import math
 import struct
+import time
 from collections.abc import AsyncIterator, Callable, Iterable, Mapping
 from types import ModuleType
 from typing import Any
@@ -40,6 +41,13 @@ from companion.mavlink.signing import SigningKey, enable_signing
 log = logging.getLogger(__name__)
 
 Message = Any  # a pymavlink MAVLink_message; pymavlink has no usable type for it
+RECEIVED = "_fuseplan_received"  # the attribute a link stamps on each message it delivers (time.monotonic())
+
+
+def received_at(msg: Message) -> float:
+    """The monotonic time the link received ``msg`` (a message read from a queue much later, a backlog, is still
+    timed by its arrival); now for one that came from no link."""
+    return getattr(msg, RECEIVED, None) or time.monotonic()
 Predicate = Callable[[Message], bool]
 
 MAV_COMP_ID_ONBOARD_COMPUTER = ardupilotmega.MAV_COMP_ID_ONBOARD_COMPUTER  # 191
@@ -396,6 +404,7 @@ class Link:
         if mtype == "BAD_DATA":
             self.bad_packets += 1
             return
+        setattr(msg, RECEIVED, time.monotonic())
         src = (msg.get_srcSystem(), msg.get_srcComponent())
         if src == (self.source_system, self.source_component):
             return  # our own echo (broadcast / forwarding peers)

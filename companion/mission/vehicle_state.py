@@ -13,7 +13,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from companion.mavlink.link import MAV_COMP_ID_ADSB, Link, Message, Subscription
+from companion.mavlink.link import MAV_COMP_ID_ADSB, Link, Message, Subscription, received_at
 from companion.mission.geo import geodetic_to_enu
 from planner.world.home import Home
 
@@ -82,6 +82,7 @@ class VehicleState:
         self.position: np.ndarray | None = None  # ENU m from home, z above home
         self.velocity = np.zeros(2)  # ENU m/s over the ground
         self.groundspeed = 0.0
+        self.climb = 0.0  # m/s up
         self.current_seq = 0  # the active mission item (MISSION_CURRENT, or the item after the last one reached)
         self.custom_mode: int | None = None  # the flight mode, from HEARTBEAT (or as commanded and accepted)
         self.link_down = False  # between the supervisor finding the link lost and its re-sync of the mission
@@ -91,23 +92,32 @@ class VehicleState:
         self._mission_wall: float | None = None  # wall time of the mission start
         self._mission_t0: float | None = None  # vehicle time of the mission start, once the clock is synced
         self._listeners: list[Callable[[Message], None]] = []
+        self._link_listeners: list[Callable[[bool], None]] = []
 
     def listen(self, callback: Callable[[Message], None]) -> None:
         """Have ``callback`` called with every message after the state has taken it in (the replanner's traffic)."""
         self._listeners.append(callback)
 
+    def listen_link(self, callback: Callable[[bool], None]) -> None:
+        """Have ``callback`` called with False when the link is found lost and True when it is back and re-synced."""
+        self._link_listeners.append(callback)
+
     def observe(self, msg: Message) -> None:
+        """Take in one message, timed by when the link received it (the supervisor may read a backlog: what came
+        during the start sequence)."""
         kind = msg.get_type()
+        wall = received_at(msg)
         if kind in ("GLOBAL_POSITION_INT", "MISSION_CURRENT"):
-            self._seen[kind] = time.monotonic()
+            self._seen[kind] = wall
         if kind == "GLOBAL_POSITION_INT":
-            self.clock.observe(msg.time_boot_ms, time.monotonic())
+            self.clock.observe(msg.time_boot_ms, wall)
             if self.home is not None:
                 e, n, _u = geodetic_to_enu(msg.lat / 1e7, msg.lon / 1e7, self.home.alt + msg.relative_alt / 1000,
                                            self.home)
                 self.position = np.array([e, n, msg.relative_alt / 1000.0])
             self.groundspeed = math.hypot(msg.vx, msg.vy) / 100.0
             self.velocity = np.array([msg.vy / 100.0, msg.vx / 100.0])  # NED north/east → ENU east/north
+            self.climb = -msg.vz / 100.0
         elif kind == "HEARTBEAT":
             self.custom_mode = int(msg.custom_mode)
         elif kind == "MISSION_CURRENT":
@@ -132,17 +142,25 @@ class VehicleState:
 
     def now(self) -> float:
         """Mission time (vehicle s since the mission start; vehicle time before it)."""
-        return self.clock.now(time.monotonic()) - (self.mission_t0 or 0.0)
+        return self.at(time.monotonic())
+
+    def at(self, wall: float) -> float:
+        """Mission time at monotonic time ``wall``."""
+        return self.clock.now(wall) - (self.mission_t0 or 0.0)
 
     # -- link --------------------------------------------------------------------------------------
     def link_lost(self) -> None:
         """The link was found lost: what is known is getting stale and nothing can be uploaded."""
         self.link_down = True
+        for callback in self._link_listeners:
+            callback(False)
 
     def link_restored(self) -> None:
-        """The link is back and the mission re-synced: act again only on telemetry newer than now."""
+        """The link is back and the mission re-synced: act again only on telemetry received from now on."""
         self.link_down = False
         self._fresh_since = time.monotonic()  # position and active item are from before the outage
+        for callback in self._link_listeners:
+            callback(True)
 
     @property
     def fresh(self) -> bool:

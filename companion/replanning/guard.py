@@ -35,7 +35,8 @@ class Breach:
 
 def predict_own_path(position: np.ndarray, velocity: np.ndarray, origin: np.ndarray, targets: np.ndarray,
                      turn_radius: float, acceptance_m: float, horizon_s: float = GUARD_HORIZON_S,
-                     dt: float = GUARD_DT_S, direct: bool = False, sense: int = 0) -> np.ndarray:
+                     dt: float = GUARD_DT_S, direct: bool = False, sense: int = 0, climb_rate: float = math.inf,
+                     sink_rate: float = math.inf, height_lag_s: float = 0.0, climbing: float = 0.0) -> np.ndarray:
     """(K, 4) rows (t, x, y, z): from ``position`` with horizontal ``velocity`` (ENU m/s), following the legs
     ``origin`` → ``targets[0]`` → ``targets[1]`` … as a path-follower does (it steers at a point a turn radius ahead
     on the leg, at a turn rate of at most v / ``turn_radius``; 0: turns at once, a copter), taking the next leg
@@ -43,7 +44,10 @@ def predict_own_path(position: np.ndarray, velocity: np.ndarray, origin: np.ndar
     target's altitude on arrival. ``direct``: the first target is flown to straight from wherever the vehicle is,
     with no leg to hold to (ArduPlane entering AUTO: ``Mode::enter`` turns cross-tracking off for the first
     waypoint), so a vehicle that turns round first flies to it from where its turn ends. ``sense`` (+1 right, −1
-    left, 0 the shorter way): the way it turns while its target is more than 90° off its heading."""
+    left, 0 the shorter way): the way it turns while its target is more than 90° off its heading. Its height follows
+    the demanded one (each target's altitude on arrival) at most at ``climb_rate`` / ``sink_rate`` m/s, behind it by
+    a first-order lag of ``height_lag_s`` (a plane's TECS: docs/design.md, "The flown-safety guard"), from a demand
+    that has it climbing at ``climbing`` m/s now."""
     p = np.asarray(position, dtype=float).copy()
     v = np.asarray(velocity, dtype=float)[:2]
     speed = float(np.linalg.norm(v))
@@ -54,6 +58,8 @@ def predict_own_path(position: np.ndarray, velocity: np.ndarray, origin: np.ndar
     k = 0
     rows = [(0.0, *p)]
     rate = speed / turn_radius if turn_radius > 0 else math.inf
+    demand = float(p[2]) + climbing * height_lag_s  # the height the autopilot asks for; the vehicle's follows it
+    follow = 1.0 - math.exp(-dt / height_lag_s) if height_lag_s > 0 else 1.0
     ahead = max(turn_radius, speed * dt)
     for i in range(1, round(horizon_s / dt) + 1):
         while k < len(targets) - 1:
@@ -79,7 +85,8 @@ def predict_own_path(position: np.ndarray, velocity: np.ndarray, origin: np.ndar
                 turn += 2 * math.pi * sense  # the long way round, as the vehicle already turns
             heading += max(-rate * dt, min(rate * dt, turn))
             dist = max(math.hypot(*(targets[k, :2] - p[:2])), 1e-6)
-            p[2] += (targets[k, 2] - p[2]) * min(speed * dt / dist, 1.0)
+            demand += (targets[k, 2] - demand) * min(speed * dt / dist, 1.0)
+            p[2] += float(np.clip((demand - p[2]) * follow, -sink_rate * dt, climb_rate * dt))
         elif heading is None:
             heading = 0.0
         p[0] += speed * dt * math.sin(heading)

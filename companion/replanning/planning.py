@@ -26,6 +26,8 @@ from companion.replanning.swap import MissionSwap
 from companion.replanning.threats import Conflict
 from companion.replanning.worker import PlanWorker, WorkerPlan
 from planner.plan import PlanStatus
+from planner.problem import PlanningProblem
+from planner.world.config import PlannerSettings
 from planner.world.environment import Threats
 
 BAND_INSET_M = 0.5  # a commit point is moved at least this far inside the altitude band
@@ -159,9 +161,8 @@ class ReplanPlanning:
         return v / n if n > 1e-6 else None
 
     # -- the plan -----------------------------------------------------------------------------------
-    def plan(self, cp: CommitPoint, threats: Threats, budget_s: float, rec: ReplanRecord) -> asyncio.Task:
-        """The plan from ``cp`` to the goal around ``threats``, as a task in the planner process, warm-started from
-        the old route and its bent copies."""
+    def problem(self, cp: CommitPoint, threats: Threats) -> tuple[PlanningProblem, PlannerSettings]:
+        """The replan from ``cp`` to the goal around ``threats``, and the settings it is planned with."""
         cfg = self.ctx.cfg
         # the way the vehicle will fly through the commit point (along the old route; held: its own track), so the
         # new route cannot begin with a turn it cannot fly (a hairpin there carried SITL's plane 29-38 m into a
@@ -172,8 +173,13 @@ class ReplanPlanning:
         problem = replan_problem(self.ctx.scenario, cp.point, self.swap.route.goal, threats, cp.t,
                                  self.prediction.speed, heading=self.start_heading(cp), threat_margin=cfg.margin_m,
                                  static_margin=resumed)
-        settings = replan_settings(self.ctx.scenario.planner, cfg)
-        seeds = warm_starts(cp.old_tail, cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
+        return problem, replan_settings(self.ctx.scenario.planner, cfg)
+
+    def plan(self, problem: PlanningProblem, settings: PlannerSettings, cp: CommitPoint, budget_s: float,
+             rec: ReplanRecord) -> asyncio.Task:
+        """``problem`` planned within ``budget_s`` as a task in the planner process, warm-started from the old route
+        and its bent copies."""
+        seeds = warm_starts(cp.old_tail, self.ctx.cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
         worker = self.start_worker()
         return asyncio.create_task(worker.plan(problem, settings, [self.seed, rec.n], seeds, budget_s),
                                    name="replan-plan")
@@ -214,9 +220,13 @@ class ReplanPlanning:
         speed = self.prediction.speed
         radius = self.motion.wide_turn_radius(speed) if self.ctx.profile.hold_circles else self.motion.turn_radius()
         length = float(np.linalg.norm(np.diff(route, axis=0), axis=1).sum())
+        # climbing as the old route does through the commit point: a plane behind its height demand stays behind
+        climbing = 0.0 if cp.heading is None else \
+            speed * float(cp.heading[2]) / max(float(np.linalg.norm(cp.heading[:2])), 1e-6)
         worst = math.inf
         for path in self.motion.flown_paths(route[0], heading[:2] * speed, route[0], route[1:], radius,
-                                            min(length / speed + 10.0, self.ctx.cfg.horizon_s), dt=FLOWN_CHECK_DT_S):
+                                            min(length / speed + 10.0, self.ctx.cfg.horizon_s), dt=FLOWN_CHECK_DT_S,
+                                            climbing=climbing):
             if first_breach(path, self.ctx.scenario.environment, self.ctx.d_coll) is not None:
                 return None
             closest = self.prediction.closest(path[:, 1:4], cp.t, threats)

@@ -10,7 +10,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from companion.mavlink.link import Message
+from companion.mavlink.link import Message, received_at
 from companion.mission import picture
 from companion.replanning.context import ReplanContext
 from companion.replanning.threats import Conflict, TrackPicture, predict_conflicts, route_separations
@@ -41,7 +41,8 @@ class Prediction:
         if kind == "GLOBAL_POSITION_INT":
             self._track_pace(state.groundspeed, msg.time_boot_ms / 1000.0)
         elif kind == "ADSB_VEHICLE" and state.mission_t0 is not None:
-            if self.tracks.update(msg, state.now()) is not None and msg.ICAO_address not in self._announced:
+            heard = state.at(received_at(msg))
+            if self.tracks.update(msg, heard) is not None and msg.ICAO_address not in self._announced:
                 self._announced.add(msg.ICAO_address)
                 self.ctx.events.log("track", id=f"adsb-{msg.ICAO_address:06x}", callsign=str(msg.callsign))
 

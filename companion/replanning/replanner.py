@@ -94,11 +94,11 @@ class LiveReplanner:
         self.guard_enabled = True  # the flown-safety guard (companion/replanning/guard.py)
         self._guard_at = -math.inf  # wall time of the last guard action
         self._last_replan = -math.inf  # mission time
-        self._link_paused = False  # replanning said paused for a lost link
         # started now, and warmed up on the whole route, so the first conflict finds it ready; a flight with nothing
         # moving (the flown-safety guard may still need a static replan) starts it only when it is first needed
         if expects_traffic(scenario, rate) or worker is not None:
             self.planning.start_worker(worker)
+        self.state.listen_link(self._on_link)
 
     # -- what the supervisor asks (its Pilot) --------------------------------------------------------
     @property
@@ -155,17 +155,20 @@ class LiveReplanner:
 
     # -- task ---------------------------------------------------------------------------------------
     async def run(self) -> None:
-        """Look at the picture every ``check_interval_wall_s`` until cancelled; raises :class:`VehicleHolding`
-        when no verified mission can be made live."""
+        """Look at the picture every ``check_interval_wall_s`` (from the start of one look to the next) until
+        cancelled; raises :class:`VehicleHolding` when no verified mission can be made live."""
+        interval = self.ctx.cfg.check_interval_wall_s
         while True:
-            await asyncio.sleep(self.ctx.cfg.check_interval_wall_s)
-            if self.state.position is None or self.state.mission_t0 is None:
-                continue
-            await self.step()
+            began = time.monotonic()
+            if self.state.position is not None and self.state.mission_t0 is not None:
+                await self.step()
+            await asyncio.sleep(max(interval - (time.monotonic() - began), 0.0))
 
     async def step(self) -> None:
-        """One look at the picture: replan on a conflict, or, while holding, retry or resume."""
-        if not self._live_telemetry():
+        """One look at the picture: replan on a conflict, or, while holding, retry or resume. Nothing while the
+        supervisor has found the link lost, nor after it until fresh telemetry has come (positions are stale and
+        nothing can be uploaded; the vehicle flies, or holds on, its verified mission)."""
+        if not self.state.fresh:
             return
         state, modes = self.state, self.modes
         now = state.now()
@@ -193,18 +196,14 @@ class LiveReplanner:
             return
         await self.replan(conflicts[0], now, threats)
 
-    def _live_telemetry(self) -> bool:
-        """Whether what the state says is current: not while the supervisor has found the link lost (positions
-        are stale and nothing can be uploaded; the vehicle flies, or holds on, its verified mission), nor after it
-        until fresh telemetry has come. Says when replanning pauses and resumes for it."""
-        if self.state.link_down and not self._link_paused:
-            self._link_paused = True
+    def _on_link(self, up: bool) -> None:
+        """The supervisor found the link lost (replanning pauses: :meth:`step` waits for fresh telemetry), or it is
+        back with the mission re-synced."""
+        if up:
+            self.ctx.events.log("replanning_resumed", reason="link restored, mission re-synced")
+        else:
             self.ctx.events.log("replanning_paused", reason="link lost", decision=(
                 "the vehicle holds" if self.modes.holding is not None else "the vehicle flies its verified mission"))
-        elif not self.state.link_down and self._link_paused:
-            self._link_paused = False
-            self.ctx.events.log("replanning_resumed", reason="link restored, mission re-synced")
-        return self.state.fresh
 
     def _conflicts(self, now: float, threats: Threats) -> list[Conflict]:
         """Conflicts on the remaining route, flown from now; for a held vehicle, flown from any moment it may
@@ -225,7 +224,8 @@ class LiveReplanner:
         before = np.flatnonzero(swap.route.seqs < seqs[1]) if len(seqs) > 1 else np.zeros(0, dtype=int)
         origin = swap.route.points[before[-1]] if before.size else state.position
         path = predict_own_path(state.position, state.velocity, origin, route[1:], radius,
-                                ctx.scenario.vehicle.acceptance_radius)
+                                ctx.scenario.vehicle.acceptance_radius, climbing=state.climb,
+                                **self.motion.height_response())
         breach = first_breach(path, ctx.scenario.environment, GUARD_SHARE_OF_D_COLL * ctx.d_coll)
         if breach is None:
             return False
@@ -258,10 +258,11 @@ class LiveReplanner:
         rec.commit = [round(float(v), 1) for v in cp.point]
         rec.old_route = cp.old_tail.round(1).tolist()
         rec.budget_s = budget
+        problem, settings = planning.problem(cp, threats)
         t0 = time.monotonic()
         # a plan that overruns (a loaded machine, a planner process still starting) must not let the vehicle fly
         # on into the rewritten items and the conflict while it waits: the swap's guard applies already
-        plan = planning.plan(cp, threats, budget, rec)
+        plan = planning.plan(problem, settings, cp, budget, rec)
         await swap.guarded(plan, cp.first_new_seq, swap.guard_threshold_s(),
                            "the plan is late: the vehicle could reach the commit point before it is ready", rec,
                            route_separation=rec.sep_before_m)
