@@ -43,6 +43,7 @@ PX4_FIXED_WING = {
     "FW_AIRSPD_TRIM": ("cruise_speed", 1.0),
     "FW_T_CLMB_MAX": ("climb_rate", 1.0),
     "FW_T_SINK_MAX": ("sink_rate", 1.0),
+    "NPFG_PERIOD": ("npfg_period_s", 1.0),
 }
 PX4_MULTICOPTER = {
     "NAV_ACC_RAD": ("acceptance_radius", 1.0),
@@ -60,6 +61,13 @@ OVERSHOOT_PER_L1 = 0.35
 # 90° turn 34-39 m past the new leg and an 80 m loiter at 96.8 m, as SITL does (tests/conformance/test_hold_turn.py,
 # docs/design.md "The simulator against SITL"). The simulator flies it; the companion's turn envelope covers it.
 ARDUPLANE_TURN_EFFICIENCY = 0.58
+PX4_NPFG_PERIOD_S = 10.0  # PX4's default NPFG_PERIOD when it is not read
+# How far PX4's fixed-wing path-follower (NPFG) swings past a new leg after a turn, m per radian of turn, per second of
+# NPFG_PERIOD and m/s of speed: measured on PX4 SITL's SIH standard VTOL at its 10 m/s trim airspeed (NPFG_PERIOD
+# 10): 5.0 m/rad after 60°, 5.4 after 45°, 6.6 after 90° (10.4 m), 8.4 after 135° (19.8 m), i.e. 0.050-0.084 of
+# period x speed; rounded up (docs/design.md, "Turns flown wider than planned"). One speed only: the airframe flies
+# 7-12 m/s
+NPFG_OVERSHOOT_PER_PERIOD_SPEED = 0.1
 COPTER_ACCEL = 2.5  # m/s², a copter's braking when the autopilot does not say (WPNAV_ACCEL default)
 
 
@@ -88,6 +96,8 @@ class AutopilotLimits:
     read: dict[str, float] = field(default_factory=dict)  # the parameters the autopilot answered, as it sent them
     vertical_takeoff: bool = False  # a VTOL: it climbs vertically where it stands, then transitions
     follows_l1: bool = False  # ArduPlane: its turns are flown by the L1 law (l1_period_s, l1_damping)
+    npfg_period_s: float = PX4_NPFG_PERIOD_S
+    follows_npfg: bool = False  # a PX4 fixed-wing (or VTOL in fixed-wing flight): NPFG flies its turns
 
     @property
     def turn_radius(self) -> float:
@@ -106,9 +116,12 @@ class AutopilotLimits:
 
     def turn_overshoot(self, speed: float | None = None) -> float:
         """How far its path-follower swings past a new leg after a turn, m per radian (VehicleLimits.turn_overshoot),
-        at ``speed`` (the mission's; default cruise): :func:`l1_overshoot` for ArduPlane, 0 where not measured."""
+        at ``speed`` (the mission's; default cruise): :func:`l1_overshoot` for ArduPlane,
+        :data:`NPFG_OVERSHOOT_PER_PERIOD_SPEED` of NPFG_PERIOD x speed for a PX4 fixed-wing, 0 for a copter."""
         v = self.cruise_speed if speed is None else speed
-        return l1_overshoot(v, self.l1_period_s, self.l1_damping) if self.follows_l1 else 0.0
+        if self.follows_l1:
+            return l1_overshoot(v, self.l1_period_s, self.l1_damping)
+        return NPFG_OVERSHOOT_PER_PERIOD_SPEED * self.npfg_period_s * v if self.follows_npfg else 0.0
 
     @property
     def climb_angle_deg(self) -> float:
@@ -166,7 +179,8 @@ def limits_from(params: Mapping[str, float], autopilot: str, vehicle: VehicleLim
         "acceptance_radius": vehicle.acceptance_radius, "loiter_radius": loiter_fallback,
         "climb_rate": vehicle.cruise_speed * math.sin(vehicle.max_climb),
         "sink_rate": vehicle.cruise_speed * math.sin(vehicle.max_climb),
-        "accel": COPTER_ACCEL, "l1_period_s": ARDUPLANE_L1_PERIOD_S, "l1_damping": ARDUPLANE_L1_DAMPING}
+        "accel": COPTER_ACCEL, "l1_period_s": ARDUPLANE_L1_PERIOD_S, "l1_damping": ARDUPLANE_L1_DAMPING,
+        "npfg_period_s": PX4_NPFG_PERIOD_S}
     read = {}
     for name, (key, scale) in names.items():
         v = params.get(name)
@@ -174,4 +188,4 @@ def limits_from(params: Mapping[str, float], autopilot: str, vehicle: VehicleLim
             values[key] = float(v) * scale
             read[name] = float(v)
     return AutopilotLimits(vehicle.type, read=read, vertical_takeoff=mission_layout(autopilot).vtol,
-                           follows_l1=names is ARDUPLANE, **values)
+                           follows_l1=names is ARDUPLANE, follows_npfg=names is PX4_FIXED_WING, **values)

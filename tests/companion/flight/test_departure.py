@@ -40,8 +40,14 @@ def test_limits_come_from_the_parameters_read_and_the_scenario_fills_the_rest(dy
     assert lim.turn_overshoot(18.0) == pytest.approx(0.35 * 0.75 * 15.0 * 18.0 / np.pi)
     none = limits_from({}, "ardupilot", dynamic.vehicle, 60.0)
     assert none.turn_overshoot(18.0) == pytest.approx(0.35 * 0.75 * 17.0 * 18.0 / np.pi)  # ArduPlane's default
+    # PX4's NPFG swing scales with its period and the speed (measured on SIH, tests/px4/test_px4_turns.py)
     px4 = limits_from({"NAV_ACC_RAD": 10.0}, "px4-vtol", dynamic.vehicle, 80.0)
-    assert px4.turn_overshoot() == 0.0  # not measured on PX4: its plans allow what the scenario says
+    assert px4.turn_overshoot(10.0) == pytest.approx(0.1 * 10.0 * 10.0)  # NPFG_PERIOD's default, 10 s
+    slow = limits_from({"NPFG_PERIOD": 20.0}, "px4-vtol", dynamic.vehicle, 80.0)
+    assert slow.turn_overshoot(10.0) == pytest.approx(2.0 * px4.turn_overshoot(10.0))
+    assert slow.read == {"NPFG_PERIOD": 20.0}
+    px4_copter = limits_from({"NPFG_PERIOD": 20.0}, "px4", VehicleLimits(type="copter"), 60.0)
+    assert px4_copter.turn_overshoot() == 0.0 and px4_copter.read == {}  # a multicopter has no NPFG to read
     assert (none.max_bank_deg, none.cruise_speed, none.loiter_radius, none.read) == (45.0, 18.0, 60.0, {})
     copter = limits_from({"WPNAV_SPEED": 1000.0, "WPNAV_ACCEL": 250.0}, "ardupilot", VehicleLimits(type="copter"), 60.0)
     assert copter.cruise_speed == 10.0 and copter.stopping_distance == pytest.approx(20.0)
