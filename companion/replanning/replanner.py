@@ -55,7 +55,11 @@ GUARD_SHARE_OF_D_COLL = 0.5
 # vehicle seconds before the exit point of its hold circle that a plane is resumed onto the route planned from there
 # (ArduPlane rolls out of its bank over about a second; docs/design.md, "Leaving a hold")
 EXIT_LEAD_S = 1.0
-EXIT_LATE_S = 3.0  # vehicle seconds after the exit was due that it counts as missed (the plan's time is gone)
+# vehicle seconds after the exit was due that a plane still short of it has missed it (the plan's time is gone), as
+# has one that passed it between two looks; one that comes to it late is resumed only when the join, checked from
+# where and when it is, is clear (on the simulator a held plane flew its circle at 16 m/s against the 18 m/s assumed,
+# and came to an exit 418 m round it 3 s after it was due)
+EXIT_LATE_S = 3.0
 # m beyond d_coll the resume at a circle's exit is checked with (leg_blocked): its route was planned from there with
 # RESUME_MARGIN_M more than d_coll and its turns' swing, and, aligned with its first leg, the plane flies it with
 # little turn; the check's paths turn up to WIDE_TURNS times wider than the path-follower's bound, which is for

@@ -158,7 +158,7 @@ def test_an_exit_passed_before_it_was_looked_at_is_planned_again_not_flown_late(
     async def during(sim: SimAutopilot, rp: LiveReplanner) -> None:
         _only_exits_safe(rp)
         real = rp._leave_hold  # noqa: SLF001
-        starved = [True]
+        starved, seen = [True], {}
 
         async def leave_hold(now: float) -> None:
             leaving, position = rp.modes.exit, rp.state.position
@@ -166,8 +166,16 @@ def test_an_exit_passed_before_it_was_looked_at_is_planned_again_not_flown_late(
                 centre, clockwise = rp.modes.pattern.centre, rp.modes.pattern.clockwise
                 r = float(np.linalg.norm(position[:2] - centre[:2]))
                 left = arc_to(position, centre, clockwise, leaving.exit.point) * r
-                if now <= leaving.due + EXIT_LATE_S or left < 100.0:
-                    return  # not looked at: not yet late, or too near the exit (a look there would take it)
+                lap = 2.0 * math.pi * r
+                # passed: what is left jumped up by most of a lap (from the exit to a whole circle ahead)
+                if id(leaving) in seen and left > seen[id(leaving)] + 0.5 * lap:
+                    seen["passed"] = id(leaving)
+                seen[id(leaving)] = left
+                # not looked at until the exit is passed by 100 m or more and its time is gone (a plane slower on
+                # its circle than assumed comes to its exit after it was due: a look there takes it if the join,
+                # checked from where and when it is, is clear)
+                if seen.get("passed") != id(leaving) or now <= leaving.due + EXIT_LATE_S or left > lap - 100.0:
+                    return
                 starved.pop()
             await real(now)
 
