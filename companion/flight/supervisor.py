@@ -112,10 +112,7 @@ class FixedMission:
 
     def __init__(self, items: Sequence[MissionItem], state: VehicleState) -> None:
         self.items, self.state = list(items), state
-
-    @property
-    def goal_seq(self) -> int:
-        return max(it.seq for it in self.items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
+        self.goal_seq = max(it.seq for it in self.items if it.command == mavlink.MAV_CMD_NAV_WAYPOINT)
 
     @property
     def mission(self) -> list[MissionItem]:

@@ -95,9 +95,10 @@ class AutopilotLimits:
     l1_damping: float
     read: dict[str, float] = field(default_factory=dict)  # the parameters the autopilot answered, as it sent them
     vertical_takeoff: bool = False  # a VTOL: it climbs vertically where it stands, then transitions
-    follows_l1: bool = False  # ArduPlane: its turns are flown by the L1 law (l1_period_s, l1_damping)
     npfg_period_s: float = PX4_NPFG_PERIOD_S
-    follows_npfg: bool = False  # a PX4 fixed-wing (or VTOL in fixed-wing flight): NPFG flies its turns
+    # who flies its turns: "l1" (ArduPlane: l1_period_s, l1_damping), "npfg" (a PX4 fixed-wing or VTOL in fixed-wing
+    # flight: npfg_period_s), "" (a copter: it turns on the spot)
+    path_follower: str = ""
 
     @property
     def turn_radius(self) -> float:
@@ -119,9 +120,9 @@ class AutopilotLimits:
         at ``speed`` (the mission's; default cruise): :func:`l1_overshoot` for ArduPlane,
         :data:`NPFG_OVERSHOOT_PER_PERIOD_SPEED` of NPFG_PERIOD x speed for a PX4 fixed-wing, 0 for a copter."""
         v = self.cruise_speed if speed is None else speed
-        if self.follows_l1:
+        if self.path_follower == "l1":
             return l1_overshoot(v, self.l1_period_s, self.l1_damping)
-        return NPFG_OVERSHOOT_PER_PERIOD_SPEED * self.npfg_period_s * v if self.follows_npfg else 0.0
+        return NPFG_OVERSHOOT_PER_PERIOD_SPEED * self.npfg_period_s * v if self.path_follower == "npfg" else 0.0
 
     @property
     def climb_angle_deg(self) -> float:
@@ -188,4 +189,5 @@ def limits_from(params: Mapping[str, float], autopilot: str, vehicle: VehicleLim
             values[key] = float(v) * scale
             read[name] = float(v)
     return AutopilotLimits(vehicle.type, read=read, vertical_takeoff=mission_layout(autopilot).vtol,
-                           follows_l1=names is ARDUPLANE, follows_npfg=names is PX4_FIXED_WING, **values)
+                           path_follower="l1" if names is ARDUPLANE else "npfg" if names is PX4_FIXED_WING else "",
+                           **values)
