@@ -106,6 +106,7 @@ def executor_from(args: argparse.Namespace) -> typing.Any:
 
 def cmd_plan(args: argparse.Namespace) -> int:
     from planner.plan import plan, plan_to_json, problem_from_scenario
+    from planner.workload import check_workload
     from planner.world.scenario import load_scenario
 
     overrides = list(args.overrides)
@@ -122,6 +123,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         check_writable(out)
     settings = scenario.planner
     problem = problem_from_scenario(scenario)
+    check_workload(problem, settings, source=str(args.scenario))  # before the "planning" line: one line
     if not args.quiet:
         print(f"planning {scenario.name} with {settings.algorithm}, seed {settings.seed}, "
               f"{settings.pso.n_pop} particles × {settings.pso.max_iter} iterations", file=sys.stderr)
@@ -171,8 +173,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
 
 def cmd_compare(args: argparse.Namespace) -> int:
+    import dataclasses
+
     from planner.bench import compare
     from planner.bench.runner import set_options
+    from planner.plan import problem_from_scenario
+    from planner.workload import check_workload
     from planner.world.scenario import load_scenario
 
     if args.runs < 1:
@@ -184,7 +190,10 @@ def cmd_compare(args: argparse.Namespace) -> int:
         algorithms = compare.check_algorithms([a.strip() for a in args.algorithms.split(",") if a.strip()])
     except ValueError as e:
         raise FuseplanError(str(e)) from e
-    load_scenario(args.scenario, args.overrides)  # bad input fails here, once, not in every worker
+    scenario = load_scenario(args.scenario, args.overrides)  # bad input fails here, once, not in every worker
+    for name in algorithms:  # and so does a job too large for the machine
+        check_workload(problem_from_scenario(scenario), dataclasses.replace(scenario.planner, algorithm=name),
+                       source=str(args.scenario))
     make_output_dir(args.output)  # and an unusable output directory before the runs, not after them
     if not args.quiet:
         print(f"comparing {', '.join(algorithms)} on {args.scenario.name}: {args.runs} runs each, "

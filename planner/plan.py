@@ -28,17 +28,11 @@ from planner.trajectory.checks import (
     smooth,
     smoothness,
 )
+from planner.workload import check_workload, post_reserve_s, uses_roadmap
 from planner.world.config import PlannerSettings
 from planner.world.scenario import Scenario
 
 MERGE_TOLERANCE_M = 1.0
-# What a budgeted plan keeps for its work after the search (merging, smoothing, the trajectory check): measured
-# 0.6–16 ms on the shipped scenarios, about 5e-8 s per trajectory sample and obstacle on a 2-core machine
-# (maze: 1220 samples × 257 obstacles, 16 ms); the estimate doubles that rate and assumes a route twice as long
-# as the straight line, so it errs long (a few ms of search) rather than late.
-POST_BASE_S = 0.002
-POST_PAIR_S = 1e-7
-ROUTE_STRETCH = 2.0
 
 
 class PlanStatus(str, enum.Enum):
@@ -107,12 +101,6 @@ class Optimiser(Protocol):
             ) -> OptimiserResult: ...
 
 
-def uses_roadmap(settings: PlannerSettings) -> bool:
-    """True when the chosen optimiser runs the roadmap pipeline (docs/method.md §15): fusion and spso with
-    ``planner.roadmap.enabled``; the baselines never do."""
-    return settings.roadmap.enabled and settings.algorithm in ("fusion", "spso")
-
-
 def make_optimiser(settings: PlannerSettings) -> Optimiser:
     """The optimiser named by ``settings.algorithm``, configured from ``settings``."""
     from planner.search.aco import ColdColony
@@ -146,7 +134,9 @@ def plan(
     """Plan a route; every random choice comes from ``rng``. ``budget_s`` bounds the whole plan's wall time:
     the search gets it less :func:`post_reserve_s` (the smoothing and checks after it) and stops before an
     iteration that would overrun that (:class:`planner.search.termination.WallClock`); a search the budget
-    cut short ends ``approximate`` (or ``timeout`` when infeasible). Without a budget nothing is timed."""
+    cut short ends ``approximate`` (or ``timeout`` when infeasible). Without a budget nothing is timed. Settings
+    that ask for more memory or time than any real job raise :class:`planner.workload.JobTooLarge` first."""
+    check_workload(problem, settings, budget_s)  # an impossible job fails here, in one line, before any allocation
     tune_allocator()
     t0 = time.perf_counter()
     search_s = None if budget_s is None else max(budget_s - post_reserve_s(problem, settings), 0.0)
@@ -166,16 +156,6 @@ def plan(
         status = PlanStatus.EXACT if feasible else PlanStatus.INFEASIBLE
     return PlanResult(status, settings.algorithm, seed, waypoints, evaluation, traj, check, opt,
                       time.perf_counter() - t0)
-
-
-def post_reserve_s(problem: PlanningProblem, settings: PlannerSettings) -> float:
-    """Seconds a budgeted plan keeps for what follows its search (see POST_PAIR_S): the smoothed route's
-    samples (a route ROUTE_STRETCH times the straight line, every ``sample_spacing`` metres) times the
-    obstacles and threats they are checked against."""
-    env = problem.env
-    samples = ROUTE_STRETCH * problem.direct_distance / settings.sample_spacing
-    checked = len(env.cylinders) + len(env.spheres) + len(env.radars) + len(env.threats) + 1
-    return POST_BASE_S + POST_PAIR_S * samples * checked
 
 
 def merge_close_waypoints(path: np.ndarray, tol: float = MERGE_TOLERANCE_M) -> np.ndarray:

@@ -34,6 +34,7 @@ from planner.world.geometry import (
 _EPS = 1e-9
 _TERRAIN_T = np.linspace(0.0, 1.0, 17)  # samples per segment for terrain clearance
 _THREAT_T = np.linspace(0.0, 1.0, 11)  # samples per segment (ends included) for time-aware threats
+THREAT_SAMPLES = len(_THREAT_T)
 
 
 def _dot3(p: np.ndarray, q: np.ndarray) -> np.ndarray:

@@ -28,6 +28,7 @@ import numpy as np
 from planner import kernel
 from planner.bench.executor import ExecutorSpec, Failed, open_pool
 from planner.errors import FuseplanError
+from planner.files import read_regular_file
 from planner.world.scenario_text import ScenarioText, materialise
 
 log = logging.getLogger(__name__)
@@ -35,6 +36,7 @@ log = logging.getLogger(__name__)
 SCENARIO_DIR = Path(__file__).resolve().parent.parent.parent / "sitl_scenarios"
 PAPER_MODE = "planner.roadmap.enabled=false"  # the paper's planners as published (the paper benches' first override)
 ROADMAP_MODE = "planner.roadmap.enabled=true"  # fuseplan's roadmap pipeline (docs/method.md §15)
+MAX_RECORDS_BYTES = 2**30  # a records file to resume from: 1e5 runs of a few kB each (a bench runs hundreds)
 
 
 @dataclass(frozen=True)
@@ -75,11 +77,16 @@ class BenchSettings:
         return variant.scenario if variant.scenario is not None else self.bench.scenario
 
     def check(self, variant: Variant) -> None:
-        """Load what the variant's runs load (its first generated map), so bad input fails once, up front."""
+        """Load what the variant's runs load (its first generated map) and check the job's size, so bad input fails
+        once, up front."""
+        from planner.plan import problem_from_scenario
+        from planner.workload import check_workload
         from planner.world.scenario import load_scenario
 
         path = generated_map(variant.family, self.seed_base) if variant.family else self.scenario_for(variant)
-        load_scenario(path, self.overrides_for(variant))
+        sc = load_scenario(path, self.overrides_for(variant))
+        if variant.peer is None:
+            check_workload(problem_from_scenario(sc), sc.planner, variant.budget_s, source=str(path))
 
 
 @dataclass(frozen=True)
@@ -229,11 +236,12 @@ def _variant_run(rec: dict[str, Any]) -> tuple[str, int]:
 
 def load_records(path: Path, key: Callable[[dict[str, Any]], Any] = _variant_run) -> dict[Any, dict[str, Any]]:
     """Records already in ``path`` by ``key`` (default (variant, run)); a line cut short by an interruption is
-    skipped."""
+    skipped. A path that is not a regular file of at most MAX_RECORDS_BYTES is refused in one line."""
     if not path.exists():
         return {}
     out: dict[Any, dict[str, Any]] = {}
-    for n, line in enumerate(path.read_text().splitlines(), 1):
+    text = read_regular_file(path, MAX_RECORDS_BYTES, "records").decode("utf-8", errors="replace")
+    for n, line in enumerate(text.splitlines(), 1):
         if not line.strip():
             continue
         try:

@@ -696,15 +696,19 @@ def settings_from(quick: bool, runs: int | None, seed_base: int, workers: int | 
 
 
 def check(s: SpeedSettings) -> None:
-    """Load every scenario with the overrides its jobs use, so bad input fails once, up front."""
+    """Load every scenario with the overrides its jobs use and check the jobs' size, so bad input fails once, up
+    front."""
+    from planner.plan import problem_from_scenario
+    from planner.workload import check_workload
     from planner.world.scenario import load_scenario
 
     seen = set()
     for _, _, js in jobs(s):
         for j in js:
-            if (j.scenario, j.overrides) not in seen:
-                seen.add((j.scenario, j.overrides))
-                load_scenario(j.scenario, j.overrides)
+            if (j.scenario, j.overrides, j.budget_s) not in seen:
+                seen.add((j.scenario, j.overrides, j.budget_s))
+                sc = load_scenario(j.scenario, j.overrides)
+                check_workload(problem_from_scenario(sc), sc.planner, j.budget_s, source=str(j.scenario))
 
 
 def n_jobs(s: SpeedSettings) -> int:

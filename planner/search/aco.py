@@ -104,8 +104,10 @@ def initial_pheromone(lattice: CorridorLattice, cfg: ACOConfig, mode: str | None
     if mode != "gkdm":
         raise ValueError(f"unknown pheromone initialisation {mode!r}")
     route = lattice.route
-    mid = lattice.edge_midpoints[..., None, :]  # (L−1, M, M, 1, 3) against the seed's segments
-    d = segment_point_distance(route[:-1], route[1:], mid).min(axis=-1)
+    mid = lattice.edge_midpoints  # (L−1, M, M, 3)
+    d = np.full(mid.shape[:-1], np.inf)
+    for a, b in zip(route[:-1], route[1:]):  # one seed segment at a time: memory of one distance per edge
+        np.minimum(d, segment_point_distance(a, b, mid), out=d)
     return cfg.tau0 * (1.0 + cfg.amplitude * np.exp(-(d**2) / (2.0 * cfg.sigma**2)))
 
 

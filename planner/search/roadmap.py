@@ -28,7 +28,7 @@ from scipy.spatial import cKDTree
 
 from planner.problem import PlanningProblem
 from planner.search.termination import WallClock, deadline
-from planner.trajectory.checks import obstacle_clearance, radar_clearance
+from planner.trajectory.checks import CHUNK_PAIRS, obstacle_clearance, radar_clearance
 from planner.trajectory.smoothing import deviation_bound, peak_curvature, peak_factor, segment_samples
 from planner.world.config import RoadmapConfig
 from planner.world.environment import TRACK
@@ -170,6 +170,22 @@ def auto_spacing(problem: PlanningProblem, cfg: RoadmapConfig) -> float:
     return max(MIN_SPACING_M, math.sqrt(area / TARGET_COLUMNS))
 
 
+def _levels(problem: PlanningProblem, cfg: RoadmapConfig, h: float) -> tuple[int, float, float]:
+    """Altitude levels of the lattice at spacing ``h``, with the band they span and the level step a two-cell
+    (knight) edge can climb within the limit: the levels are close enough for it where the band allows."""
+    margin_z = 0.5 * problem.vehicle.acceptance_radius
+    band = problem.env.z_max - problem.env.z_min - 2 * margin_z
+    dz_fit = math.sqrt(5.0) * h * math.tan(cfg.climb_share * problem.vehicle.max_climb)
+    return int(min(cfg.max_levels, max(1, math.floor(band / max(dz_fit, 1e-9)) + 1))), band, dz_fit
+
+
+def grid_nodes(problem: PlanningProblem, cfg: RoadmapConfig) -> int:
+    """Nodes of the lattice :func:`build` lays (columns × levels, before any is dropped), without laying it."""
+    h = auto_spacing(problem, cfg)
+    columns = math.ceil((problem.env.size_x - 0.5 * h) / h) * math.ceil((problem.env.size_y - 0.5 * h) / h)
+    return max(columns, 0) * _levels(problem, cfg, h)[0]
+
+
 def build(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
     """The roadmap of ``problem``'s static world (its threats, start and goal play no part)."""
     t0 = time.perf_counter()
@@ -178,10 +194,7 @@ def build(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
     margin_z = 0.5 * problem.vehicle.acceptance_radius
     xs = np.arange(0.5 * h, env.size_x, h)
     ys = np.arange(0.5 * h, env.size_y, h)
-    band = env.z_max - env.z_min - 2 * margin_z
-    # levels close enough that a two-cell (knight) edge can change level within the climb limit
-    dz_fit = math.sqrt(5.0) * h * math.tan(cfg.climb_share * problem.vehicle.max_climb)
-    n_lev = int(min(cfg.max_levels, max(1, math.floor(band / max(dz_fit, 1e-9)) + 1)))
+    n_lev, band, dz_fit = _levels(problem, cfg, h)
     levels = (np.array([env.z_min + margin_z + 0.5 * band]) if n_lev == 1
               else np.linspace(env.z_min + margin_z, env.z_max - margin_z, n_lev))
     gx, gy = np.meshgrid(np.arange(len(xs)), np.arange(len(ys)), indexing="ij")
@@ -218,7 +231,8 @@ def build(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
     bound = 0.5 * (slack[e[:, 0]] + slack[e[:, 1]] - length)  # Lipschitz lower bound of the edge's slack
     check = np.flatnonzero(bound < 0.0)
     good = np.ones(len(e), dtype=bool)
-    for chunk in np.array_split(check, max(1, len(check) // 20000)):  # bounded temporaries
+    per_chunk = max(1, min(20000, CHUNK_PAIRS // (len(env.cylinders) + len(env.spheres) + len(env.radars) + 1)))
+    for chunk in np.array_split(check, max(1, len(check) // per_chunk)):  # bounded temporaries
         good[chunk] = segment_slack(problem, a[chunk], b[chunk], cfg.margin) >= 0.0
     e, length = e[good], length[good]
     used = np.unique(e)  # drop isolated nodes, renumber

@@ -19,6 +19,7 @@ from planner.world.geometry import cylinder_signed_distance, horizontal_turn
 _TOL_M = 1e-6  # metres of slack for samples exactly on a limit (start on the band floor, say)
 _TOL_REL = 1e-6
 MAX_REPORTED = 5
+CHUNK_PAIRS = 2**21  # point × obstacle distances held at once (16 MB a temporary), however many there are
 
 
 @dataclass
@@ -63,17 +64,21 @@ def obstacle_clearance(
     points: np.ndarray, times: np.ndarray | None, env: Environment, include_radars: bool = True
 ) -> np.ndarray:
     """Signed distance (M,) from each sample to the nearest obstacle or threat surface; radars count
-    from their detection range. Threats only when ``times`` is given."""
+    from their detection range. Threats only when ``times`` is given. Obstacles are taken CHUNK_PAIRS / M at a
+    time (a minimum is exact in any grouping), so memory does not grow with their number."""
     m = len(points)
     parts = [np.full(m, np.inf)]
-    cyl = env.cylinders
-    if len(cyl):
-        col = (slice(None), None)
-        parts.append(cylinder_signed_distance(points[None], cyl.x[col], cyl.y[col],
-                                              cyl.radius[col], cyl.top[col]).min(axis=0))
-    if len(env.spheres):
-        d = np.linalg.norm(points[None] - env.spheres.center[:, None], axis=-1)
-        parts.append((d - env.spheres.radius[:, None]).min(axis=0))
+    cyl, sph = env.cylinders, env.spheres
+    step = max(1, CHUNK_PAIRS // max(m, 1))
+    col = (slice(None), None)
+    for lo in range(0, len(cyl), step):
+        k = slice(lo, lo + step)
+        parts.append(cylinder_signed_distance(points[None], cyl.x[k][col], cyl.y[k][col],
+                                              cyl.radius[k][col], cyl.top[k][col]).min(axis=0))
+    for lo in range(0, len(sph), step):
+        k = slice(lo, lo + step)
+        d = np.linalg.norm(points[None] - sph.center[k][:, None], axis=-1)
+        parts.append((d - sph.radius[k][:, None]).min(axis=0))
     if include_radars:
         parts.append(radar_clearance(points, env.radars))
     if len(env.threats) and times is not None:

@@ -15,6 +15,7 @@ from pathlib import Path
 import numpy as np
 import pymap3d
 
+from planner.files import FileRefused, read_regular_file
 from planner.world.home import Home
 from planner.world.terrain import Terrain
 
@@ -24,6 +25,22 @@ HGT_VOID = -32768
 HGT_SIZES = (1201, 3601)  # samples per side: 3 arc-second (SRTM3) and 1 arc-second (SRTM1) tiles
 _HGT_NAME = re.compile(r"([NS])(\d{2})([EW])(\d{3})", re.IGNORECASE)
 _ESRI_KEYS = {"ncols", "nrows", "xllcorner", "yllcorner", "xllcenter", "yllcenter", "cellsize", "nodata_value"}
+# an SRTM1 tile's 3601² heights written as ESRI ASCII take about 60 MB; the text is parsed in memory, ~10× its size
+MAX_ESRI_BYTES = 64 * 2**20
+MAX_HGT_BYTES = 2 * max(HGT_SIZES) ** 2  # a .hgt tile is exactly 2 n² bytes
+
+
+def grid_nodes(size_x: float, size_y: float, spacing: float) -> int:
+    """Nodes of the grid :func:`grid_axis` lays over [0, size_x] × [0, size_y] at ``spacing`` m, without making
+    it (a scenario's loader refuses a grid too fine for memory before any array exists)."""
+    return (max(math.ceil(size_x / spacing - 1e-9), 1) + 1) * (max(math.ceil(size_y / spacing - 1e-9), 1) + 1)
+
+
+def _read(path: Path, max_bytes: int) -> bytes:
+    try:
+        return read_regular_file(path, max_bytes, "terrain")
+    except FileRefused as exc:
+        raise ValueError(f"cannot read {exc}") from None
 
 
 def grid_axis(size: float, spacing: float) -> np.ndarray:
@@ -65,8 +82,8 @@ def read_esri_ascii(path: str | Path, home: Home) -> Terrain:
     """ESRI ASCII grid with coordinates in the local ENU frame (m) and heights in m AMSL → heights above home."""
     path = Path(path)
     try:
-        lines = path.read_text(encoding="ascii", errors="strict").splitlines()
-    except (OSError, UnicodeError) as exc:
+        lines = _read(path, MAX_ESRI_BYTES).decode("ascii").splitlines()
+    except UnicodeError as exc:
         raise ValueError(f"cannot read ESRI ASCII grid {path}: {exc}") from exc
     header: dict[str, float] = {}
     n_header = 0
@@ -122,13 +139,12 @@ def read_hgt(path: str | Path, home: Home, size_x: float, size_y: float, spacing
     """SRTM ``.hgt`` tile resampled (bilinear in lat/lon) onto an ENU grid over [0, size_x] × [0, size_y] (m)."""
     path = Path(path)
     lat0, lon0 = hgt_tile_origin(path)
-    try:
-        raw = np.fromfile(path, dtype=">i2")
-    except OSError as exc:
-        raise ValueError(f"cannot read SRTM tile {path}: {exc}") from exc
+    data = _read(path, MAX_HGT_BYTES)
+    raw = np.frombuffer(data, dtype=">i2", count=len(data) // 2)
     n = math.isqrt(raw.size)
-    if n * n != raw.size or n not in HGT_SIZES:
-        raise ValueError(f"{path.name}: {raw.size} samples is not a {' or '.join(f'{s}²' for s in HGT_SIZES)} tile")
+    if n * n != raw.size or n not in HGT_SIZES or len(data) % 2:
+        raise ValueError(f"{path.name}: {len(data)} bytes is not a {' or '.join(f'{s}²' for s in HGT_SIZES)} tile "
+                         "of 2-byte samples")
     tile = raw.reshape(n, n)  # row 0 = north edge (lat0 + 1), column 0 = west edge (lon0)
     xs = grid_axis(size_x, spacing)
     ys = grid_axis(size_y, spacing)

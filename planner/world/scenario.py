@@ -20,8 +20,20 @@ from pydantic import AfterValidator, BaseModel, ConfigDict, Field, TypeAdapter, 
 from typing_extensions import TypedDict
 
 from planner.errors import ScenarioError
+from planner.files import FileRefused, read_regular_file
 from planner.world import dem
-from planner.world.config import HazardConfig, PlannerSettings, VehicleLimits
+from planner.world.config import (
+    MAX_COORD,
+    MAX_HEIGHT,
+    MAX_MAP,
+    MAX_RADIUS,
+    MAX_THREAT_SPEED,
+    MAX_WEIGHT,
+    HazardConfig,
+    PlannerSettings,
+    RelationError,
+    VehicleLimits,
+)
 from planner.world.environment import Cylinders, Environment, Radars, Spheres, Threat, Threats, radar_detection_range
 from planner.world.home import Home
 from planner.world.terrain import Terrain
@@ -65,6 +77,18 @@ logger = logging.getLogger(__name__)
 TOLERANCE = 1e-6  # m, slack for bounds, altitude band and obstacle surfaces
 MAX_DRAWS = 1000  # redraws allowed per random obstacle before giving up
 _STRICT_FILE = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, frozen=True)
+# What a scenario may hold, far beyond real use, so that a mistake is one line and not minutes of loading:
+# bytes: the largest shipped scenario is 14 kB (257 obstacles), MAX_OBSTACLES cylinders about 5 MB; the largest
+# file loads (and is refused for its obstacle count) in 8 s
+MAX_SCENARIO_BYTES = 16 * 2**20
+MAX_DEPTH = 16  # tables and arrays nested in each other: the format needs 4 (intruders[0].waypoints[1][2])
+MAX_OBSTACLES = 100_000  # cylinders, spheres, hemispheres, radars and random ones: 400 times the largest map's 257
+MAX_MOVERS = 1000  # threats, and intruders: more aircraft than an ADS-B receiver tracks at once
+MAX_INTRUDER_WAYPOINTS = 10_000
+MAX_HILLS = 1000  # Gaussian hills of synthetic terrain (the shipped mountain map has 12)
+MAX_TERRAIN_NODES = 2**24  # a 100 km map at 25 m (4001², finer than SRTM1's 30 m): 134 MB of heights
+MAX_TERRAIN_HEIGHT = 9000.0  # m above home: Everest's summit stands 8849 m above the sea
+MAX_TIME = 1e6  # s after mission start (11 days: longer than any drone flies)
 
 
 def _ordered(pair: list[float]) -> list[float]:
@@ -73,12 +97,20 @@ def _ordered(pair: list[float]) -> list[float]:
     return pair
 
 
-_Positive = Annotated[float, Field(gt=0)]
-_NonNegative = Annotated[float, Field(ge=0)]
-_Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+# ranges on every number of the file (the bounds and what they are based on: planner.world.config)
+_Coord = Annotated[float, Field(ge=-MAX_COORD, le=MAX_COORD)]  # m, any position on or around the map
+_Positive = Annotated[float, Field(gt=0, le=MAX_RADIUS)]  # m, a radius or a width
+_NonNegative = Annotated[float, Field(ge=0, le=MAX_RADIUS)]  # m, a clearance
+_Height = Annotated[float, Field(ge=0, le=MAX_HEIGHT)]  # m above home or terrain
+_Size = Annotated[float, Field(gt=0, le=MAX_MAP)]  # m, a side of the map
+_Speed = Annotated[float, Field(gt=0, le=MAX_THREAT_SPEED)]  # m/s of a threat or an intruder
+_Vec3 = Annotated[list[_Coord], Field(min_length=3, max_length=3)]
 _PositiveRange = Annotated[list[_Positive], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
-_HeightRange = Annotated[list[_NonNegative], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
-_Ident = Annotated[str, Field(min_length=1)]
+_HeightRange = Annotated[list[_Height], Field(min_length=2, max_length=2), AfterValidator(_ordered)]
+_Ident = Annotated[str, Field(min_length=1, max_length=4096)]  # a name, an id or a path
+_Seed = Annotated[int, Field(ge=0, le=2**63 - 1)]
+# m between terrain grid nodes (10 cm: finer than any survey); the grid's size is checked against the bounds
+_GridSpacing = Annotated[float, Field(ge=0.1, le=MAX_MAP)]
 
 
 def _strict_table(cls: type) -> type:
@@ -109,17 +141,17 @@ class _Table(BaseModel):
 class _Home(_Table):
     lat: Annotated[float, Field(ge=-90, le=90)]
     lon: Annotated[float, Field(ge=-180, le=180)]
-    alt: float
+    alt: Annotated[float, Field(ge=-1000, le=MAX_HEIGHT)]  # m above sea level: the Dead Sea shore is at −430 m
 
 
 class _Bounds(_Table):
-    x: _Positive
-    y: _Positive
+    x: _Size
+    y: _Size
 
 
 class _Altitude(_Table):
-    min: _NonNegative
-    max: _Positive  # min < max is checked in load_scenario, to name the field
+    min: _Height
+    max: Annotated[float, Field(gt=0, le=MAX_HEIGHT)]  # min < max is checked in load_scenario, to name the field
 
 
 class _Route(_Table):
@@ -128,43 +160,48 @@ class _Route(_Table):
 
 
 class _Cylinder(_Table):
-    x: float
-    y: float
+    x: _Coord
+    y: _Coord
     radius: _Positive
-    top: _Positive | None = None  # None → unlimited
-    z_ref: float = 0.0  # drawing only
+    top: Annotated[float, Field(gt=0, le=MAX_COORD)] | None = None  # None → unlimited
+    z_ref: _Coord = 0.0  # drawing only
 
 
 class _Sphere(_Table):
-    x: float
-    y: float
-    z: float
+    x: _Coord
+    y: _Coord
+    z: _Coord
     radius: _Positive
 
 
 class _Hemisphere(_Table):
-    x: float
-    y: float
+    x: _Coord
+    y: _Coord
     radius: _Positive
 
 
 RADAR_EQUATION = ("pt_w", "gain", "wavelength_m", "rcs_m2", "ts_k", "bn_hz", "loss", "snr_threshold")
 
 
+def _up_to(limit: float) -> Any:
+    return Annotated[float, Field(gt=0, le=limit)]
+
+
 class _Radar(_Table):
-    x: float
-    y: float
-    z: float
-    soft_weight: _NonNegative = 1.0
+    x: _Coord
+    y: _Coord
+    z: _Coord
+    soft_weight: Annotated[float, Field(ge=0, le=MAX_WEIGHT)] = 1.0
     r_det: _Positive | None = None
-    pt_w: _Positive | None = None
-    gain: _Positive | None = None
-    wavelength_m: _Positive | None = None
-    rcs_m2: _Positive | None = None
-    ts_k: _Positive | None = None
-    bn_hz: _Positive | None = None
-    loss: _Positive | None = None
-    snr_threshold: _Positive | None = None
+    # the radar equation's inputs, each bounded past any real radar so that the equation stays finite
+    pt_w: _up_to(1e8) | None = None  # W: 100 MW, ten times the largest early-warning radars' peak power
+    gain: _up_to(1e7) | None = None  # 70 dBi: above the largest dish antennas
+    wavelength_m: _up_to(100.0) | None = None  # m: HF over-the-horizon radars use 10 to 100 m
+    rcs_m2: _up_to(1e6) | None = None  # m²: a large ship is about 1e4
+    ts_k: _up_to(1e6) | None = None  # K
+    bn_hz: _up_to(1e10) | None = None  # Hz: 10 GHz of bandwidth
+    loss: _up_to(1e6) | None = None  # 60 dB
+    snr_threshold: _up_to(1e6) | None = None  # 60 dB
 
     @model_validator(mode="after")
     def _one_range_source(self) -> "_Radar":
@@ -174,6 +211,14 @@ class _Radar(_Table):
         if self.r_det is None and len(given) < len(RADAR_EQUATION):
             missing = [n for n in RADAR_EQUATION if n not in given]
             raise ValueError(f"give r_det or all radar-equation parameters (missing {', '.join(missing)})")
+        if self.r_det is None:
+            try:
+                r_det = self.detection_range()
+            except (ArithmeticError, ValueError):
+                r_det = math.inf
+            if not 0 < r_det <= MAX_RADIUS:
+                raise ValueError(f"the radar equation gives a detection range of {r_det:g} m, outside (0, "
+                                 f"{MAX_RADIUS:g}] m; check its parameters")
         return self
 
     def detection_range(self) -> float:
@@ -184,8 +229,8 @@ class _Radar(_Table):
 
 
 class _RandomObstacles(_Table):
-    seed: Annotated[int, Field(ge=0)]
-    count: Annotated[int, Field(ge=0)]
+    seed: _Seed
+    count: Annotated[int, Field(ge=0, le=MAX_OBSTACLES)]
     kinds: Annotated[list[Literal["sphere", "cylinder", "hemisphere"]], Field(min_length=1)] = [
         "sphere", "cylinder", "hemisphere"]
     radius: _PositiveRange
@@ -199,17 +244,17 @@ class _FlatTerrain(_Table):
 
 class _HillsTerrain(_Table):
     kind: Literal["hills"]
-    seed: Annotated[int, Field(ge=0)]
-    count: Annotated[int, Field(ge=1)]
-    max_height: _Positive
+    seed: _Seed
+    count: Annotated[int, Field(ge=1, le=MAX_HILLS)]
+    max_height: Annotated[float, Field(gt=0, le=MAX_TERRAIN_HEIGHT)]
     sigma: _PositiveRange
-    spacing: _Positive = 25.0
+    spacing: _GridSpacing = 25.0
 
 
 class _FileTerrain(_Table):
     kind: Literal["file"]
     path: _Ident
-    spacing: _Positive = 30.0  # resampling grid for .hgt; ESRI grids keep their own cellsize
+    spacing: _GridSpacing = 30.0  # resampling grid for .hgt; ESRI grids keep their own cellsize
 
 
 class _Loiter(_Table):
@@ -218,8 +263,8 @@ class _Loiter(_Table):
     radius: _Positive
     center: _Vec3
     circle_radius: _Positive
-    speed: _Positive
-    phase_deg: float | None = None
+    speed: _Speed
+    phase_deg: Annotated[float, Field(ge=-360, le=360)] | None = None
     direction: Literal["ccw", "cw"] | None = None
 
     def to_threat(self) -> Threat:
@@ -238,7 +283,7 @@ class _Patrol(_Table):
     radius: _Positive
     a: _Vec3
     b: _Vec3
-    speed: _Positive
+    speed: _Speed
 
     def to_threat(self) -> Threat:
         return Threat(self.id, "patrol", self.radius, tuple(self.a), tuple(self.b), speed=self.speed)
@@ -247,9 +292,9 @@ class _Patrol(_Table):
 class _Intruder(_Table):
     id: _Ident
     icao: Annotated[int, Field(ge=0, le=0xFFFFFF)]
-    waypoints: Annotated[list[_Vec3], Field(min_length=2)]
-    speed: _Positive
-    start_time: _NonNegative | None = None
+    waypoints: Annotated[list[_Vec3], Field(min_length=2, max_length=MAX_INTRUDER_WAYPOINTS)]
+    speed: _Speed
+    start_time: Annotated[float, Field(ge=0, le=MAX_TIME)] | None = None
     radius: _Positive | None = None
     meet: _Vec3 | None = None
 
@@ -266,7 +311,7 @@ _UNION_TAGS = {"terrain": {"none", "hills", "file"}, "threats": {"loiter", "patr
 
 class _ScenarioFile(_Table):
     name: _Ident | None = None
-    description: str | None = None
+    description: Annotated[str, Field(max_length=10_000)] | None = None
     home: _Home
     bounds: _Bounds
     altitude: _Altitude
@@ -280,8 +325,8 @@ class _ScenarioFile(_Table):
     radars: list[_Radar] = []
     random_obstacles: _RandomObstacles | None = None
     terrain: _TerrainTable | None = None
-    threats: list[_ThreatTable] = []
-    intruders: list[_Intruder] = []
+    threats: Annotated[list[_ThreatTable], Field(max_length=MAX_MOVERS)] = []
+    intruders: Annotated[list[_Intruder], Field(max_length=MAX_MOVERS)] = []
 
 
 def _field_path(loc: tuple[int | str, ...]) -> str:
@@ -318,7 +363,41 @@ def _from_validation_error(file: str, exc: ValidationError, prefix: tuple[int | 
     first = exc.errors()[0]
     if len(exc.errors()) > 1:
         logger.debug("%s: %d validation errors, reporting the first", file, len(exc.errors()))
+    relation = first.get("ctx", {}).get("error")
+    if isinstance(relation, RelationError):  # a rule between two fields: blame the field it names
+        return ScenarioError(file, _field_path(prefix + tuple(first["loc"]) + (relation.field_name,)),
+                             relation.reason)
     return ScenarioError(file, _field_path(prefix + tuple(first["loc"])), _reason(first))
+
+
+# --- nesting ---------------------------------------------------------------------------------------------------
+
+
+def too_deep(value: Any, limit: int = MAX_DEPTH) -> tuple[int | str, ...] | None:
+    """The path to a table or array nested more than ``limit`` levels deep in ``value`` (the outermost counts as
+    one), or None. Iterative, so that a deep value cannot exhaust the stack here as it would in recursive code."""
+    stack: list[tuple[tuple[int | str, ...], Any]] = [((), value)]
+    while stack:
+        path, node = stack.pop()
+        if isinstance(node, (dict, list)):
+            if len(path) >= limit:
+                return path
+            stack.extend((path + (k,), v) for k, v in (node.items() if isinstance(node, dict) else enumerate(node)))
+    return None
+
+
+def _toml(text: str) -> dict[str, Any]:
+    """``tomllib.loads``, with its recursion on nested arrays and inline tables (about a thousand levels exhaust
+    the stack) turned into a :class:`ValueError`; nesting within :data:`MAX_DEPTH` is checked by the caller."""
+    try:
+        return tomllib.loads(text)
+    except RecursionError:
+        raise ValueError(f"arrays or tables nested far deeper than {MAX_DEPTH} levels") from None
+
+
+def _short(text: str, limit: int = 60) -> str:
+    """``text`` quoted for a one-line message, cut to about ``limit`` characters."""
+    return repr(text) if len(text) <= limit else repr(text[: limit - 3]) + "..."
 
 
 # --- overrides -------------------------------------------------------------------------------------------------
@@ -330,22 +409,30 @@ def _parse_override(text: str) -> tuple[list[str | int], Any]:
     """``"planner.pso.n_pop=100"`` → (["planner", "pso", "n_pop"], 100); the value is read as a TOML value."""
     key, sep, value_text = text.partition("=")
     if not sep or not key.strip():
-        raise ValueError(f"expected KEY=VALUE, got {text!r}")
+        raise ValueError(f"expected KEY=VALUE, got {_short(text)}")
     steps: list[str | int] = []
-    for part in key.strip().split("."):
+    parts = key.strip().split(".")
+    if len(parts) > MAX_DEPTH:
+        raise ValueError(f"key {_short(key.strip())} is nested deeper than {MAX_DEPTH} levels")
+    for part in parts:
         match = _KEY_STEP.fullmatch(part.strip())
         if match is None:
-            raise ValueError(f"bad key {key.strip()!r} in {text!r} (use section.key or list[index].key)")
+            raise ValueError(f"bad key {_short(key.strip())} in {_short(text)} (use section.key or list[index].key)")
         steps.append(match[1])
         if match[2] is not None:
             steps.append(int(match[2]))
     value_text = value_text.strip()
     if not value_text or "\n" in value_text:
-        raise ValueError(f"missing or multi-line value in {text!r}")
+        raise ValueError(f"missing or multi-line value in {_short(text)}")
     try:
-        value = tomllib.loads(f"v = {value_text}")["v"]
+        value = _toml(f"v = {value_text}")["v"]
     except tomllib.TOMLDecodeError:
         value = value_text  # a bare word, e.g. vehicle.type=copter
+    except ValueError as exc:
+        raise ValueError(f"{exc} in the value of {_short(key.strip())}") from None
+    if too_deep(value) is not None:
+        raise ValueError(f"arrays or tables nested deeper than {MAX_DEPTH} levels in the value of "
+                         f"{_short(key.strip())}")
     return steps, value
 
 
@@ -357,15 +444,15 @@ def _apply_override(raw: dict[str, Any], text: str) -> None:
         where = ".".join(str(s) for s in steps[: depth + 1])
         if isinstance(step, str):
             if not isinstance(node, dict):
-                raise ValueError(f"{where} is not a table in {text!r}")
+                raise ValueError(f"{where} is not a table in {_short(text)}")
             if step not in node and isinstance(nxt, str):
                 node[step] = {}
             if step not in node:
-                raise ValueError(f"{where} does not exist in {text!r}")
+                raise ValueError(f"{where} does not exist in {_short(text)}")
             node = node[step]
         else:
             if not isinstance(node, list) or not -len(node) <= step < len(node):
-                raise ValueError(f"index {step} out of range in {text!r}")
+                raise ValueError(f"index {step} out of range in {_short(text)}")
             node = node[step]
     last = steps[-1]
     if isinstance(last, str) and isinstance(node, dict):
@@ -373,7 +460,7 @@ def _apply_override(raw: dict[str, Any], text: str) -> None:
     elif isinstance(last, int) and isinstance(node, list) and -len(node) <= last < len(node):
         node[last] = value
     else:
-        raise ValueError(f"cannot set {steps[-1]!r} in {text!r}: parent is not a table or index out of range")
+        raise ValueError(f"cannot set {steps[-1]!r} in {_short(text)}: parent is not a table or index out of range")
 
 
 # --- building --------------------------------------------------------------------------------------------------
@@ -423,6 +510,12 @@ def _build_terrain(spec: _FlatTerrain | _HillsTerrain | _FileTerrain | None, bou
     """The scenario's DEM in metres above home, or None for flat ground."""
     if spec is None or isinstance(spec, _FlatTerrain):
         return None
+    nodes = dem.grid_nodes(bounds.x, bounds.y, spec.spacing)
+    resampled = isinstance(spec, _HillsTerrain) or Path(spec.path).suffix.lower() == ".hgt"
+    if resampled and nodes > MAX_TERRAIN_NODES:
+        raise ScenarioError(file, "terrain.spacing", f"{spec.spacing:g} m on a {bounds.x:g} × {bounds.y:g} m map "
+                            f"gives {nodes:.3g} terrain grid nodes (limit {MAX_TERRAIN_NODES:.3g}): raise "
+                            "terrain.spacing or shrink the map")
     if isinstance(spec, _HillsTerrain):
         try:
             return dem.synthetic_hills(bounds.x, bounds.y, np.random.default_rng(spec.seed), spec.count,
@@ -450,90 +543,6 @@ def _build_terrain(spec: _FlatTerrain | _HillsTerrain | _FileTerrain | None, bou
 
 
 MIN_ROUTE_LENGTH = 10.0  # m between start and goal
-# Caps that keep a typo in --set from asking for gigabytes: far above any real use on a companion computer.
-MAX_POPULATION = 20_000
-MAX_WAYPOINTS = 200
-MAX_ITERATIONS = 100_000
-
-
-def _check_configs(file: str, vehicle: VehicleLimits, hazard: HazardConfig, planner: PlannerSettings) -> None:
-    """Range checks the config dataclasses do not make themselves."""
-    pso = planner.pso
-    checks: list[tuple[str, float, bool, str]] = [
-        ("vehicle.cruise_speed", vehicle.cruise_speed, vehicle.cruise_speed > 0, "must be > 0 m/s"),
-        ("vehicle.max_bank_deg", vehicle.max_bank_deg, 0 < vehicle.max_bank_deg < 90, "must be in (0, 90) deg"),
-        ("vehicle.max_climb_deg", vehicle.max_climb_deg, 0 < vehicle.max_climb_deg < 90, "must be in (0, 90) deg"),
-        ("vehicle.max_turn_deg", vehicle.max_turn_deg, 0 < vehicle.max_turn_deg <= 180, "must be in (0, 180] deg"),
-        ("vehicle.takeoff_alt", vehicle.takeoff_alt, vehicle.takeoff_alt > 0, "must be > 0 m"),
-        ("vehicle.acceptance_radius", vehicle.acceptance_radius, vehicle.acceptance_radius > 0, "must be > 0 m"),
-        ("vehicle.turn_overshoot", vehicle.turn_overshoot, vehicle.turn_overshoot >= 0,
-         "must be >= 0 m per radian"),
-        ("hazard.d_coll", hazard.d_coll, hazard.d_coll >= 0, "must be >= 0 m"),
-        ("hazard.d_safe", hazard.d_safe, hazard.d_safe > 0 and hazard.d_safe >= hazard.d_coll,
-         f"must be > 0 and >= d_coll ({hazard.d_coll:g} m)"),
-        ("planner.seed", planner.seed, planner.seed >= 0, "must be >= 0"),
-        ("planner.sample_spacing", planner.sample_spacing, 0.1 <= planner.sample_spacing <= 1000,
-         "must be in [0.1, 1000] m"),
-        ("planner.pso.n_pop", pso.n_pop, pso.n_pop <= MAX_POPULATION, f"must be <= {MAX_POPULATION}"),
-        ("planner.pso.n_waypoints", pso.n_waypoints, pso.n_waypoints <= MAX_WAYPOINTS, f"must be <= {MAX_WAYPOINTS}"),
-        ("planner.pso.max_iter", pso.max_iter, pso.max_iter <= MAX_ITERATIONS, f"must be <= {MAX_ITERATIONS}"),
-        ("planner.pso.w_damp", pso.w_damp, 0 < pso.w_damp <= 1, "must be in (0, 1]"),
-        ("planner.pso.w0", pso.w0, pso.w0 <= 10, "must be <= 10"),
-        ("planner.pso.velocity_limit", pso.velocity_limit, pso.velocity_limit > 0, "must be > 0"),
-        ("planner.pso.w_min", pso.w_min, 0 <= pso.w_min <= pso.w_max, f"must be in [0, w_max={pso.w_max:g}]"),
-        ("planner.pso.psi_max_deg", pso.psi_max_deg, 0 < pso.psi_max_deg <= 90, "must be in (0, 90] deg"),
-        ("planner.pso.cone_half_deg", pso.cone_half_deg, 0 < pso.cone_half_deg <= 180, "must be in (0, 180] deg"),
-    ]
-    aco, bpso = planner.aco, planner.bpso
-    checks += [
-        ("planner.aco.n_ants", aco.n_ants, 1 <= aco.n_ants <= MAX_POPULATION, f"must be in [1, {MAX_POPULATION}]"),
-        ("planner.aco.max_iter", aco.max_iter, 1 <= aco.max_iter <= MAX_ITERATIONS,
-         f"must be in [1, {MAX_ITERATIONS}]"),
-        ("planner.aco.stagnation_iters", aco.stagnation_iters, aco.stagnation_iters >= 1, "must be >= 1"),
-        ("planner.aco.rho", aco.rho, 0 < aco.rho < 1, "must be in (0, 1)"),
-        ("planner.aco.tau0", aco.tau0, aco.tau0 > 0, "must be > 0"),
-        ("planner.aco.sigma", aco.sigma, aco.sigma > 0, "must be > 0 m"),
-        ("planner.aco.tau_min", aco.tau_min, 0 < aco.tau_min <= aco.tau_max, f"must be in (0, tau_max={aco.tau_max:g}]"),
-        ("planner.aco.w_end", aco.w_end, 0 < aco.w_end <= 1, "must be in (0, 1]"),
-        ("planner.aco.lattice_growth", aco.lattice_growth, 1 <= aco.lattice_growth <= 10, "must be in [1, 10]"),
-        ("planner.aco.cross_step", aco.cross_step, aco.cross_step > 0, "must be > 0 m"),
-        ("planner.aco.vert_step", aco.vert_step, aco.vert_step > 0, "must be > 0 m"),
-        ("planner.aco.cross_half", aco.cross_half, 0 <= aco.cross_half <= 20, "must be in [0, 20]"),
-        ("planner.aco.vert_half", aco.vert_half, 0 <= aco.vert_half <= 10, "must be in [0, 10]"),
-        ("planner.aco.smooth_floor", aco.smooth_floor, 0 < aco.smooth_floor <= 1, "must be in (0, 1]"),
-        ("planner.aco.budget_share", aco.budget_share, 0 <= aco.budget_share < 1, "must be in [0, 1)"),
-        ("planner.qpso.beta_end", planner.qpso.beta_end, planner.qpso.beta_end > 0, "must be > 0"),
-        ("planner.bpso.bits_cross", bpso.bits_cross, 1 <= bpso.bits_cross <= 10, "must be in [1, 10]"),
-        ("planner.bpso.bits_alt", bpso.bits_alt, 1 <= bpso.bits_alt <= 10, "must be in [1, 10]"),
-        ("planner.bpso.corridor_frac", bpso.corridor_frac, 0 < bpso.corridor_frac <= 2, "must be in (0, 2]"),
-        ("planner.bpso.v_max", bpso.v_max, bpso.v_max > 0, "must be > 0"),
-        ("planner.pso.stagnation_tol", pso.stagnation_tol, 0 <= pso.stagnation_tol < 1, "must be in [0, 1)"),
-    ]
-    rm = planner.roadmap
-    checks += [
-        ("planner.roadmap.spacing", rm.spacing, rm.spacing == 0 or rm.spacing >= 1, "must be 0 (auto) or >= 1 m"),
-        ("planner.roadmap.max_levels", rm.max_levels, 1 <= rm.max_levels <= 50, "must be in [1, 50]"),
-        ("planner.roadmap.margin", rm.margin, rm.margin >= 0, "must be >= 0 m"),
-        ("planner.roadmap.n_routes", rm.n_routes, 1 <= rm.n_routes <= 20, "must be in [1, 20]"),
-        ("planner.roadmap.reuse_penalty", rm.reuse_penalty, rm.reuse_penalty >= 1, "must be >= 1"),
-        ("planner.roadmap.climb_share", rm.climb_share, 0 < rm.climb_share <= 1, "must be in (0, 1]"),
-        ("planner.roadmap.max_guide_points", rm.max_guide_points, 1 <= rm.max_guide_points <= 200,
-         "must be in [1, 200]"),
-        ("planner.roadmap.colony_iter", rm.colony_iter, 1 <= rm.colony_iter <= MAX_ITERATIONS,
-         f"must be in [1, {MAX_ITERATIONS}]"),
-        ("planner.roadmap.stagnation_tol", rm.stagnation_tol, 0 <= rm.stagnation_tol < 1, "must be in [0, 1)"),
-    ]
-    for group, obj in (("planner.weights", planner.weights), ("planner.penalty", planner.penalty),
-                       ("planner.pso", {"c1": pso.c1, "c2": pso.c2, "w0": pso.w0, "w_damp": pso.w_damp}),
-                       ("planner.aco", {"alpha": aco.alpha, "beta": aco.beta, "gamma": aco.gamma, "c1": aco.c1,
-                                        "c2": aco.c2, "amplitude": aco.amplitude, "hard_boost": aco.hard_boost,
-                                        "deposit": aco.deposit}),
-                       ("planner.qpso", planner.qpso), ("planner.psogsa", planner.psogsa)):
-        values = obj if isinstance(obj, dict) else dataclasses.asdict(obj)
-        checks += [(f"{group}.{k}", v, v >= 0, "must be >= 0") for k, v in values.items()]
-    for path, value, ok, reason in checks:
-        if not ok:
-            raise ScenarioError(file, path, f"{value:g} {reason}")
 
 
 def _check_point(file: str, name: str, p: np.ndarray, env: Environment, obstacles: _Obstacles,
@@ -577,6 +586,18 @@ def _check_meet_points(file: str, spec: _ScenarioFile) -> None:
             raise ScenarioError(file, f"intruders[{i}].meet", f"must lie on the intruder's path ({off:.1f} m off it)")
 
 
+def _check_obstacle_count(file: str, spec: _ScenarioFile) -> None:
+    """At most MAX_OBSTACLES obstacles in all, blaming the key that holds most of them."""
+    counts = {"cylinders": len(spec.cylinders), "spheres": len(spec.spheres), "hemispheres": len(spec.hemispheres),
+              "radars": len(spec.radars),
+              "random_obstacles.count": spec.random_obstacles.count if spec.random_obstacles is not None else 0}
+    total = sum(counts.values())
+    if total > MAX_OBSTACLES:
+        raise ScenarioError(file, max(counts, key=counts.__getitem__), f"{total} obstacles in all (cylinders, "
+                            f"spheres, hemispheres, radars and random ones) is more than the {MAX_OBSTACLES} a "
+                            "scenario may hold")
+
+
 def _check_unique_ids(file: str, spec: _ScenarioFile) -> None:
     """Threat and intruder ids share one namespace (the companion tracks both by id)."""
     seen: dict[str, str] = {}
@@ -588,18 +609,30 @@ def _check_unique_ids(file: str, spec: _ScenarioFile) -> None:
         seen[ident] = where.removesuffix(".id")
 
 
-def _read_toml(path: Path, file: str) -> dict[str, Any]:
+def read_scenario_bytes(path: Path) -> bytes:
+    """The scenario file's bytes: a regular file of at most :data:`MAX_SCENARIO_BYTES`, else ``FILE: REASON``."""
     try:
-        with path.open("rb") as fh:
-            return tomllib.load(fh)
-    except FileNotFoundError:
-        raise ScenarioError(file, "", "file not found") from None
+        return read_regular_file(path, MAX_SCENARIO_BYTES, "scenario")
+    except FileRefused as exc:
+        raise ScenarioError(str(path), "", exc.reason) from None
+
+
+def _read_toml(path: Path, file: str) -> dict[str, Any]:
+    """The file's TOML; refused in one line when it is not a regular file of at most MAX_SCENARIO_BYTES, not
+    UTF-8 TOML, or nested deeper than MAX_DEPTH (before any recursive code sees it)."""
+    data = read_scenario_bytes(path)
+    try:
+        raw = _toml(data.decode("utf-8"))
     except tomllib.TOMLDecodeError as exc:
         raise ScenarioError(file, "", f"malformed TOML: {exc}") from exc
     except UnicodeDecodeError as exc:
         raise ScenarioError(file, "", f"not UTF-8 text ({exc.reason} at byte {exc.start})") from exc
-    except OSError as exc:
-        raise ScenarioError(file, "", f"cannot read file: {exc.strerror or exc}") from exc
+    except ValueError as exc:
+        raise ScenarioError(file, "", str(exc)) from None
+    deep = too_deep(raw)
+    if deep is not None:
+        raise ScenarioError(file, _field_path(deep), f"arrays or tables nested deeper than {MAX_DEPTH} levels")
+    return raw
 
 
 def _raw_with_overrides(path: Path, overrides: Sequence[str]) -> dict[str, Any]:
@@ -644,12 +677,12 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
         except ValidationError as exc:
             raise _from_validation_error(file, exc, (key,)) from exc
     vehicle, hazard, planner = sections["vehicle"], sections["hazard"], sections["planner"]
-    _check_configs(file, vehicle, hazard, planner)
     if spec.altitude.min >= spec.altitude.max:
         raise ScenarioError(file, "altitude.min", f"{spec.altitude.min:g} m must be below altitude.max "
                             f"({spec.altitude.max:g} m)")
     _check_unique_ids(file, spec)
     _check_meet_points(file, spec)
+    _check_obstacle_count(file, spec)
 
     start = np.array(spec.route.start, dtype=float)
     goal = np.array(spec.route.goal, dtype=float)

@@ -15,7 +15,9 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from planner.world.scenario import ScenarioError, named_files
+from planner.files import FileRefused, read_regular_file
+from planner.world.dem import MAX_ESRI_BYTES, MAX_HGT_BYTES
+from planner.world.scenario import ScenarioError, named_files, read_scenario_bytes
 
 
 @dataclass(frozen=True)
@@ -29,16 +31,12 @@ class ScenarioText:
         """The scenario at ``path`` and every file it names once ``overrides`` apply."""
         path = Path(path)
         named = []
-        for key, file in named_files(path, overrides).items():
+        for key, file in named_files(path, overrides).items():  # a terrain DEM, the only file a scenario names
             try:
-                named.append((key, file.name, file.read_bytes()))
-            except OSError as exc:
-                raise ScenarioError(str(path), key, f"cannot read {file}: {exc.strerror or exc}") from exc
-        try:
-            data = path.read_bytes()
-        except OSError as exc:
-            raise ScenarioError(str(path), "", f"cannot read file: {exc.strerror or exc}") from exc
-        return cls(path.name, data, tuple(named))
+                named.append((key, file.name, read_regular_file(file, max(MAX_ESRI_BYTES, MAX_HGT_BYTES), "terrain")))
+            except FileRefused as exc:
+                raise ScenarioError(str(path), key, f"cannot read {exc}") from exc
+        return cls(path.name, read_scenario_bytes(path), tuple(named))
 
     @property
     def digest(self) -> str:

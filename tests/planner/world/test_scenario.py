@@ -170,7 +170,7 @@ BAD_CASES = {
     "zero sphere radius": (_set("spheres", [{"x": 1.0, "y": 2.0, "z": 3.0, "radius": 0.0}]), "spheres[0].radius",
                            "greater than 0"),
     "altitude band inverted": (_set("altitude.min", 300.0), "altitude.min", "below"),
-    "dataclass post-init check": (_set("planner.pso.n_pop", 1), "planner.pso", "n_pop"),
+    "dataclass post-init check": (_set("planner.pso.n_pop", 1), "planner.pso.n_pop", ">= 2"),
     "start inside a cylinder": (_set("route.start", [400.0, 500.0, 60.0]), "route.start", "inside cylinders[0]"),
     "start under a cylinder top": (
         lambda d: (_set("cylinders[0].top", 100.0)(d), _set("route.start", [400.0, 500.0, 60.0])(d)),
