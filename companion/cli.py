@@ -26,7 +26,7 @@ from planner.cli import (
     check_writable,
     write_text,
 )
-from planner.errors import FuseplanError
+from planner.errors import FuseplanError, PlanRefused
 from planner.world.config import ALGORITHM_NAMES
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "sitl_scenarios"
@@ -48,6 +48,9 @@ def _parser() -> argparse.ArgumentParser:
     ex.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory")
     ex.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     ex.add_argument("--seed", type=int, default=None)
+    ex.add_argument("--force", action="store_true",
+                    help="write a PLAN.json that fails its check against the scenario anyway, marked UNCHECKED in "
+                         "the file (never for flying)")
     fl = sub.add_parser("fly", help="plan, upload, start and monitor a mission over MAVLink")
     fl.add_argument("scenario", type=Path, help="scenario TOML (planned now) or a PLAN.json")
     where = fl.add_mutually_exclusive_group(required=True)
@@ -59,9 +62,7 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--arm", action="store_true", help="let the companion arm the vehicle (never without this)")
     fl.add_argument("--no-fence", action="store_true", help="do not upload the no-fly cylinders as a fence")
     fl.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory as waypoints")
-    fl.add_argument("--signing-key", type=Path, metavar="FILE",
-                    help="MAVLink 2 signing: a 32-byte key file or a passphrase file (SHA-256, as MAVProxy); "
-                    "sign everything, ignore unsigned input")
+    _signing_options(fl)
     fl.add_argument("--no-replan", action="store_true",
                     help="fly the first plan whatever the threats do (no live replanning)")
     fl.add_argument("--replan-budget", type=float, default=None, metavar="S",
@@ -75,6 +76,9 @@ def _parser() -> argparse.ArgumentParser:
                     "(mission_raw, action, mavlink_direct); planning, replanning and the report stay the same")
     fl.add_argument("--heartbeat-timeout", type=float, default=None, metavar="S",
                     help=f"seconds to wait for the autopilot's first HEARTBEAT (default {HEARTBEAT_WAIT_S:g})")
+    fl.add_argument("--target-system", type=int, default=None, metavar="N",
+                    help="the autopilot's MAVLink system id (1-255); without it the one that answers is used, and "
+                         "HEARTBEATs from a second autopilot refuse the flight before any upload")
     fl.add_argument("--report", type=Path, default=Path("fuseplan-report"), help="report directory")
     fl.add_argument("--scenario-file", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
     fl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
@@ -89,7 +93,7 @@ def _parser() -> argparse.ArgumentParser:
     sm.add_argument("--speedup", type=float, default=1.0)
     sm.add_argument("--loss", type=float, default=0.0, help="packet loss probability")
     sm.add_argument("--latency", type=float, default=0.0, help="extra outgoing latency, s")
-    sm.add_argument("--signing-key", type=Path, metavar="FILE", help="MAVLink 2 signing key (as for fly)")
+    _signing_options(sm)
     bn = planner_parsers["bench"]
     bn.add_argument("--speedup", type=float, default=1.0,
                     help="bench replan only: simulator speed-up (1 = the latency target's condition)")
@@ -118,16 +122,36 @@ def _parser() -> argparse.ArgumentParser:
     dm = sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated "
                         "autopilot at 20x, replanning around an intruder")
     _status_options(dm)
+    dm.add_argument("--insecure-key-file", action="store_true",
+                    help="use a --status-token file that other users can read (with a warning)")
     rp = sub.add_parser("report", help="summarise a `fuseplan fly` report directory, or serve its status page")
     rp.add_argument("directory", type=Path, help="the report directory (holds events.jsonl, flight.json)")
     rp.add_argument("--serve", nargs="?", const=STATUS_DEFAULT, metavar="[HOST:]PORT",
                     help=f"serve the flight's status page until Ctrl-C (default {STATUS_DEFAULT})")
     rp.add_argument("--status-token", type=Path, metavar="FILE",
                     help="a file holding the page's token (required to serve beyond loopback)")
+    rp.add_argument("--status-host", action="append", metavar="NAME",
+                    help="another name the page may be reached by (as for fly; repeatable)")
+    rp.add_argument("--insecure-key-file", action="store_true",
+                    help="use a --status-token file that other users can read (with a warning) instead of refusing it")
     return p
 
 
 STATUS_DEFAULT = "127.0.0.1:8765"
+
+
+def _signing_options(p: argparse.ArgumentParser) -> None:
+    """MAVLink 2 signing on ``fly`` and ``sim``: a raw key or a passphrase, never guessed from the file."""
+    signing = p.add_mutually_exclusive_group()
+    signing.add_argument("--signing-key", type=Path, metavar="FILE",
+                         help="MAVLink 2 signing with the key in FILE: exactly 32 raw bytes, or 64 hex digits; sign "
+                         "everything, ignore unsigned input")
+    signing.add_argument("--signing-passphrase", type=Path, metavar="FILE",
+                         help="MAVLink 2 signing with the key MAVProxy's `signing setup PASSPHRASE` makes (SHA-256) "
+                         "from the passphrase on FILE's first line (one word, 8+ characters)")
+    p.add_argument("--insecure-key-file", action="store_true",
+                   help="use a key, passphrase or --status-token file that other users can read (with a warning) "
+                   "instead of refusing it")
 
 
 def _status_options(p: argparse.ArgumentParser) -> None:
@@ -136,6 +160,10 @@ def _status_options(p: argparse.ArgumentParser) -> None:
                         "free port); any address but loopback needs --status-token")
     p.add_argument("--status-token", type=Path, metavar="FILE",
                    help="a file holding the status page's token (16+ characters); every request must carry it")
+    p.add_argument("--status-host", action="append", metavar="NAME",
+                   help="another name browsers may reach the page by (a reverse proxy's, this machine's DNS name; "
+                        "repeatable); a Host that names neither it, loopback, the address reached nor this machine "
+                        "gets 421")
 
 
 def _status_bind(args: argparse.Namespace, option: str = "status_page") -> tuple[object, str | None] | None:
@@ -144,12 +172,14 @@ def _status_bind(args: argparse.Namespace, option: str = "status_page") -> tuple
 
     where = getattr(args, option, None)
     token_file = getattr(args, "status_token", None)
+    hosts = getattr(args, "status_host", None) or []
     if where is None:
-        if token_file is not None:
-            raise FuseplanError("--status-token goes with " + ("--serve" if option == "serve" else "--status-page"))
+        for given, name in ((token_file, "--status-token"), (hosts, "--status-host")):
+            if given:
+                raise FuseplanError(f"{name} goes with " + ("--serve" if option == "serve" else "--status-page"))
         return None
-    bind = Bind.parse(where)
-    token = read_token(token_file, bind)
+    bind = Bind.parse(where, hosts)
+    token = read_token(token_file, bind, getattr(args, "insecure_key_file", False))
     bind.check_free()
     return bind, token
 
@@ -233,26 +263,30 @@ def cmd_bench_flights(args: argparse.Namespace) -> int:
 
 
 def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str], seed: int | None,
-                  feasible_only: bool = True, for_flight: bool = False) -> tuple[dict, object]:
+                  feasible_only: bool = True, for_flight: bool = False, force: bool = False) -> tuple[dict, object]:
     """(PLAN.json document, scenario) from a PLAN.json or by planning a scenario TOML now. ``for_flight``:
     dynamic threats are timed from the mission start (the vehicle reaches the route's start only after its
-    takeoff), as the companion sees them in flight."""
+    takeoff), as the companion sees them in flight. A PLAN.json is checked again against its scenario and its
+    derived parts rebuilt (:mod:`planner.plan_file`); one that fails is refused (exit 3) unless ``force``, when
+    the document carries the fault under ``unchecked``."""
     from planner.plan import plan, plan_to_json, problem_from_scenario
     from planner.world.scenario import load_scenario
 
     if source.suffix.lower() == ".json":
-        try:
-            doc = json.loads(source.read_text())
-        except (OSError, ValueError) as e:
-            raise FuseplanError(f"{source}: cannot read the plan: {e}") from e
-        if not isinstance(doc, dict) or "waypoints" not in doc:
-            raise FuseplanError(f"{source}: not a fuseplan PLAN.json (no waypoints)")
+        from planner.plan_file import read_plan_document, recheck, refuse_unless_passed
+
+        doc = read_plan_document(source)
         named = scenario_path or (Path(doc["scenario_file"]) if doc.get("scenario_file") else None)
         if named is None:
             raise FuseplanError(f"{source}: names no scenario file; pass --scenario")
         sc = load_scenario(named, overrides)
         _check_plan_matches(source, doc, sc)
-        return doc, sc
+        checked = recheck(doc, sc)
+        if not force:
+            refuse_unless_passed(checked, source, sc)
+        elif not checked.passed:
+            checked.document["unchecked"] = checked.fault
+        return checked.document, sc
     sc = load_scenario(source, with_flight_margins(source, overrides)
                        + ([f"planner.seed={seed}"] if seed is not None else []))
     start_time = None
@@ -263,7 +297,7 @@ def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str]
     res = plan(problem_from_scenario(sc, start_time), sc.planner, np.random.default_rng(sc.planner.seed),
                seed=sc.planner.seed)
     if feasible_only and not res.feasible:
-        raise FuseplanError(f"{source}: no feasible plan ({res.status.value}); nothing exported")
+        raise PlanRefused(f"{source}: no feasible plan ({res.status.value}); nothing exported")
     return plan_to_json(res, sc, start_time), sc
 
 
@@ -278,9 +312,9 @@ def with_flight_margins(source: Path, overrides: list[str]) -> list[str]:
 
 def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
     """A PLAN.json is only flown or exported with its own scenario: same name, home, start and goal."""
-    home = doc.get("home") or {}
-    same = (doc.get("scenario") == sc.name
-            and all(abs(float(home.get(k, math.nan)) - getattr(sc.home, k)) < 1e-9 for k in ("lat", "lon", "alt"))
+    home = doc["home"]  # shape checked: finite numbers
+    same = (doc["scenario"] == sc.name
+            and all(abs(float(home[k]) - getattr(sc.home, k)) < 1e-9 for k in ("lat", "lon", "alt"))
             and np.allclose(doc["waypoints"][0], sc.start) and np.allclose(doc["waypoints"][-1], sc.goal))
     if not same:
         raise FuseplanError(f"{source}: planned for scenario {doc.get('scenario')!r}, not {sc.name!r} "
@@ -288,17 +322,28 @@ def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    """Write a mission file from a scenario (planned now) or a PLAN.json (checked again first; ``--force`` writes
+    one that fails, marked unchecked in the file). Written to a temporary name and renamed: never half a file."""
+    import os
+
     from companion.mission.exports import export_from_plan_json
 
     check_writable(args.output)
-    doc, sc = _plan_doc_for(args.source, args.scenario, args.overrides, args.seed)
+    doc, sc = _plan_doc_for(args.source, args.scenario, args.overrides, args.seed, force=args.force)
+    part = args.output.with_name(args.output.name + ".part")
     try:
-        path = export_from_plan_json(doc, sc, args.format, args.output, args.autopilot, densify=args.densify)
+        export_from_plan_json(doc, sc, args.format, part, args.autopilot, densify=args.densify)
+        os.replace(part, args.output)
     except (KeyError, ValueError) as e:
         raise FuseplanError(f"{args.source}: cannot export: {e}") from e
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write: {e.strerror or e}") from e
-    print(f"wrote {path} ({args.format}, {args.autopilot})")
+    finally:
+        part.unlink(missing_ok=True)
+    if doc.get("unchecked"):
+        print(f"fuseplan: warning: {args.output} was written UNCHECKED (--force), and says so inside: "
+              f"{doc['unchecked']}", file=sys.stderr)
+    print(f"wrote {args.output} ({args.format}, {args.autopilot})")
     return EXIT_OK
 
 
@@ -313,12 +358,21 @@ def _seconds(args: argparse.Namespace, name: str) -> float | None:
     return value
 
 
+def _check_report_dir(report: Path) -> None:
+    """A report directory that can be made: refused before planning, so that nothing is half-written."""
+    if report.exists() and not report.is_dir():
+        raise FuseplanError(f"{report}: the report directory is a file")
+    parent = next((a for a in report.resolve().parents if a.exists()), None)
+    if parent is None or not parent.is_dir():
+        raise FuseplanError(f"{report}: cannot create the report directory under {parent}")
+
+
 def cmd_fly(args: argparse.Namespace) -> int:
     import asyncio
 
     from companion.flight.fly import FlyOptions, fly
-    from companion.mavlink.errors import CompanionError
-    from companion.mavlink.signing import SigningKey
+    from companion.mavlink.errors import CompanionError, FlightAborted
+    from companion.mavlink.signing import key_from_files
     from companion.mission.events import EventLog
     from companion.replanning.replan import ReplanConfig
 
@@ -332,20 +386,35 @@ def cmd_fly(args: argparse.Namespace) -> int:
     if backend == "mavsdk":
         from companion.mavlink.mavsdk_backend import unsupported_options
 
-        why = unsupported_options(signing=getattr(args, "signing_key", None) is not None)
+        signing = getattr(args, "signing_key", None) or getattr(args, "signing_passphrase", None)
+        why = unsupported_options(signing=signing is not None)
         if why:
             raise FuseplanError(why)
-    key = SigningKey.load(args.signing_key) if getattr(args, "signing_key", None) else None
+    key = key_from_files(getattr(args, "signing_key", None), getattr(args, "signing_passphrase", None),
+                         getattr(args, "insecure_key_file", False))
+    budget = _seconds(args, "replan_budget")  # every option is checked before any planning or writing
+    heartbeat = _seconds(args, "heartbeat_timeout")
+    from companion.mavlink.link import check_url
+
+    for option, url in (("--connect", args.connect), ("--traffic", getattr(args, "traffic", None))):
+        if url is not None:
+            check_url(url, option)
+    _check_report_dir(args.report)
+    target = getattr(args, "target_system", None)
+    if target is not None and not 1 <= target <= 255:
+        raise FuseplanError(f"--target-system {target}: a MAVLink system id is 1-255")
+    if target is not None and args.sim:
+        raise FuseplanError("--target-system is for a real autopilot (--connect): the simulator is system 1")
     status = _status_bind(args)
     overrides = list(args.overrides) + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else [])
+    say = (lambda *_: None) if args.quiet else (lambda text: print(text, flush=True))
+    say(f"{'checking' if args.scenario.suffix.lower() == '.json' else 'planning'} {args.scenario.name} ...")
+    doc, sc = _plan_doc_for(args.scenario, args.scenario_file, overrides, args.seed, feasible_only=False,
+                            for_flight=True)
     try:
         args.report.mkdir(parents=True, exist_ok=True)
     except OSError as e:
         raise FuseplanError(f"{args.report}: cannot create the report directory: {e.strerror or e}") from e
-    say = (lambda *_: None) if args.quiet else (lambda text: print(text, flush=True))
-    say(f"planning {args.scenario.name} ...")
-    doc, sc = _plan_doc_for(args.scenario, args.scenario_file, overrides, args.seed, feasible_only=False,
-                            for_flight=True)
     write_text(args.report / "PLAN.json", json.dumps(doc, indent=1, allow_nan=False) + "\n")
     say(f"  {doc['status']}: cost {doc['cost']:.1f}, {doc['metrics']['length_m']:.0f} m, "
         f"{doc['metrics']['plan_time_s']:.2f} s")
@@ -353,14 +422,12 @@ def cmd_fly(args: argparse.Namespace) -> int:
         print(f"fuseplan: no feasible plan ({doc['status']}); not flying. See {args.report / 'PLAN.json'}",
               file=sys.stderr)
         return EXIT_INFEASIBLE
-    budget = _seconds(args, "replan_budget")
-    heartbeat = _seconds(args, "heartbeat_timeout")
     opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
                       arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report,
                       replan=not getattr(args, "no_replan", False),
                       replan_config=None if budget is None else ReplanConfig(budget_s=budget),
                       signing_key=key, traffic=getattr(args, "traffic", None), backend=backend,
-                      heartbeat_timeout=HEARTBEAT_WAIT_S if heartbeat is None else heartbeat,
+                      heartbeat_timeout=HEARTBEAT_WAIT_S if heartbeat is None else heartbeat, target_system=target,
                       plan_again=None if args.scenario.suffix.lower() == ".json" else (
                           lambda extra: _plan_doc_for(args.scenario, args.scenario_file, overrides + extra, args.seed,
                                                       feasible_only=False, for_flight=True)))
@@ -375,10 +442,12 @@ def cmd_fly(args: argparse.Namespace) -> int:
             flight = asyncio.run(serve_flight(lambda: fly(doc, sc, opts, events), events, bind, token,
                                               lambda url: _announce(url, token)))
     except CompanionError as e:
-        events.log("failed", error=str(e))
-        write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e)}, indent=1) + "\n")
+        started = isinstance(e, FlightAborted)
+        events.log("failed", error=str(e), started=started)
+        write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e),
+                                                            "started": started}, indent=1) + "\n")
         print(f"fuseplan: error: {e}", file=sys.stderr)
-        return EXIT_LINK
+        return EXIT_ABORTED if started else EXIT_LINK
     except KeyboardInterrupt:
         events.log("aborted", reason="interrupted by the user")
         write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": "interrupted"}) + "\n")
@@ -402,7 +471,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
               + "; ".join(flight["breaches"]) + (" (replanning was off)" if not flight["replanning"] else ""),
               file=sys.stderr)
         return EXIT_UNSAFE
-    return EXIT_OK if flight["completed"] else EXIT_ABORTED
+    if not flight["completed"]:
+        print(f"fuseplan: flight NOT completed: {flight['reason']}", file=sys.stderr)
+        return EXIT_ABORTED
+    return EXIT_OK
 
 
 _ECHOED = ("reached", "statustext", "mode", "armed", "upload_verified", "mission_start", "ready", "connected",
@@ -442,7 +514,7 @@ def _echo_event(rec: dict) -> None:
 def cmd_sim(args: argparse.Namespace) -> int:
     import asyncio
 
-    from companion.mavlink.signing import SigningKey
+    from companion.mavlink.signing import key_from_files
     from companion.sim import serve
     from planner.world.scenario import load_scenario
 
@@ -450,10 +522,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.loss < 1 or not (
             math.isfinite(args.latency) and args.latency >= 0):
         raise FuseplanError("--speedup must be a finite number > 0, --loss in [0, 1), --latency >= 0")
+    key = key_from_files(args.signing_key, args.signing_passphrase, args.insecure_key_file)
     print(f"simulated {sc.vehicle.type} for {sc.name} on {args.listen} (speed-up {args.speedup:g}); Ctrl-C stops",
           flush=True)
     try:
-        key = SigningKey.load(args.signing_key) if args.signing_key else None
         asyncio.run(serve(sc, args.listen, args.speedup, args.loss, args.latency, signing_key=key))
     except KeyboardInterrupt:
         pass
@@ -471,7 +543,8 @@ def cmd_demo(args: argparse.Namespace) -> int:
     ns = argparse.Namespace(scenario=here, connect=None, sim=True, speedup=20.0, sim_loss=0.0, arm=False,
                             no_fence=False, densify=False, report=Path("fuseplan-demo"), scenario_file=None,
                             overrides=[], seed=None, algorithm=None, quiet=False, no_replan=False,
-                            replan_budget=None, status_page=args.status_page, status_token=args.status_token)
+                            replan_budget=None, status_page=args.status_page, status_token=args.status_token,
+                            status_host=args.status_host, insecure_key_file=args.insecure_key_file)
     return cmd_fly(ns)
 
 
@@ -539,11 +612,15 @@ def main(argv: list[str] | None = None) -> int:
                 return cmd_bench_flights(args)
             return planner_cli.cmd_bench(args, other_benches=("replan", "flights"))
         return cmd_demo(args)
+    except PlanRefused as e:
+        print(f"fuseplan: {e}", file=sys.stderr)
+        return EXIT_INFEASIBLE
     except FuseplanError as e:
         print(f"fuseplan: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT
     except MemoryError:
-        print("fuseplan: error: out of memory: reduce planner.pso.n_pop, n_waypoints or the map size",
+        print("fuseplan: error: out of memory: lower planner.pso.n_pop, the obstacles or the map, or raise "
+              "planner.sample_spacing",
               file=sys.stderr)
         return EXIT_BAD_INPUT
     except BrokenPipeError:  # `fuseplan compare | head`: the reader left; files are already written

@@ -27,3 +27,7 @@ class ScenarioError(FuseplanError):
 
     def __reduce__(self):  # noqa: ANN204 - survives pickling across process pools
         return (type(self), (self.file, self.field, self.reason))
+
+
+class PlanRefused(FuseplanError):
+    """A plan that fails its check (a PLAN.json whose route breaks its scenario's constraints): exit 3, not 2."""

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import dataclasses
 import logging
 import math
 from collections.abc import Callable
@@ -23,7 +22,9 @@ from companion.flight.supervisor import (
     DepartureRefused,
     FlightOutcome,
     FlightSupervisor,
+    check_one_autopilot,
 )
+from companion.mavlink.errors import CompanionError, FlightAborted
 from companion.mavlink.link import Link
 from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
 from companion.mavlink.params import read_params
@@ -54,6 +55,7 @@ from companion.replanning.replan import ReplanConfig, with_room
 from companion.replanning.replanner import LiveReplanner
 from companion.replanning.separation import min_separations
 from companion.replanning.worker import PlanWorker, expects_traffic
+from planner.plan_file import as_planned
 from planner.world.scenario import Scenario
 
 if TYPE_CHECKING:
@@ -61,6 +63,12 @@ if TYPE_CHECKING:
 
 log = logging.getLogger(__name__)
 RATES_WAIT_S = 15.0  # wall seconds the first round of telemetry rate requests may delay the upload
+IDENTITY_WINDOW_S = 1.2  # wall seconds after the first HEARTBEAT: autopilots send theirs at 1 Hz
+
+
+async def _rates_answered(rates: TelemetryRates) -> None:
+    with contextlib.suppress(TimeoutError):
+        await asyncio.wait_for(asyncio.shield(rates.wait()), RATES_WAIT_S)
 
 
 @dataclass
@@ -80,6 +88,7 @@ class FlyOptions:
     traffic: str | None = None  # a real autopilot's spare port: fly the scenario's intruders there (TrafficFeed)
     backend: str = "pymavlink"  # or "mavsdk": the vehicle through MAVSDK (companion.mavlink.mavsdk_backend)
     heartbeat_timeout: float = HEARTBEAT_WAIT_S  # s to wait for the autopilot's first HEARTBEAT
+    target_system: int | None = None  # the autopilot's system id; None: the one heard, refused if several are
     # plans the scenario again with these extra --set overrides (the vehicle's own limits), or None: a PLAN.json
     # given by the user is flown as it is or refused
     plan_again: Callable[[list[str]], tuple[dict[str, Any], Scenario]] | None = None
@@ -118,8 +127,9 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             await link.wait_heartbeat(timeout=opts.heartbeat_timeout)
             # the streams we do not read turned off before the first transfer (PX4 floods a companion link with
             # ~500 messages/s times its speed-up: an upload in that flood timed out three times on a busy machine)
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(asyncio.shield(rates.wait()), RATES_WAIT_S)
+            # meanwhile, long enough to hear every autopilot on the link once: never follow merely the first
+            await asyncio.gather(_rates_answered(rates), asyncio.sleep(IDENTITY_WINDOW_S))
+            check_one_autopilot(link, events)
             autopilot = link.profile.layout  # the builder's layout key ("ardupilot", "px4")
             params = await read_params(link, parameter_names(autopilot, scenario.vehicle.type))
             limits = limits_from(params, autopilot, scenario.vehicle, DEFAULT_LOITER_RADIUS_M)
@@ -150,25 +160,19 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                         link, client, events, scenario, spec, items, opts.replan_config,
                         rate=clock_rate, seed=int(plan_doc.get("seed") or 0),
                         limits=limits, worker=worker))
-                outcome = await sup.fly(items, fence, ready_timeout=60.0 if sim is None else 30.0,
-                                        flight_timeout=timeout, replanner=replanner,
-                                        departure=_departure_check(plan_doc, scenario, limits, events))
+                try:
+                    outcome = await sup.fly(items, fence, ready_timeout=60.0 if sim is None else 30.0,
+                                            flight_timeout=timeout, replanner=replanner,
+                                            departure=_departure_check(plan_doc, scenario, limits, events))
+                except CompanionError as e:
+                    if sup.started:
+                        raise FlightAborted(e) from e
+                    raise
     finally:
         if sim is not None:
             await sim.stop()
     return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, (planned, len(items)), replanner,
                                 feed, limits)
-
-
-def as_planned(plan_doc: dict[str, Any], scenario: Scenario) -> Scenario:
-    """The scenario with the vehicle's turn allowance the plan was made with (PLAN.json ``vehicle.turn_overshoot``;
-    `plan`, `fly` and `export` add it for a plane, the scenario file need not say it), so that the check against
-    the autopilot and every replan use what the plan allowed."""
-    vehicle = plan_doc.get("vehicle")
-    swing = vehicle.get("turn_overshoot") if isinstance(vehicle, dict) else None
-    if not isinstance(swing, (int, float)) or not math.isfinite(swing) or swing <= scenario.vehicle.turn_overshoot:
-        return scenario
-    return dataclasses.replace(scenario, vehicle=dataclasses.replace(scenario.vehicle, turn_overshoot=float(swing)))
 
 
 async def _plan_within(plan_doc: dict[str, Any], scenario: Scenario, limits: AutopilotLimits, opts: FlyOptions,
@@ -222,8 +226,10 @@ def _departure_check(plan_doc: dict[str, Any], scenario: Scenario, limits: Autop
 def _link(url: str, opts: FlyOptions) -> Link:
     """Our pymavlink link, or MAVSDK's (``opts.backend``)."""
     if opts.backend == "mavsdk":
-        return MavsdkLink(url, source_system=opts.source_system, open_timeout=10.0)
-    return Link(url, source_system=opts.source_system, open_timeout=10.0, signing_key=opts.signing_key)
+        return MavsdkLink(url, source_system=opts.source_system, open_timeout=10.0,
+                          target_system=opts.target_system)
+    return Link(url, source_system=opts.source_system, open_timeout=10.0, signing_key=opts.signing_key,
+                target_system=opts.target_system)
 
 
 def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,

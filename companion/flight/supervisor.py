@@ -21,6 +21,7 @@ from companion.flight.departure import VehicleFix
 from companion.mavlink.errors import (
     CommandError,
     CompanionError,
+    LinkError,
     MissionTimeout,
     MissionUploadError,
     MissionVerifyError,
@@ -33,7 +34,7 @@ from companion.mavlink.protocol import MissionClient
 from companion.mission import picture
 from companion.mission.events import EventLog
 from companion.mission.geo import geodetic_to_enu
-from companion.mission.restore import restore_mission
+from companion.mission.restore import LINK_BACK_S, restore_mission
 from companion.mission.vehicle_state import VehicleState, subscribe
 from planner.world.home import Home
 
@@ -134,6 +135,19 @@ class FixedMission:
         raise CompanionError(f"nobody can hold the vehicle ({reason})")
 
 
+def check_one_autopilot(link: Link, events: EventLog) -> None:
+    """Before anything is uploaded: the target was not merely the first autopilot to speak. HEARTBEATs from
+    another autopilot system refuse the flight unless the user chose the target (``--target-system``)."""
+    others = sorted(link.other_autopilots)
+    if not others:
+        return
+    events.log("other_autopilots", systems=others, target=link.target_system, pinned=link.pinned)
+    if not link.pinned:
+        raise CompanionError(f"HEARTBEATs from more than one autopilot on {link.url}: system {link.target_system} "
+                             f"(heard first) and {', '.join(map(str, others))}; pass --target-system N to choose; "
+                             "nothing was uploaded")
+
+
 class FlightSupervisor:
     """Flies one mission. ``arm``: may the companion arm the vehicle (only when asked, or our own sim)."""
 
@@ -146,6 +160,10 @@ class FlightSupervisor:
         self.home = home  # with it, the ``mission`` and ``position`` records in the local frame
         self._position_at = -math.inf  # wall time of the last ``position`` record
         self.booted_at: float | None = None  # time.monotonic() when the autopilot was seen booted
+        self.verified: list[MissionItem] = []  # the mission last verified on the vehicle
+        self._outages_checked = 0  # link.outages when the vehicle's mission was last known to be ``verified``
+        self.started = False  # armed or started: from here on a failure leaves a flight, not just a refusal
+        self.mismatch: MissionVerifyError | None = None  # the last resync's difference, if it found one
 
     # -- readiness ---------------------------------------------------------------------------------
     async def wait_booted(self, timeout: float = BOOT_TIMEOUT_S) -> None:
@@ -264,11 +282,16 @@ class FlightSupervisor:
                 try:
                     await self.client.upload_verified(payload, kind)
                     break
-                except (MissionTimeout, MissionVerifyError, MissionUploadError) as e:
+                except (MissionTimeout, MissionVerifyError, MissionUploadError, LinkError) as e:
                     booting = self._refused_while_booting(e)
                     transient = booting or not (isinstance(e, MissionUploadError) and e.refused)
                     self.events.log("upload_failed", mission_type=kind, attempt=attempt, error=str(e),
                                     retrying=transient and attempt < attempts)
+                    back = await self._link_back(e)
+                    if not back:
+                        raise UploadAborted(e, f"the link did not come back within {LINK_BACK_S:.0f} s, so the "
+                                            "vehicle's list could not be restored: it may be part new, part old; "
+                                            "do not start it") from e
                     if not transient or attempt == attempts:
                         _, left_with = await restore_mission(self.client, self.events, previous, kind)
                         raise UploadAborted(e, left_with) from e
@@ -276,10 +299,37 @@ class FlightSupervisor:
                         await self.wait_booted()
                         await asyncio.sleep(1.0)
             dt += time.monotonic() - t0
+            if kind == MISSION:
+                self.verified, self._outages_checked = list(payload), self.link.outages
             if kind == MISSION and self.link.profile.awaits_mission_verdict:
                 await self._mission_verdict(len(payload))
         self.events.log("upload_verified", seconds=round(dt, 3))
         return dt
+
+    async def _link_back(self, error: Exception) -> bool:
+        """After a failed transfer: wait until the link is up again (a link fault, not a refusal: the transfer is
+        done again or the previous list restored once it is back). False if it stays down LINK_BACK_S."""
+        if self.link.connected and not self.link.heartbeat_lost and not isinstance(error, LinkError):
+            return True
+        self.events.log("waiting_for_link", error=str(error), up_to_s=LINK_BACK_S)
+        back = await self.link.wait_back(LINK_BACK_S)
+        self.events.log("link_back" if back else "link_not_back", reconnects=self.link.reconnects)
+        return back
+
+    async def check_outages(self, expected: Sequence[MissionItem] | None = None) -> bool:
+        """If the autopilot's HEARTBEATs stopped for longer than the outage threshold (or the connection was
+        made again) since the mission was last verified, read it back and compare (``resync``) before anything
+        else: however the gap was noticed, by the monitor's poll or by the link's own reconnect. Returns whether
+        the vehicle still has the verified mission (True when there was no outage)."""
+        expected = self.verified if expected is None else expected
+        if self.link.outages == self._outages_checked or not expected:
+            return True
+        self.events.log("link_gap", outages=self.link.outages - self._outages_checked,
+                        last_s=round(self.link.last_outage_s, 1))
+        ok = await self.resync(expected)
+        if ok:
+            self._outages_checked = self.link.outages
+        return ok
 
     async def _mission_verdict(self, count: int, timeout: float = VERDICT_S) -> None:
         """Wait for the navigator's verdict on a verified mission (the profile's ``awaits_mission_verdict``: PX4):
@@ -312,15 +362,17 @@ class FlightSupervisor:
         self.events.log("backup", mission_type=kind, items=len(previous))
         return previous
 
-    async def resync(self, expected: Sequence[MissionItem]) -> None:
+    async def resync(self, expected: Sequence[MissionItem]) -> bool:
         """After a link outage, read the mission back before acting again: it must still be the one we
-        verified (nobody else uploaded meanwhile, nothing half-written). A mismatch is an error."""
+        verified (nobody else uploaded meanwhile, nothing half-written). False on a mismatch (logged)."""
         try:
             got = await self.client.verify(expected, MISSION)
         except MissionVerifyError as e:
-            self.events.log("resync_mismatch", seq=e.seq, field=e.field)
-            raise
+            self.events.log("resync_mismatch", seq=e.seq, field=e.field, sent=str(e.sent), got=str(e.got))
+            self.mismatch = e
+            return False
         self.events.log("resync", items=len(got), result="the vehicle still has our verified mission")
+        return True
 
     # -- start -------------------------------------------------------------------------------------
     async def set_mode(self, name: str) -> None:
@@ -350,13 +402,19 @@ class FlightSupervisor:
         await self.client.set_current(first_seq)
         self.events.log("set_current", seq=first_seq)
         for step in profile.start_sequence if self.arm else profile.pilot_arm_sequence:
+            if step in (ARM, PILOT_ARM, START) and not await self.check_outages():
+                raise CompanionError(f"the vehicle's mission changed during a link outage ({self.mismatch}): it is "
+                                     "not the mission verified; not armed or started")
             if step.startswith(MODE):
                 await self.set_mode(step.removeprefix(MODE))
             elif step == ARM:
                 await self.arm_vehicle()
+                self.started = True
             elif step == PILOT_ARM:
                 await self._wait_pilot_arm()
+                self.started = True
             elif step == START:  # (the profile has checked its steps)
+                self.started = True
                 await self.client.command_long(mavlink.MAV_CMD_MISSION_START, 0, 0)
                 self.events.log("mission_start")
 
@@ -430,10 +488,19 @@ class FlightSupervisor:
                 state.link_lost()
             if msg is None:
                 continue
-            if lost_at is not None and msg.get_type() == "HEARTBEAT":
-                self.events.log("link_restored", outage_s=round(time.monotonic() - lost_at, 1))
+            if self.link.outages != self._outages_checked:  # however the gap was noticed: one mechanism
+                if lost_at is None:  # the link's reconnect brought the HEARTBEATs back before this poll saw the gap
+                    self.events.log("link_lost", age_s=round(self.link.last_outage_s, 1), noticed="on its return",
+                                    decision="the vehicle kept flying its verified mission")
+                    state.link_lost()
+                self.events.log("link_restored", outage_s=round(self.link.last_outage_s, 1))
                 lost_at = None
-                await self.resync(pilot.mission)
+                if not await self.check_outages(pilot.mission):
+                    outcome.reason = (f"the vehicle's mission changed during a link outage ({self.mismatch}): it "
+                                      "is not the mission verified, so the companion stopped supervising; the "
+                                      "vehicle keeps its mode and that mission")
+                    self.events.log("aborted", reason=outcome.reason)
+                    return
                 state.link_restored()
             state.observe(msg)
             kind = msg.get_type()
@@ -500,6 +567,7 @@ class FlightSupervisor:
         await self.wait_ready(ready_timeout)  # a position fix first: the departure is checked from it
         if departure is not None:
             departure(*await self.vehicle_fix())
+        check_one_autopilot(self.link, self.events)
         out.upload_s = await self.upload(items, fence)
         if self.home is not None:
             self.events.log("mission", **picture.mission(items, self.home))

@@ -57,6 +57,43 @@ MAV_AUTOPILOT_INVALID = ardupilotmega.MAV_AUTOPILOT_INVALID
 _READ_BURST = 256  # messages handled per readable event before yielding to the loop (add_reader fires again)
 
 
+NETWORK_SCHEMES = ("tcp", "tcpin", "udp", "udpin", "udpout", "udpbcast")
+
+
+def check_url(url: str, option: str = "--connect") -> str:
+    """``url`` if it is a connection string the companion can open (``SCHEME:HOST:PORT`` with a scheme of
+    :data:`NETWORK_SCHEMES` and a port 1–65535, a serial device ``/dev/…`` or ``COMn`` with an optional
+    ``,BAUD``, or a MAVSDK ``scheme://`` URL); else a one-line :class:`~planner.errors.FuseplanError` (exit 2)
+    before anything is planned or opened."""
+    from planner.errors import FuseplanError
+
+    def bad(why: str) -> FuseplanError:
+        return FuseplanError(f"{option} {url!r}: {why} (e.g. tcp:127.0.0.1:5760, udpin:0.0.0.0:14550, "
+                             "/dev/ttyACM0)")
+
+    if not url or any(c.isspace() or not c.isprintable() for c in url):
+        raise bad("empty, or holds spaces or control characters")
+    if url.startswith("/dev/") or url.upper().startswith("COM"):
+        device, _, baud = url.partition(",")
+        if baud and not (baud.isdigit() and 0 < int(baud) <= 10_000_000):
+            raise bad(f"baud {baud!r} is not a positive number")
+        if url.upper().startswith("COM") and not device[3:].isdigit():
+            raise bad("a Windows serial port is COM followed by its number")
+        return url
+    if "://" in url:
+        scheme, _, rest = url.partition("://")
+        host, _, port = rest.rpartition(":")
+    else:
+        scheme, _, rest = url.partition(":")
+        if scheme not in NETWORK_SCHEMES:
+            raise bad(f"unknown connection type {scheme!r}; use one of {', '.join(NETWORK_SCHEMES)} or a serial "
+                      "device")
+        host, _, port = rest.rpartition(":")
+    if not host or not port.isdigit() or not 0 < int(port) < 65536:
+        raise bad("HOST:PORT with a port 1-65535 expected after the connection type")
+    return url
+
+
 class HeartbeatTimeout(LinkError, TimeoutError):
     """No HEARTBEAT from the target autopilot in time (a :class:`LinkError` and a ``TimeoutError``)."""
 
@@ -193,6 +230,7 @@ class Link:
         self.dialect = dialect
 
         self.target_system: int | None = target_system
+        self.pinned = target_system is not None  # chosen by the user, not by whichever autopilot spoke first
         self.target_component: int | None = target_component
         self.autopilot: int | None = None  # MAV_AUTOPILOT_* of the target
         self.vehicle_type: int | None = None  # MAV_TYPE_* of the target
@@ -200,7 +238,14 @@ class Link:
         self.last_heartbeat_msg: Message | None = None
         self.heartbeat_lost = False
         self.bad_packets = 0  # BAD_DATA / unparsable input seen
+        self.dropped_unsigned = 0  # with signing on: unsigned messages dropped
+        self.dropped_signed = 0  # with signing on: messages signed with another key (or replayed) dropped
+        self.other_autopilots: dict[int, float] = {}  # system → loop time: autopilots heard that are not the target
         self.reconnects = 0  # successful re-creations of the connection
+        # gaps in the target's HEARTBEATs longer than heartbeat_timeout, or a new connection, counted when its
+        # HEARTBEAT is heard again: whoever looks compares this count, so no outage goes unnoticed (issue 33)
+        self.outages = 0
+        self.last_outage_s = 0.0  # how long the last one was, s
         self._target_heard = False  # the target's HEARTBEAT has been heard on the current connection
         self._on_target: list[Callable[[Message], None]] = []
 
@@ -403,6 +448,13 @@ class Link:
         mtype = msg.get_type()
         if mtype == "BAD_DATA":
             self.bad_packets += 1
+            if self._signing_key is not None and "signature" in str(getattr(msg, "reason", "")):
+                data = bytes(getattr(msg, "data", b"") or b"")
+                signed = len(data) > 2 and data[0] == 0xFD and data[2] & 0x01  # MAVLINK_IFLAG_SIGNED
+                if signed:
+                    self.dropped_signed += 1
+                else:
+                    self.dropped_unsigned += 1
             return
         setattr(msg, RECEIVED, time.monotonic())
         src = (msg.get_srcSystem(), msg.get_srcComponent())
@@ -436,14 +488,25 @@ class Link:
             log.info("target vehicle: system %d component %d (autopilot %d, type %d)",
                      src[0], src[1], msg.autopilot, msg.type)
         if src[0] != self.target_system:
+            if src[0] not in self.other_autopilots:
+                assert self._loop is not None
+                self.other_autopilots[src[0]] = self._loop.time()
+                log.warning("HEARTBEAT from another autopilot, system %d, on %s: ignored (the target is system %d)",
+                            src[0], self.url, self.target_system)
             return
         if self.target_component is None:
             self.target_component = src[1]
         if src[1] != self.target_component:
             return
         assert self._loop is not None
+        now = self._loop.time()
+        if self.last_heartbeat is not None and (not self._target_heard or self.heartbeat_lost
+                                                or now - self.last_heartbeat > self.heartbeat_timeout):
+            self.outages += 1
+            self.last_outage_s = now - self.last_heartbeat
+            log.info("system %d heard again after %.1f s (outage %d)", src[0], self.last_outage_s, self.outages)
         self.autopilot, self.vehicle_type = msg.autopilot, msg.type
-        self.last_heartbeat, self.last_heartbeat_msg = self._loop.time(), msg
+        self.last_heartbeat, self.last_heartbeat_msg = now, msg
         acquired = not self._target_heard or self.heartbeat_lost
         self._target_heard = True
         if self.heartbeat_lost:
@@ -526,7 +589,32 @@ class Link:
                                        timeout=timeout)
         except TimeoutError:
             who = "an autopilot" if self.target_system is None else f"system {self.target_system}"
-            raise HeartbeatTimeout(f"no HEARTBEAT from {who} on {self.url} within {timeout:g} s") from None
+            raise HeartbeatTimeout(f"no HEARTBEAT from {who} on {self.url} within {timeout:g} s"
+                                   + self.signing_hint()) from None
+
+    def signing_hint(self) -> str:
+        """With signing on, why nothing may have been heard: input dropped as unsigned or signed with another
+        key (empty when nothing was dropped)."""
+        if self._signing_key is None or not (self.dropped_unsigned or self.dropped_signed):
+            return ""
+        if self.dropped_unsigned and not self.dropped_signed:
+            return (f"; signing is on and {self.dropped_unsigned} unsigned messages were dropped: the autopilot "
+                    "does not sign (provision the key on it, or fly without signing)")
+        return (f"; signing is on and {self.dropped_signed} messages signed with another key (and "
+                f"{self.dropped_unsigned} unsigned) were dropped: check that both ends hold the same key")
+
+    async def wait_back(self, timeout: float) -> bool:
+        """Wait until the link is up again: connected, and the target's HEARTBEAT heard on this connection within
+        ``heartbeat_timeout`` (after a TCP drop, the reconnect and the autopilot's first HEARTBEAT on it). False
+        after ``timeout`` s."""
+        assert self._loop is not None
+        deadline = self._loop.time() + timeout
+        while not (self.connected and self._target_heard and not self.heartbeat_lost
+                   and self.heartbeat_age <= self.heartbeat_timeout):
+            if self._loop.time() >= deadline:
+                return False
+            await asyncio.sleep(0.05)
+        return True
 
     @property
     def heartbeat_age(self) -> float:

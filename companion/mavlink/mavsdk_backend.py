@@ -344,7 +344,8 @@ class MavsdkMissionClient(MissionClient):
         await self.upload_verified(items, mission_type)
         return "whole"
 
-    async def _download(self, mission_type: int) -> list[MissionItem]:
+    async def _download(self, mission_type: int, expected: int | None = None) -> list[MissionItem]:
+        """MAVSDK's download (its own transfer; ``expected`` is left to the comparison that follows)."""
         raw = self.link.mission_raw
         call = {MISSION: raw.download_mission, FENCE: raw.download_geofence,
                 RALLY: raw.download_rallypoints}[mission_type]

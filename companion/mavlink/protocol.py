@@ -33,7 +33,13 @@ from dataclasses import replace
 
 from pymavlink.dialects.v20 import common as mavlink
 
-from companion.mavlink.errors import CommandError, MissionTimeout, MissionUploadError, MissionVerifyError
+from companion.mavlink.errors import (
+    CommandError,
+    CompanionError,
+    MissionTimeout,
+    MissionUploadError,
+    MissionVerifyError,
+)
 from companion.mavlink.items import FENCE, MISSION, MissionItem
 from companion.mavlink.link import Link, Message
 from companion.mavlink.profiles import Firmware
@@ -56,6 +62,7 @@ def command_name(command: int) -> str:
 
 
 DOWNLOAD_RESTARTS = 3  # a stalled download is started again this many times (the last try is patient)
+MAX_READ_ITEMS = 10_000  # beyond any mission ArduPilot's or PX4's storage holds on a flight controller
 FINAL_ACK_MISSES = 3  # waits (of ``timeout``) for the final MISSION_ACK before checking by readback
 # item requests in flight at once in a readback from an autopilot that answers single requests outside a transfer
 # (profile ``partial_write``): small enough for its send buffer on a radio link, large enough that a readback
@@ -266,7 +273,7 @@ class MissionClient:
         async with self._lock:
             got = await self._upload(sent, mission_type)
             if got is None:  # (else the upload was already confirmed by a readback)
-                got = await self._download(mission_type)
+                got = await self._download(mission_type, expected=len(sent))
         return _matching(sent, got, home_at_zero, self.firmware)
 
     async def upload_changed_verified(self, items: Sequence[MissionItem], previous: Sequence[MissionItem],
@@ -401,9 +408,10 @@ class MissionClient:
     async def verify(self, items: Sequence[MissionItem], mission_type: int = MISSION) -> list[MissionItem]:
         """Download ``mission_type`` and compare it with ``items`` as :meth:`upload_verified` does; returns the
         readback, raises :class:`MissionVerifyError` on the first difference (e.g. after a link outage)."""
+        sent = _numbered(items, mission_type)
         async with self._lock:
-            got = await self._download(mission_type)
-        return _matching(_numbered(items, mission_type), got, self.home_at_zero(mission_type), self.firmware)
+            got = await self._download(mission_type, expected=len(sent))
+        return _matching(sent, got, self.home_at_zero(mission_type), self.firmware)
 
     @property
     def writes_in_part(self) -> bool:
@@ -427,20 +435,24 @@ class MissionClient:
         async with self._lock:
             return await self._download(mission_type)
 
-    async def _download(self, mission_type: int) -> list[MissionItem]:
+    async def _download(self, mission_type: int, expected: int | None = None) -> list[MissionItem]:
         """The list, started again from MISSION_REQUEST_LIST when an item stops coming: MAVSDK (and PX4) drop
         a download whose next request they miss too often, and then answer no more item requests; ArduPilot
         keeps no download state, so starting again costs it only the items already read."""
         for _ in range(DOWNLOAD_RESTARTS):
             try:
-                return await self._download_once(mission_type, patient=False)
+                return await self._download_once(mission_type, patient=False, expected=expected)
             except MissionTimeout as e:
                 if self.link.heartbeat_age > self.link.heartbeat_timeout:
                     raise  # the autopilot has gone quiet, not just one transfer
                 log.info("download stalled at item %s; starting it again", e.seq)
-        return await self._download_once(mission_type, patient=True)
+        return await self._download_once(mission_type, patient=True, expected=expected)
 
-    async def _download_once(self, mission_type: int, patient: bool) -> list[MissionItem]:
+    async def _download_once(self, mission_type: int, patient: bool,
+                             expected: int | None = None) -> list[MissionItem]:
+        """One download. A readback (``expected``: the count uploaded) whose count differs fails at once, without
+        reading the items; a count beyond :data:`MAX_READ_ITEMS` is refused (a hostile or broken autopilot's
+        65535 would otherwise be read item by item for hours)."""
         link = self.link
         ts, tc = self._target()
         pred = self._for(mission_type)
@@ -449,6 +461,11 @@ class MissionClient:
                 sub, mavlink.MAVLink_mission_request_list_message(ts, tc, mission_type), "MISSION_COUNT",
                 self.timeout, "download", None)
         count = count_msg.count
+        if expected is not None and count != expected:
+            raise MissionVerifyError(min(count, expected), "count", expected, count)
+        if count > MAX_READ_ITEMS:
+            raise CompanionError(f"mission download refused: the autopilot reports {count} items, more than the "
+                                 f"{MAX_READ_ITEMS} the companion reads")
         got = await self._read_items(range(count), mission_type, patient)
         link.send(mavlink.MAVLink_mission_ack_message(ts, tc, ACCEPTED, mission_type))
         log.info("downloaded %d items (mission type %d)", count, mission_type)

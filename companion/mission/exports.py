@@ -32,10 +32,15 @@ ExportFormat = Literal["waypoints", "plan", "geojson"]
 FORMATS: tuple[str, ...] = ("waypoints", "plan", "geojson")
 SUFFIX = {"waypoints": ".waypoints", "plan": ".plan", "geojson": ".geojson"}
 
+UNCHECKED = "UNCHECKED: written with --force from a PLAN.json that fails its check; do not fly"
 VEHICLE_TYPE = {"plane": mavlink.MAV_TYPE_FIXED_WING, "copter": mavlink.MAV_TYPE_QUADROTOR}  # 1, 2
 
 
 # --- QGC WPL 110 -----------------------------------------------------------------------------------------------
+
+def _one_line(text: object) -> str:
+    return str(text).replace("\r", " ").replace("\n", " ")
+
 
 def _wpl_number(value: float, decimals: int) -> str:
     return "NaN" if math.isnan(value) else f"{value:.{decimals}f}"
@@ -189,13 +194,26 @@ def export_from_plan_json(plan_doc: Mapping[str, Any], scenario: Scenario, fmt: 
     trajectory = plan_doc.get("trajectory", {}).get("points")
     if fmt == "geojson":
         traj = lonlatalt(np.asarray(trajectory, dtype=float), spec.home) if trajectory else None
+        marks = {"unchecked": f"{UNCHECKED}: {unchecked}"} if (unchecked := plan_doc.get("unchecked")) else {}
         return write_geojson(path, lonlatalt(waypoints, spec.home), zones_of(scenario, spec.home), traj,
-                             {"scenario": plan_doc.get("scenario", scenario.name), "status": plan_doc.get("status")})
+                             {"scenario": plan_doc.get("scenario", scenario.name), "status": plan_doc.get("status"),
+                              **marks})
     items = mission_from_plan_json(plan_doc, scenario, autopilot, **options)
+    unchecked = plan_doc.get("unchecked")
     if fmt == "waypoints":
-        return write_waypoints(path, items, spec.home)
+        text = waypoints_text(items, spec.home)
+        if unchecked:  # a comment line after the header: pymavlink's reader (MAVProxy `wp load`) skips '#' lines
+            header, rest = text.split("\n", 1)
+            text = f"{header}\n# {UNCHECKED}: {_one_line(unchecked)}\n{rest}"
+        Path(path).write_text(text, encoding="ascii", errors="replace")
+        return Path(path)
     zones: list[Circle] = []
     if fence:
         route_top = float(np.max(np.asarray(trajectory, dtype=float)[:, 2] if trajectory else waypoints[:, 2]))
         zones = [c for c in as_circles(scenario.environment.cylinders, spec.home) if c.top_m >= route_top]
-    return write_qgc_plan(path, items, spec, zones)
+    doc = qgc_plan(items, spec, zones)
+    if unchecked:  # QGroundControl shows groundStation as it is; the key beside it says why
+        doc["groundStation"] = f"fuseplan ({UNCHECKED})"
+        doc["fuseplanUnchecked"] = str(unchecked)
+    Path(path).write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
+    return Path(path)

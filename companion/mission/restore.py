@@ -10,12 +10,13 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from companion.mavlink.errors import CompanionError, MissionVerifyError
+from companion.mavlink.errors import CompanionError, LinkError, MissionVerifyError
 from companion.mavlink.items import MISSION, MissionItem
 from companion.mavlink.protocol import MissionClient
 from companion.mission.events import EventLog
 
 RESTORE_ATTEMPTS = 3  # whole verified uploads tried to put the previous mission back
+LINK_BACK_S = 30.0  # wall seconds a lost link may take to come back before a restore (or an upload) gives up
 
 
 async def restore_mission(client: MissionClient, events: EventLog, previous: Sequence[MissionItem] | None,
@@ -27,6 +28,9 @@ async def restore_mission(client: MissionClient, events: EventLog, previous: Seq
     kind = "mission" if mission_type == MISSION else "fence"
     error: Exception | None = None
     for attempt in range(1, attempts + 1):
+        if not await client.link.wait_back(LINK_BACK_S):  # a link fault: nothing can be restored without it
+            error = LinkError(f"the link did not come back within {LINK_BACK_S:.0f} s")
+            break
         try:
             if previous is None:
                 await client.clear(mission_type)

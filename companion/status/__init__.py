@@ -11,17 +11,17 @@ from typing import Any, TypeVar
 
 from companion.mission.events import EventLog
 from companion.status.hub import StatusHub
-from companion.status.server import Bind, StatusServer, read_token
+from companion.status.server import Bind, Limits, StatusServer, read_token
 from planner.errors import FuseplanError
 
 T = TypeVar("T")
-__all__ = ["Bind", "StatusHub", "StatusServer", "read_token", "serve_flight", "serve_report", "load_events"]
+__all__ = ["Bind", "Limits", "StatusHub", "StatusServer", "read_token", "serve_flight", "serve_report", "load_events"]
 
 
 async def serve_flight(flight: Callable[[], Awaitable[T]], events: EventLog, bind: Bind, token: str | None,
                        announce: Callable[[str], None]) -> T:
-    """Run ``flight()`` with the page served at ``bind``: every record of ``events`` goes to the browsers too.
-    ``announce`` gets the page's address once it listens."""
+    """Run ``flight()`` with the page served at ``bind`` (and under its ``allowed_hosts``, ``--status-host``): every
+    record of ``events`` goes to the browsers too. ``announce`` gets the page's address once it listens."""
     hub = StatusHub()
     hub.extend(events.records)
     events.subscribe(hub.publish)
@@ -60,7 +60,8 @@ def load_events(directory: Path) -> list[dict[str, Any]]:
 
 async def serve_report(directory: Path, bind: Bind, token: str | None, announce: Callable[[str], None],
                        stop: asyncio.Event | None = None) -> None:
-    """Serve the page for a finished flight's report directory until ``stop`` is set (or the task is cancelled)."""
+    """Serve the page for a finished flight's report directory at ``bind`` (and under its ``allowed_hosts``) until
+    ``stop`` is set (or the task is cancelled)."""
     hub = StatusHub()
     hub.extend(load_events(directory))
     async with StatusServer(hub, bind, token) as server:

@@ -10,8 +10,10 @@ ring behind skips what fell out (drop-oldest) and is told how many it missed; th
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import itertools
 import json
+import logging
 import threading
 from collections import deque
 from collections.abc import AsyncIterator, Iterable
@@ -19,6 +21,7 @@ from typing import Any
 
 from planner.plan import json_safe
 
+log = logging.getLogger(__name__)
 HISTORY = 20_000  # records kept for browsers that join late or fall behind (~4 MB at 200 bytes a record)
 PINNED = ("scene", "mission")  # kinds whose latest record every reader gets, even after it left the ring
 CHUNK_BYTES = 64 * 1024  # at most this much per write to one browser
@@ -50,12 +53,21 @@ class StatusHub:
         self._loop, self._thread = loop, threading.get_ident()
 
     def publish(self, rec: dict[str, Any]) -> None:
-        """Append one record (an :class:`~companion.mission.events.EventLog` listener)."""
+        """Append one record (an :class:`~companion.mission.events.EventLog` listener: it runs inside the flight's
+        ``log()``, so it never raises: a record it cannot encode is left off the page with a warning, one published
+        from another thread after the loop has closed is dropped, as no browser is left to read it)."""
         if self._loop is not None and threading.get_ident() != self._thread:
-            self._loop.call_soon_threadsafe(self.publish, rec)
+            with contextlib.suppress(RuntimeError):  # the loop has closed: no reader is left to wake
+                self._loop.call_soon_threadsafe(self.publish, rec)
+            return
+        try:
+            data = sse(self._seq + 1, rec)
+        except Exception as e:  # TypeError, ValueError, RecursionError, a __str__ that raises: never the flight's
+            log.warning("status page: a %r record cannot be sent to browsers (%s: %s); left off the page",
+                        rec.get("event"), type(e).__name__, e)
             return
         self._seq += 1
-        entry = (self._seq, sse(self._seq, rec))
+        entry = (self._seq, data)
         self._ring.append(entry)
         if rec.get("event") in PINNED:
             self._pinned[rec["event"]] = entry

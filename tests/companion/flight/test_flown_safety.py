@@ -42,10 +42,17 @@ def test_traffic_below_d_coll_is_a_breach_of_its_own_and_ground_samples_do_not_c
     assert not close.safe and close.breaches == [f"separation from intruder-1 3.5 m, d_coll {sc.hazard.d_coll:g} m"]
 
 
-def test_fly_exits_6_with_one_line_when_the_flown_track_breaks_d_coll(tmp_path, capsys) -> None:
+def test_fly_exits_6_with_one_line_when_the_flown_track_breaks_d_coll(tmp_path, capsys, monkeypatch) -> None:
     """A plan whose middle waypoint was moved into a cylinder (a PLAN.json edited by hand), flown without the
     replanner (so without the flown-safety guard): the simulated plane flies into it, the mission completes, and
-    `fly` says UNSAFE and exits 6, not 0. With the guard, the same plan is flown clear (next test)."""
+    `fly` says UNSAFE and exits 6, not 0. With the guard, the same plan is flown clear (next test).
+
+    `fly` refuses such a file before anything leaves the companion (tests/companion/test_plan_file.py); here that
+    refusal alone is switched off, to stand for a route that reaches the vehicle unsafe some other way (the
+    flown-track verdict and the guard are the last line behind the plan's check)."""
+    import planner.plan_file
+
+    monkeypatch.setattr(planner.plan_file, "recheck", lambda doc, _sc: planner.plan_file.Recheck(dict(doc), None))
     first = tmp_path / "first"
     assert main(["fly", str(STATIC), "--sim", "--speedup", "30", "--report", str(first), "-q", *FAST]) == 0
     doc = json.loads((first / "PLAN.json").read_text())

@@ -87,7 +87,8 @@ def test_mavsdk_results_become_our_errors() -> None:
 
 def test_fly_with_mavsdk_refuses_signing_in_one_line(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     key = tmp_path / "key"
-    key.write_text("a passphrase\n")
+    key.write_bytes(bytes(range(32)))
+    key.chmod(0o600)
     code = main(["fly", str(ROOT / "sitl_scenarios" / "rescue_static.toml"), "--sim", "--backend", "mavsdk",
                  "--signing-key", str(key), "--report", str(tmp_path / "r"), "-q"])
     err = capsys.readouterr().err.strip().splitlines()

@@ -68,19 +68,29 @@ def test_companion_with_signing_ignores_an_unsigned_autopilot() -> None:
 
 
 def test_key_files(tmp_path: Path) -> None:
+    """A key file is the key (32 raw bytes or 64 hex digits); a passphrase file is hashed; never the one for the
+    other. More cases, and the file checks, in test_secret_files.py."""
     raw = bytes(range(32))
     (tmp_path / "raw.key").write_bytes(raw)
-    assert SigningKey.load(tmp_path / "raw.key").secret == raw
-    (tmp_path / "pass.txt").write_text("correct horse battery staple\n")
-    assert SigningKey.load(tmp_path / "pass.txt") == KEY  # SHA-256 of the passphrase, as MAVProxy
-    assert KEY.secret == hashlib.sha256(b"correct horse battery staple").digest()
+    (tmp_path / "raw.key").chmod(0o600)
+    assert SigningKey.from_key_file(tmp_path / "raw.key").secret == raw
+    (tmp_path / "pass.txt").write_text("correct-horse-battery-staple\n")
+    (tmp_path / "pass.txt").chmod(0o600)
+    key = SigningKey.from_passphrase_file(tmp_path / "pass.txt")
+    assert key.secret == hashlib.sha256(b"correct-horse-battery-staple").digest()  # as MAVProxy
+    with pytest.raises(FuseplanError, match="--signing-passphrase"):
+        SigningKey.from_key_file(tmp_path / "pass.txt")
     (tmp_path / "empty").write_text("  \n")
+    (tmp_path / "empty").chmod(0o600)
     for bad in ("empty", "missing"):
         with pytest.raises(FuseplanError, match=bad):
-            SigningKey.load(tmp_path / bad)
+            SigningKey.from_passphrase_file(tmp_path / bad)
+        with pytest.raises(FuseplanError, match=bad):
+            SigningKey.from_key_file(tmp_path / bad)
     (tmp_path / "binary").write_bytes(b"\xff\xfe" * 5)
-    with pytest.raises(FuseplanError, match="32 raw bytes or a text passphrase"):
-        SigningKey.load(tmp_path / "binary")
+    (tmp_path / "binary").chmod(0o600)
+    with pytest.raises(FuseplanError, match="not binary data"):
+        SigningKey.from_passphrase_file(tmp_path / "binary")
 
 
 def test_keys_are_never_printed() -> None:
@@ -92,20 +102,22 @@ def test_keys_are_never_printed() -> None:
 def test_fly_signed_on_the_simulator_and_a_bad_key_file(tmp_path: Path, capsys: pytest.CaptureFixture) -> None:
     from companion.cli import main
 
-    (tmp_path / "pass.txt").write_text("field passphrase\n")
+    (tmp_path / "pass.txt").write_text("field-passphrase\n")
+    (tmp_path / "pass.txt").chmod(0o600)
     report = tmp_path / "rep"
     code = main(["fly", str(ROOT / "sitl_scenarios" / "rescue_static.toml"), "--sim", "--speedup", "20", "-q",
-                 "--signing-key", str(tmp_path / "pass.txt"), "--report", str(report),
+                 "--signing-passphrase", str(tmp_path / "pass.txt"), "--report", str(report),
                  "--set", "planner.pso.n_pop=200", "--set", "planner.pso.max_iter=80"])
     assert code == 0
     events = (report / "events.jsonl").read_text()
-    key = SigningKey.load(tmp_path / "pass.txt")
+    key = SigningKey.from_passphrase_file(tmp_path / "pass.txt")
     assert f'"key": "{key.fingerprint}"' in events and key.secret.hex() not in events
     (tmp_path / "empty.key").write_text("")
+    (tmp_path / "empty.key").chmod(0o600)
     code = main(["fly", str(ROOT / "sitl_scenarios" / "rescue_static.toml"), "--sim", "-q",
                  "--signing-key", str(tmp_path / "empty.key"), "--report", str(tmp_path / "rep2")])
     err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2 and len(err) == 1 and "signing key file is empty" in err[0]
+    assert code == 2 and len(err) == 1 and "empty.key" in err[0] and "not 0 bytes" in err[0]
 
 
 def test_signing_timestamps_go_on_across_a_reconnect() -> None:

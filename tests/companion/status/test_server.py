@@ -38,7 +38,7 @@ def test_the_default_bind_is_loopback() -> None:
 @pytest.mark.asyncio
 async def test_a_server_with_the_default_bind_listens_on_loopback_only() -> None:
     async with StatusServer(StatusHub(), Bind.parse("0")) as server:
-        assert server._runner.addresses == [("127.0.0.1", server.port)]
+        assert server.addresses == [("127.0.0.1", server.port)]
         assert server.url == f"http://127.0.0.1:{server.port}/"
 
 
@@ -49,12 +49,18 @@ def test_beyond_loopback_a_token_file_is_required(tmp_path: Path) -> None:
         StatusServer(StatusHub(), Bind.parse("0.0.0.0:8765"))
     short = tmp_path / "short"
     short.write_text("abc\n")
+    short.chmod(0o600)
     with pytest.raises(FuseplanError, match="16 characters"):
         read_token(short, Bind.parse("0.0.0.0:8765"))
-    with pytest.raises(FuseplanError, match="cannot read"):
+    with pytest.raises(FuseplanError, match="file not found"):
         read_token(tmp_path / "missing", Bind.parse("8765"))
     good = tmp_path / "token"
     good.write_text(f"  {TOKEN}\nsecond line ignored\n")
+    good.chmod(0o644)
+    with pytest.raises(FuseplanError, match="other users have access"):  # read as every secret is
+        read_token(good, Bind.parse("0.0.0.0:8765"))
+    assert read_token(good, Bind.parse("0.0.0.0:8765"), insecure=True) == TOKEN
+    good.chmod(0o600)
     assert read_token(good, Bind.parse("0.0.0.0:8765")) == TOKEN
     assert read_token(None, Bind.parse("8765")) is None
 
