@@ -58,6 +58,8 @@ def read_regular_file(path: str | Path, max_bytes: int, what: str,
         fd = os.open(path, os.O_RDONLY | getattr(os, "O_NONBLOCK", 0) | getattr(os, "O_CLOEXEC", 0))
     except OSError as e:
         raise _unreadable(path, e, what) from None
+    except ValueError:  # a NUL in the name: no file can have it
+        raise FileRefused(repr(str(path)), f"not a {what} file name (it holds a NUL character)") from None
     try:
         st = os.fstat(fd)
         _check_regular(path, st, what)  # what was opened: the path may have been replaced since the stat

@@ -20,10 +20,12 @@ import numpy as np
 
 from planner.errors import FuseplanError, PlanRefused
 from planner.files import read_regular_file
-from planner.plan import PlanResult, PlanStatus, plan_to_json, problem_from_scenario
+from planner.plan import PlanResult, PlanStatus, json_safe, plan_to_json, problem_from_scenario
 from planner.search.swarm import OptimiserResult
 from planner.trajectory.checks import CATEGORIES, nearest_obstacle, smooth
 from planner.trajectory.checks import check_trajectory as check_samples
+from planner.workload import MAX_SAMPLES
+from planner.world.config import MAX_COORD
 from planner.world.scenario import Scenario
 
 MAX_PLAN_BYTES = 64 * 2**20  # a PLAN.json holds a few thousand trajectory samples: well under 1 MB in practice
@@ -66,6 +68,8 @@ def check_shape(doc: Any, path: Path) -> None:
     for i, p in enumerate(wps):
         if not (isinstance(p, list) and len(p) == 3 and all(_number(v) for v in p)):
             raise bad(f"waypoints[{i}]", f"three finite numbers [x, y, z] expected, found {_short(p)}")
+        if max(abs(v) for v in p) > MAX_COORD:
+            raise bad(f"waypoints[{i}]", f"{_short(p)} is beyond ±{MAX_COORD:g} m of home: no map is that large")
     home = doc.get("home")
     if not isinstance(home, dict):
         raise bad("home", f"an object with lat, lon, alt is expected, found {_short(home)}")
@@ -113,6 +117,11 @@ def recheck(doc: Mapping[str, Any], scenario: Scenario) -> Recheck:
     scenario = as_planned(doc, scenario)
     problem = problem_from_scenario(scenario, start_time)
     settings = scenario.planner
+    length = float(np.linalg.norm(np.diff(waypoints, axis=0), axis=1).sum())
+    if length / settings.sample_spacing > MAX_SAMPLES:  # before smoothing it: that many samples do not fit
+        return Recheck(dict(doc), _waypoint_fault(waypoints, scenario) or (
+            f"length: the route is {length:.0f} m long, more than {MAX_SAMPLES:g} samples at "
+            f"planner.sample_spacing {settings.sample_spacing:g} m; no plan of this map is"))
     evaluation = problem.evaluate(waypoints[None])
     traj = smooth(waypoints, settings.sample_spacing, problem.vehicle.cruise_speed, problem.start_time or 0.0)
     check = check_samples(traj, waypoints, problem.env, problem.hazard, problem.vehicle, problem.timed_threats,
@@ -132,7 +141,7 @@ def recheck(doc: Mapping[str, Any], scenario: Scenario) -> Recheck:
                         evaluation, traj, check, opt, float(plan_s) if _number(plan_s) else 0.0)
     fresh = plan_to_json(result, scenario, start_time)
     if isinstance(doc.get("phases"), dict):
-        fresh["phases"] = doc["phases"]
+        fresh["phases"] = json_safe(doc["phases"])  # as read, made strict JSON again
     if claimed not in FEASIBLE:
         return Recheck(fresh, f"its status is {claimed!r}: the planner found no feasible route; plan again")
     if not feasible:
@@ -148,6 +157,24 @@ def as_planned(doc: Mapping[str, Any], scenario: Scenario) -> Scenario:
     if not _number(swing) or swing <= scenario.vehicle.turn_overshoot:
         return scenario
     return dataclasses.replace(scenario, vehicle=dataclasses.replace(scenario.vehicle, turn_overshoot=float(swing)))
+
+
+def _waypoint_fault(waypoints: np.ndarray, scenario: Scenario) -> str | None:
+    """The first waypoint outside the region or the altitude band, in words (a route too long to sample is
+    named by what makes it so, when a waypoint does)."""
+    env = scenario.environment
+    x, y, z = waypoints.T
+    outside = (x < 0) | (x > env.size_x) | (y < 0) | (y > env.size_y)
+    height = z - env.ground(np.clip(x, 0, env.size_x), np.clip(y, 0, env.size_y))
+    off_band = (height < env.z_min) | (height > env.z_max)
+    for i in range(len(waypoints)):  # a few hundred waypoints at most, once: the first one wins
+        if outside[i]:
+            return (f"bounds: waypoint {i} at {_at(waypoints[i].tolist())} is outside the region "
+                    f"(0–{env.size_x:g} m east, 0–{env.size_y:g} m north)")
+        if off_band[i]:
+            return (f"altitude: waypoint {i} is {height[i]:.1f} m above the ground at {_at(waypoints[i].tolist())}, "
+                    f"outside the band {env.z_min:g}–{env.z_max:g} m")
+    return None
 
 
 def _count(value: Any) -> int:
