@@ -281,7 +281,7 @@ def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str]
             raise FuseplanError(f"{source}: names no scenario file; pass --scenario")
         sc = load_scenario(named, overrides)
         _check_plan_matches(source, doc, sc)
-        checked = recheck(doc, sc)
+        checked = recheck(doc, sc, _plan_start_time(source, doc, sc, for_flight))
         if not force:
             refuse_unless_passed(checked, source, sc)
         elif not checked.passed:
@@ -299,6 +299,21 @@ def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str]
     if feasible_only and not res.feasible:
         raise PlanRefused(f"{source}: no feasible plan ({res.status.value}); nothing exported")
     return plan_to_json(res, sc, start_time), sc
+
+
+def _plan_start_time(source: Path, doc: dict, sc: object, for_flight: bool) -> float | None:
+    """The mission time at the route's start a PLAN.json is checked at: for a flight, the scenario's time to the
+    start (as fly plans); otherwise the file's, which must be what `plan` (0) or `fly` (that time) wrote."""
+    if not len(sc.environment.threats):
+        return doc.get("start_time_s")  # nothing moves: the time does not matter
+    from companion.mission.builder import time_to_start
+
+    flight = time_to_start(sc)
+    given = doc.get("start_time_s")
+    if for_flight or given is None or given == 0 or abs(given - flight) < 1e-3:
+        return flight if for_flight else given
+    raise FuseplanError(f"{source}: start_time_s: {given:g} s is neither 0 (as `plan` writes) nor this scenario's "
+                        f"time to the route's start, {flight:.3f} s (as `fly` writes)")
 
 
 def with_flight_margins(source: Path, overrides: list[str]) -> list[str]:
@@ -371,7 +386,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     import asyncio
 
     from companion.flight.fly import FlyOptions, fly
-    from companion.mavlink.errors import CompanionError, FlightAborted
+    from companion.mavlink.errors import CompanionError
     from companion.mavlink.signing import key_from_files
     from companion.mission.events import EventLog
     from companion.replanning.replan import ReplanConfig
@@ -387,7 +402,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
         from companion.mavlink.mavsdk_backend import unsupported_options
 
         signing = getattr(args, "signing_key", None) or getattr(args, "signing_passphrase", None)
-        why = unsupported_options(signing=signing is not None)
+        why = unsupported_options(signing=signing is not None,
+                                  target_system=getattr(args, "target_system", None) is not None)
         if why:
             raise FuseplanError(why)
     key = key_from_files(getattr(args, "signing_key", None), getattr(args, "signing_passphrase", None),
@@ -441,13 +457,11 @@ def cmd_fly(args: argparse.Namespace) -> int:
             bind, token = status
             flight = asyncio.run(serve_flight(lambda: fly(doc, sc, opts, events), events, bind, token,
                                               lambda url: _announce(url, token)))
-    except CompanionError as e:
-        started = isinstance(e, FlightAborted)
-        events.log("failed", error=str(e), started=started)
-        write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e),
-                                                            "started": started}, indent=1) + "\n")
+    except CompanionError as e:  # before the vehicle was armed (after it, fly reports the flight as it went)
+        events.log("failed", error=str(e))
+        write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e)}, indent=1) + "\n")
         print(f"fuseplan: error: {e}", file=sys.stderr)
-        return EXIT_ABORTED if started else EXIT_LINK
+        return EXIT_LINK
     except KeyboardInterrupt:
         events.log("aborted", reason="interrupted by the user")
         write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": "interrupted"}) + "\n")

@@ -49,7 +49,13 @@ def read_plan_document(path: Path) -> dict[str, Any]:
 
 
 def _number(value: Any) -> bool:
-    return isinstance(value, (int, float)) and not isinstance(value, bool) and math.isfinite(value)
+    """A finite JSON number (an integer too large for a float is not: JSON allows 10**400)."""
+    if not isinstance(value, (int, float)) or isinstance(value, bool):
+        return False
+    try:
+        return math.isfinite(value)
+    except OverflowError:
+        return False
 
 
 def check_shape(doc: Any, path: Path) -> None:
@@ -80,7 +86,7 @@ def check_shape(doc: Any, path: Path) -> None:
         raise bad("scenario", "the scenario's name is expected")
     if doc.get("scenario_file") is not None and not isinstance(doc["scenario_file"], str):
         raise bad("scenario_file", "a path is expected")
-    if doc.get("status") not in {s.value for s in PlanStatus}:
+    if not isinstance(doc.get("status"), str) or doc["status"] not in {s.value for s in PlanStatus}:
         raise bad("status", f"one of {', '.join(s.value for s in PlanStatus)} is expected, "
                   f"found {_short(doc.get('status'))}")
     start = doc.get("start_time_s")
@@ -108,12 +114,12 @@ class Recheck:
         return self.fault is None
 
 
-def recheck(doc: Mapping[str, Any], scenario: Scenario) -> Recheck:
+def recheck(doc: Mapping[str, Any], scenario: Scenario, start_time: float | None = None) -> Recheck:
     """Check ``doc``'s waypoints exactly as :func:`planner.plan.plan` checks a fresh route (the cost's own
-    violation terms and the smoothed trajectory's check, timed threats from ``start_time_s``) and rebuild the
-    document from them. The fault names the first failing category, where, and by how much."""
+    violation terms and the smoothed trajectory's check, timed threats from ``start_time``: the mission time at
+    the route's start, chosen by the caller, never taken from the file on trust) and rebuild the document from
+    them. The fault names the first failing category, where, and by how much."""
     waypoints = np.asarray(doc["waypoints"], dtype=float)
-    start_time = doc.get("start_time_s")
     scenario = as_planned(doc, scenario)
     problem = problem_from_scenario(scenario, start_time)
     settings = scenario.planner

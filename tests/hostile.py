@@ -25,7 +25,7 @@ from companion.sim import SimAutopilot
 from planner.world.scenario import load_scenario
 
 MODES = ("pass", "disconnect_mid_upload", "outage_changed_item", "rogue_first", "request_beyond_count",
-         "count_65535", "garbage_after_heartbeat")
+         "count_65535", "garbage_after_heartbeat", "deny_start")
 ROGUE_SYSTEM = 2
 
 
@@ -36,6 +36,7 @@ class Record:
     sessions: int = 0
     cut_at_item: int | None = None  # the item whose arrival cut the connection (disconnect_mid_upload)
     injected: int = 0  # messages or byte runs the proxy added
+    items_beyond: int = 0  # items the companion sent with a seq beyond the count it announced
     rewritten: int = 0  # messages it changed
     changed_item: int | None = None  # the item changed on the vehicle during the outage
     armed_with: list[list] = field(default_factory=list)  # the stored mission each time the vehicle was armed
@@ -54,6 +55,7 @@ class HostileProxy:
         self._server: asyncio.Server | None = None
         self._tasks: set[asyncio.Task] = set()
         self._cut_done = False
+        self._count = 0  # the count of the upload under way (the companion's last MISSION_COUNT)
         self._ap = mavlink.MAVLink(None, srcSystem=1, srcComponent=1)  # packs what we say as the autopilot
         self._rogue = mavlink.MAVLink(None, srcSystem=ROGUE_SYSTEM, srcComponent=1)
 
@@ -140,12 +142,24 @@ class HostileProxy:
             self.record.cut_at_item = msg.seq
             cut.set()
             return None
+        if direction == "up" and kind == "MISSION_COUNT":
+            self._count = msg.count
+        if direction == "up" and kind == "MISSION_ITEM_INT" and msg.seq >= self._count:
+            self.record.items_beyond += 1
         if self.mode == "request_beyond_count" and direction == "up" and kind == "MISSION_COUNT":
             # answer first, as the autopilot, with a request for an item the list does not have
             bogus = mavlink.MAVLink_mission_request_int_message(msg.get_srcSystem(), msg.get_srcComponent(),
                                                                 msg.count + 5, msg.mission_type)
             client_w.write(bogus.pack(self._ap))
             self.record.injected += 1
+        if self.mode == "deny_start" and direction == "up" and kind == "COMMAND_LONG" \
+                and msg.command == mavlink.MAV_CMD_MISSION_START:
+            # armed already (ArduPlane: AUTO, arm, start), the start is refused, as the autopilot would answer it
+            deny = mavlink.MAVLink_command_ack_message(msg.command, mavlink.MAV_RESULT_DENIED, 0, 0,
+                                                       msg.get_srcSystem(), msg.get_srcComponent())
+            client_w.write(deny.pack(self._ap))
+            self.record.injected += 1
+            return b""
         if self.mode == "count_65535" and direction == "down" and kind == "MISSION_COUNT":
             lie = mavlink.MAVLink_mission_count_message(msg.target_system, msg.target_component, 65535,
                                                         msg.mission_type)

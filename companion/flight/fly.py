@@ -24,7 +24,7 @@ from companion.flight.supervisor import (
     FlightSupervisor,
     check_one_autopilot,
 )
-from companion.mavlink.errors import CompanionError, FlightAborted
+from companion.mavlink.errors import CompanionError
 from companion.mavlink.link import Link
 from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
 from companion.mavlink.params import read_params
@@ -165,9 +165,13 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                                             flight_timeout=timeout, replanner=replanner,
                                             departure=_departure_check(plan_doc, scenario, limits, events))
                 except CompanionError as e:
-                    if sup.started:
-                        raise FlightAborted(e) from e
-                    raise
+                    if not sup.started or sup.outcome is None:
+                        raise
+                    # armed or started: a flight, reported whole (its track, its flown safety), not a refusal
+                    outcome = sup.outcome
+                    outcome.completed = False
+                    outcome.reason = f"{e} (after the start: the vehicle keeps its current mode and mission)"
+                    events.log("failed", error=str(e), started=True)
     finally:
         if sim is not None:
             await sim.stop()
@@ -226,8 +230,7 @@ def _departure_check(plan_doc: dict[str, Any], scenario: Scenario, limits: Autop
 def _link(url: str, opts: FlyOptions) -> Link:
     """Our pymavlink link, or MAVSDK's (``opts.backend``)."""
     if opts.backend == "mavsdk":
-        return MavsdkLink(url, source_system=opts.source_system, open_timeout=10.0,
-                          target_system=opts.target_system)
+        return MavsdkLink(url, source_system=opts.source_system, open_timeout=10.0)
     return Link(url, source_system=opts.source_system, open_timeout=10.0, signing_key=opts.signing_key,
                 target_system=opts.target_system)
 

@@ -49,6 +49,7 @@ VERDICT_S = 3.0  # wall seconds PX4's navigator may take to accept a verified mi
 POSITION_EVERY_S = 0.1  # wall seconds between two ``position`` records (the status page's vehicle and track)
 BOOT_GRACE_S = 10.0  # a MAV_MISSION_NO_SPACE this soon after boot is the boot's, not the mission's size
 FIX_TIMEOUT_S = 5.0  # wall seconds for the vehicle's position (GLOBAL_POSITION_INT) before the upload
+RESYNC_RETRY_S = 2.0  # wall seconds before a failed readback after an outage is tried again
 HOME_TIMEOUT_S = 2.0  # wall seconds for its HOME_POSITION, asked for with MAV_CMD_REQUEST_MESSAGE
 
 
@@ -95,6 +96,9 @@ class Pilot(Protocol):
     @property
     def mission(self) -> list[MissionItem]: ...  # the mission last verified on the vehicle
 
+    @property
+    def changing(self) -> bool: ...  # the pilot is changing the vehicle's mission now (an upload, a restore)
+
     def near_goal(self) -> bool: ...  # a completion report may end the flight (not one from before a swap)
 
     def note_upload(self, seconds: float) -> None: ...
@@ -110,6 +114,7 @@ class FixedMission:
     """The mission flown as uploaded, with nobody changing it: the pilot of a flight without replanning."""
 
     holding: str | None = None
+    changing = False
 
     def __init__(self, items: Sequence[MissionItem], state: VehicleState) -> None:
         self.items, self.state = list(items), state
@@ -164,6 +169,7 @@ class FlightSupervisor:
         self._outages_checked = 0  # link.outages when the vehicle's mission was last known to be ``verified``
         self.started = False  # armed or started: from here on a failure leaves a flight, not just a refusal
         self.mismatch: MissionVerifyError | None = None  # the last resync's difference, if it found one
+        self.outcome: FlightOutcome | None = None  # the flight's, as far as it went (set by :meth:`fly`)
 
     # -- readiness ---------------------------------------------------------------------------------
     async def wait_booted(self, timeout: float = BOOT_TIMEOUT_S) -> None:
@@ -309,26 +315,33 @@ class FlightSupervisor:
     async def _link_back(self, error: Exception) -> bool:
         """After a failed transfer: wait until the link is up again (a link fault, not a refusal: the transfer is
         done again or the previous list restored once it is back). False if it stays down LINK_BACK_S."""
-        if self.link.connected and not self.link.heartbeat_lost and not isinstance(error, LinkError):
+        if self.link.connected and self.link.heartbeat_age <= self.link.heartbeat_timeout \
+                and not isinstance(error, LinkError):
             return True
         self.events.log("waiting_for_link", error=str(error), up_to_s=LINK_BACK_S)
         back = await self.link.wait_back(LINK_BACK_S)
         self.events.log("link_back" if back else "link_not_back", reconnects=self.link.reconnects)
         return back
 
-    async def check_outages(self, expected: Sequence[MissionItem] | None = None) -> bool:
+    async def check_outages(self, expected: Sequence[MissionItem] | None = None) -> bool | None:
         """If the autopilot's HEARTBEATs stopped for longer than the outage threshold (or the connection was
         made again) since the mission was last verified, read it back and compare (``resync``) before anything
         else: however the gap was noticed, by the monitor's poll or by the link's own reconnect. Returns whether
-        the vehicle still has the verified mission (True when there was no outage)."""
+        the vehicle still has the verified mission (True when there was no outage); None when the readback could
+        not be made (the link went again): still unknown, to be tried again."""
         expected = self.verified if expected is None else expected
         if self.link.outages == self._outages_checked or not expected:
             return True
         self.events.log("link_gap", outages=self.link.outages - self._outages_checked,
                         last_s=round(self.link.last_outage_s, 1))
-        ok = await self.resync(expected)
+        outages = self.link.outages
+        try:
+            ok = await self.resync(expected)
+        except (MissionTimeout, MissionUploadError, LinkError, TimeoutError) as e:
+            self.events.log("resync_failed", error=str(e), decision="not known yet: read back again")
+            return None
         if ok:
-            self._outages_checked = self.link.outages
+            self._outages_checked = outages
         return ok
 
     async def _mission_verdict(self, count: int, timeout: float = VERDICT_S) -> None:
@@ -403,16 +416,20 @@ class FlightSupervisor:
         self.events.log("set_current", seq=first_seq)
         for step in profile.start_sequence if self.arm else profile.pilot_arm_sequence:
             if step in (ARM, PILOT_ARM, START) and not await self.check_outages():
-                raise CompanionError(f"the vehicle's mission changed during a link outage ({self.mismatch}): it is "
-                                     "not the mission verified; not armed or started")
+                raise CompanionError(f"the vehicle's mission changed during a link outage ({self.mismatch}) or "
+                                     "could not be read back after one: it is not known to be the mission verified; "
+                                     + ("not started" if self.started else "not armed or started"))
             if step.startswith(MODE):
                 await self.set_mode(step.removeprefix(MODE))
             elif step == ARM:
+                self.started = True  # from the command on: an ACK lost on the link does not mean it did not arm
                 await self.arm_vehicle()
-                self.started = True
             elif step == PILOT_ARM:
                 await self._wait_pilot_arm()
                 self.started = True
+                if not await self.check_outages():  # armed in AUTO, it flies at once: the wait may have been long
+                    raise CompanionError(f"the vehicle's mission changed during a link outage while waiting for the "
+                                         f"pilot to arm ({self.mismatch}), or could not be read back after one")
             elif step == START:  # (the profile has checked its steps)
                 self.started = True
                 await self.client.command_long(mavlink.MAV_CMD_MISSION_START, 0, 0)
@@ -455,6 +472,7 @@ class FlightSupervisor:
         t0 = time.monotonic()
         last_current = None
         lost_at: float | None = None  # when the link was found lost
+        resync_at = 0.0  # not before: a readback after an outage that failed is tried again from then
         while True:
             if task.done():
                 exc = task.exception()
@@ -488,14 +506,24 @@ class FlightSupervisor:
                 state.link_lost()
             if msg is None:
                 continue
-            if self.link.outages != self._outages_checked:  # however the gap was noticed: one mechanism
+            if self.link.outages != self._outages_checked and not pilot.changing \
+                    and time.monotonic() >= resync_at:  # however the gap was noticed: one mechanism
+                # (while the pilot changes the mission, its own readback proves what is stored: look after it)
                 if lost_at is None:  # the link's reconnect brought the HEARTBEATs back before this poll saw the gap
                     self.events.log("link_lost", age_s=round(self.link.last_outage_s, 1), noticed="on its return",
                                     decision="the vehicle kept flying its verified mission")
                     state.link_lost()
                 self.events.log("link_restored", outage_s=round(self.link.last_outage_s, 1))
+                lost_at = time.monotonic()
+                expected = pilot.mission
+                verdict = await self.check_outages(expected)
+                if verdict is False and (pilot.changing or pilot.mission is not expected):
+                    verdict = None  # the pilot changed the mission meanwhile: read it again once that is done
+                if verdict is None:  # the readback failed: still lost, try again shortly
+                    resync_at = time.monotonic() + RESYNC_RETRY_S
+                    continue
                 lost_at = None
-                if not await self.check_outages(pilot.mission):
+                if not verdict:
                     outcome.reason = (f"the vehicle's mission changed during a link outage ({self.mismatch}): it "
                                       "is not the mission verified, so the companion stopped supervising; the "
                                       "vehicle keeps its mode and that mission")
@@ -554,7 +582,7 @@ class FlightSupervisor:
         """Ready → where is the vehicle (``departure`` checks it, raising :class:`DepartureRefused`) → upload +
         verify → start → monitor (and replan, with a ``replanner``). Raises on link/upload failures (the CLI maps
         them)."""
-        out = FlightOutcome(False, "", mission_count=len(items), fence_count=len(fence))
+        out = self.outcome = FlightOutcome(False, "", mission_count=len(items), fence_count=len(fence))
         hb = await self.link.wait_heartbeat(timeout=10.0)
         mode = _mode_name(hb)
         self.events.log("connected", system=self.link.target_system, autopilot=hb.autopilot,

@@ -75,11 +75,3 @@ class CommandError(CompanionError):
 
 class VehicleHolding(CompanionError):
     """The companion stopped with the vehicle holding (loitering): no verified mission could be made live."""
-
-
-class FlightAborted(CompanionError):
-    """A failure after the vehicle was armed or started (``cause``): the flight is not completed (exit 5, not 4)."""
-
-    def __init__(self, cause: CompanionError) -> None:
-        self.cause = cause
-        super().__init__(f"{cause} (after the start: the vehicle keeps its current mode and mission)")

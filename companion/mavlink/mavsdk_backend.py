@@ -428,9 +428,12 @@ class MavsdkMissionClient(MissionClient):
         return mavlink.MAV_RESULT_ACCEPTED
 
 
-def unsupported_options(*, signing: bool) -> str | None:
+def unsupported_options(*, signing: bool, target_system: bool = False) -> str | None:
     """Why ``--backend mavsdk`` cannot do what was asked (one line), or None."""
     if signing:
         return ("--backend mavsdk cannot sign MAVLink: MAVSDK-Python 4 has no signing API; "
-                "use the default pymavlink backend with --signing-key")
+                "use the default pymavlink backend with --signing-key or --signing-passphrase")
+    if target_system:
+        return ("--backend mavsdk follows the first autopilot MAVSDK discovers and cannot be pinned to a system: "
+                "use the default pymavlink backend with --target-system")
     return None

@@ -461,6 +461,11 @@ class MissionClient:
                 sub, mavlink.MAVLink_mission_request_list_message(ts, tc, mission_type), "MISSION_COUNT",
                 self.timeout, "download", None)
         count = count_msg.count
+        if (expected is not None and count != expected) or count > MAX_READ_ITEMS:
+            # end the download on the autopilot's side too: PX4 stays in its send-list state, answering the next
+            # transfer "busy", until it times out
+            link.send(mavlink.MAVLink_mission_ack_message(ts, tc, mavlink.MAV_MISSION_OPERATION_CANCELLED,
+                                                          mission_type))
         if expected is not None and count != expected:
             raise MissionVerifyError(min(count, expected), "count", expected, count)
         if count > MAX_READ_ITEMS:

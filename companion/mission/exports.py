@@ -212,7 +212,7 @@ def export_from_plan_json(plan_doc: Mapping[str, Any], scenario: Scenario, fmt: 
         route_top = float(np.max(np.asarray(trajectory, dtype=float)[:, 2] if trajectory else waypoints[:, 2]))
         zones = [c for c in as_circles(scenario.environment.cylinders, spec.home) if c.top_m >= route_top]
     doc = qgc_plan(items, spec, zones)
-    if unchecked:  # QGroundControl shows groundStation as it is; the key beside it says why
+    if unchecked:  # read by whoever opens the file (QGroundControl keeps but does not show them)
         doc["groundStation"] = f"fuseplan ({UNCHECKED})"
         doc["fuseplanUnchecked"] = str(unchecked)
     Path(path).write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")

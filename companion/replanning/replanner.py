@@ -120,6 +120,11 @@ class LiveReplanner:
         return self.swap.mission
 
     @property
+    def changing(self) -> bool:
+        """A replan's upload or restore is changing the vehicle's mission now."""
+        return self.swap.changing
+
+    @property
     def verified(self) -> list[tuple[float, list[MissionItem]]]:
         """Every mission known verified on the vehicle, with the (monotonic) time its readback matched."""
         return self.swap.verified

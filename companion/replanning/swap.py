@@ -32,6 +32,7 @@ class MissionSwap:
         self.route = MissionRoute.of(items, ctx.scenario.home)
         self.verified: list[tuple[float, list[MissionItem]]] = [(time.monotonic(), list(items))]
         self.upload_wall_s = 0.05  # running estimate of one verified upload (wall s)
+        self.changing = False  # an upload or a restore is under way: the stored mission is in flux
 
     @property
     def goal_seq(self) -> int:
@@ -95,6 +96,15 @@ class MissionSwap:
             raise
 
     async def upload(self, items: list[MissionItem], first_new_seq: int, rec: ReplanRecord) -> None:
+        """:meth:`_upload`, with ``changing`` set meanwhile (the supervisor's readback after an outage waits for
+        it: the stored list is being changed by us, and this upload's own readback proves what it holds)."""
+        self.changing = True
+        try:
+            await self._upload(items, first_new_seq, rec)
+        finally:
+            self.changing = False
+
+    async def _upload(self, items: list[MissionItem], first_new_seq: int, rec: ReplanRecord) -> None:
         """Upload ``items`` while the vehicle flies and verify them: the vehicle is held first where it would
         re-read its items during the upload, or could finish its active item before they are verified; a failed
         upload holds it and tries again, a refused or last one puts the last verified mission back (raising

@@ -127,13 +127,13 @@ def _malformed(good: dict, how: str) -> str:
         return "[" * 100_000 + "]" * 100_000
     elif how == "a list":
         return "[1, 2]"
-    elif how == "binary":
-        return "\udcff"
+    elif how == "a huge integer":
+        doc["waypoints"][1][2] = 10**400
     return json.dumps(doc)
 
 
 MALFORMED = ["NaN waypoint", "missing waypoints", "home as a list", "empty waypoints", "a string waypoint",
-             "no status", "not JSON", "nested 100000 deep", "a list"]
+             "no status", "not JSON", "nested 100000 deep", "a list", "a huge integer"]
 
 
 @pytest.mark.parametrize("how", MALFORMED)
@@ -181,3 +181,22 @@ def test_every_fly_option_is_checked_before_planning(tmp_path, capsys, option, v
     assert code == 2
     assert words in _one_line(capsys)
     assert not report.exists()
+
+
+def test_a_plan_with_moving_threats_is_checked_at_the_time_it_will_be_flown(tmp_path, capsys) -> None:
+    """The mission time of the route's start is not taken from the file on trust: `export` takes 0 (as `plan`
+    writes) or the scenario's time to the start (as `fly` writes), and refuses any other in one line."""
+    dynamic = ROOT / "sitl_scenarios" / "rescue_dynamic.toml"
+    path = tmp_path / "PLAN.json"
+    assert main(["plan", str(dynamic), "-o", str(path), *FAST]) == 0
+    capsys.readouterr()
+    doc = json.loads(path.read_text())
+    for start, code in ((None, None), (0, None), (999.0, 2)):
+        doc["start_time_s"] = start
+        path.write_text(json.dumps(doc))
+        got = main(["export", str(path), "--format", "geojson", "-o", str(tmp_path / "m.geojson")])
+        if code is None:
+            assert got in (0, 3)  # checked at that time: whichever the route's verdict there
+            capsys.readouterr()
+        else:
+            assert got == code and "start_time_s: 999 s is neither 0" in _one_line(capsys)

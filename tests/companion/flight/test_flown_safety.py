@@ -52,7 +52,7 @@ def test_fly_exits_6_with_one_line_when_the_flown_track_breaks_d_coll(tmp_path, 
     flown-track verdict and the guard are the last line behind the plan's check)."""
     import planner.plan_file
 
-    monkeypatch.setattr(planner.plan_file, "recheck", lambda doc, _sc: planner.plan_file.Recheck(dict(doc), None))
+    monkeypatch.setattr(planner.plan_file, "recheck", lambda doc, *_: planner.plan_file.Recheck(dict(doc), None))
     first = tmp_path / "first"
     assert main(["fly", str(STATIC), "--sim", "--speedup", "30", "--report", str(first), "-q", *FAST]) == 0
     doc = json.loads((first / "PLAN.json").read_text())
