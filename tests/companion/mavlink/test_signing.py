@@ -54,7 +54,8 @@ def test_a_wrong_key_is_refused_both_ways() -> None:
         async with SimAutopilot(SC, "udpin:127.0.0.1:0", speedup=5.0, signing_key=KEY) as sim:
             wrong = SigningKey.from_passphrase("wrong")
             async with Link(f"udpout:127.0.0.1:{sim.port}", open_timeout=5.0, signing_key=wrong) as link:
-                with pytest.raises(HeartbeatTimeout):  # the autopilot's messages fail our signature check
+                with pytest.raises(HeartbeatTimeout, match="signed with another key .* were dropped: check that "
+                                   "both ends hold the same key"):  # the autopilot's messages fail our check
                     await link.wait_heartbeat(1.5)
                 return sim.mission, sim._transport._udp_parser.signing  # noqa: SLF001 (counters)
 
@@ -63,7 +64,9 @@ def test_a_wrong_key_is_refused_both_ways() -> None:
 
 
 def test_companion_with_signing_ignores_an_unsigned_autopilot() -> None:
-    with pytest.raises(HeartbeatTimeout):
+    """Nothing is heard, and the error says why (issue 33): the autopilot does not sign."""
+    with pytest.raises(HeartbeatTimeout, match=r"signing is on and \d+ unsigned messages were dropped: the "
+                       "autopilot does not sign"):
         asyncio.run(_upload(None, KEY))
 
 
