@@ -7,7 +7,8 @@ class FuseplanError(Exception):
     """Root of all fuseplan errors."""
 
 
-def _one_line(text: str) -> str:
+def one_line(text: object) -> str:
+    """``text`` on one line: line breaks shown as ``\\r`` / ``\\n``, so a value from a file cannot split a message."""
     return str(text).replace("\r", "\\r").replace("\n", "\\n")
 
 
@@ -22,8 +23,8 @@ class ScenarioError(FuseplanError):
         self.field = field
         self.reason = reason
         # one line whatever the pieces hold (a key or a value from the file may contain line breaks)
-        where = f"{self.file}: {_one_line(field)}" if field else self.file
-        super().__init__(f"{where}: {_one_line(reason)}")
+        where = f"{self.file}: {one_line(field)}" if field else self.file
+        super().__init__(f"{where}: {one_line(reason)}")
 
     def __reduce__(self):  # noqa: ANN204 - survives pickling across process pools
         return (type(self), (self.file, self.field, self.reason))

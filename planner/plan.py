@@ -144,18 +144,24 @@ def plan(
                                        progress=progress)
     waypoints = merge_close_waypoints(opt.path)
     evaluation = problem.evaluate(waypoints[None]) if len(waypoints) != len(opt.path) else opt.evaluation
-    timed = problem.timed_threats
-    traj = smooth(waypoints, settings.sample_spacing, problem.vehicle.cruise_speed,
-                  problem.start_time or 0.0)
-    check = check_trajectory(traj, waypoints, problem.env, problem.hazard, problem.vehicle, timed,
-                             problem.start_heading)
-    feasible = int(evaluation.n_violations[0]) == 0 and check.feasible
+    traj, check, feasible = assess(problem, settings, waypoints, evaluation)
     if opt.stop_reason == "timeout":
         status = PlanStatus.APPROXIMATE if feasible else PlanStatus.TIMEOUT
     else:
         status = PlanStatus.EXACT if feasible else PlanStatus.INFEASIBLE
     return PlanResult(status, settings.algorithm, seed, waypoints, evaluation, traj, check, opt,
                       time.perf_counter() - t0)
+
+
+def assess(problem: PlanningProblem, settings: PlannerSettings, waypoints: np.ndarray,
+           evaluation: Evaluation) -> tuple[Trajectory, CheckResult, bool]:
+    """The verdict on a route (its waypoints and the cost's ``evaluation`` of them): the smoothed trajectory, the
+    checker's result on it, and whether it is feasible (no cost violation terms and a clean check). A fresh plan
+    and a PLAN.json read back (:mod:`planner.plan_file`) are judged by this one function."""
+    traj = smooth(waypoints, settings.sample_spacing, problem.vehicle.cruise_speed, problem.start_time or 0.0)
+    check = check_trajectory(traj, waypoints, problem.env, problem.hazard, problem.vehicle, problem.timed_threats,
+                             problem.start_heading)
+    return traj, check, int(evaluation.n_violations[0]) == 0 and check.feasible
 
 
 def merge_close_waypoints(path: np.ndarray, tol: float = MERGE_TOLERANCE_M) -> np.ndarray:

@@ -20,10 +20,9 @@ import numpy as np
 
 from planner.errors import FuseplanError, PlanRefused
 from planner.files import read_regular_file
-from planner.plan import PlanResult, PlanStatus, json_safe, plan_to_json, problem_from_scenario
+from planner.plan import PlanResult, PlanStatus, assess, json_safe, plan_to_json, problem_from_scenario
 from planner.search.swarm import OptimiserResult
-from planner.trajectory.checks import CATEGORIES, nearest_obstacle, smooth
-from planner.trajectory.checks import check_trajectory as check_samples
+from planner.trajectory.checks import CATEGORIES, nearest_obstacle
 from planner.workload import MAX_SAMPLES
 from planner.world.config import MAX_COORD
 from planner.world.scenario import Scenario
@@ -129,10 +128,7 @@ def recheck(doc: Mapping[str, Any], scenario: Scenario, start_time: float | None
             f"length: the route is {length:.0f} m long, more than {MAX_SAMPLES:g} samples at "
             f"planner.sample_spacing {settings.sample_spacing:g} m; no plan of this map is"))
     evaluation = problem.evaluate(waypoints[None])
-    traj = smooth(waypoints, settings.sample_spacing, problem.vehicle.cruise_speed, problem.start_time or 0.0)
-    check = check_samples(traj, waypoints, problem.env, problem.hazard, problem.vehicle, problem.timed_threats,
-                          problem.start_heading)
-    feasible = check.feasible and int(evaluation.n_violations[0]) == 0
+    traj, check, feasible = assess(problem, settings, waypoints, evaluation)
     claimed = doc["status"]
     status = PlanStatus(claimed) if feasible and claimed in FEASIBLE else (
         PlanStatus.EXACT if feasible else PlanStatus.INFEASIBLE)
@@ -173,14 +169,15 @@ def _waypoint_fault(waypoints: np.ndarray, scenario: Scenario) -> str | None:
     outside = (x < 0) | (x > env.size_x) | (y < 0) | (y > env.size_y)
     height = z - env.ground(np.clip(x, 0, env.size_x), np.clip(y, 0, env.size_y))
     off_band = (height < env.z_min) | (height > env.z_max)
-    for i in range(len(waypoints)):  # a few hundred waypoints at most, once: the first one wins
-        if outside[i]:
-            return (f"bounds: waypoint {i} at {_at(waypoints[i].tolist())} is outside the region "
-                    f"(0–{env.size_x:g} m east, 0–{env.size_y:g} m north)")
-        if off_band[i]:
-            return (f"altitude: waypoint {i} is {height[i]:.1f} m above the ground at {_at(waypoints[i].tolist())}, "
-                    f"outside the band {env.z_min:g}–{env.z_max:g} m")
-    return None
+    wrong = np.flatnonzero(outside | off_band)
+    if not len(wrong):
+        return None
+    i = int(wrong[0])
+    if outside[i]:
+        return (f"bounds: waypoint {i} at {_at(waypoints[i].tolist())} is outside the region "
+                f"(0–{env.size_x:g} m east, 0–{env.size_y:g} m north)")
+    return (f"altitude: waypoint {i} is {height[i]:.1f} m above the ground at {_at(waypoints[i].tolist())}, "
+            f"outside the band {env.z_min:g}–{env.z_max:g} m")
 
 
 def _count(value: Any) -> int:

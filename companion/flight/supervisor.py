@@ -466,6 +466,24 @@ class FlightSupervisor:
         outcome.flight_s = time.monotonic() - t0
         outcome.holding = pilot.holding is not None
 
+    async def _resync_in_flight(self, pilot: Pilot, noticed: bool) -> bool | None:
+        """After an outage in flight (``noticed``: the monitor's poll saw it; else the reconnect was quicker):
+        the link's records, then the readback of the pilot's mission. True: still ours, the link is restored;
+        False: changed; None: not known yet (the readback failed, or the pilot changed the mission meanwhile)."""
+        state = pilot.state
+        if not noticed:
+            self.events.log("link_lost", age_s=round(self.link.last_outage_s, 1), noticed="on its return",
+                            decision="the vehicle kept flying its verified mission")
+            state.link_lost()
+        self.events.log("link_restored", outage_s=round(self.link.last_outage_s, 1))
+        expected = pilot.mission
+        verdict = await self.check_outages(expected)
+        if verdict is False and (pilot.changing or pilot.mission is not expected):
+            return None  # the pilot changed the mission meanwhile: read it again once that is done
+        if verdict:
+            state.link_restored()
+        return verdict
+
     async def _follow(self, sub: Subscription, pilot: Pilot, timeout: float, outcome: FlightOutcome,
                       task: asyncio.Task) -> None:
         state = pilot.state
@@ -509,18 +527,9 @@ class FlightSupervisor:
             if self.link.outages != self._outages_checked and not pilot.changing \
                     and time.monotonic() >= resync_at:  # however the gap was noticed: one mechanism
                 # (while the pilot changes the mission, its own readback proves what is stored: look after it)
-                if lost_at is None:  # the link's reconnect brought the HEARTBEATs back before this poll saw the gap
-                    self.events.log("link_lost", age_s=round(self.link.last_outage_s, 1), noticed="on its return",
-                                    decision="the vehicle kept flying its verified mission")
-                    state.link_lost()
-                self.events.log("link_restored", outage_s=round(self.link.last_outage_s, 1))
-                lost_at = time.monotonic()
-                expected = pilot.mission
-                verdict = await self.check_outages(expected)
-                if verdict is False and (pilot.changing or pilot.mission is not expected):
-                    verdict = None  # the pilot changed the mission meanwhile: read it again once that is done
-                if verdict is None:  # the readback failed: still lost, try again shortly
-                    resync_at = time.monotonic() + RESYNC_RETRY_S
+                verdict = await self._resync_in_flight(pilot, noticed=lost_at is not None)
+                if verdict is None:  # not known yet: still lost, read back again shortly
+                    lost_at, resync_at = lost_at or time.monotonic(), time.monotonic() + RESYNC_RETRY_S
                     continue
                 lost_at = None
                 if not verdict:
@@ -529,7 +538,6 @@ class FlightSupervisor:
                                       "vehicle keeps its mode and that mission")
                     self.events.log("aborted", reason=outcome.reason)
                     return
-                state.link_restored()
             state.observe(msg)
             kind = msg.get_type()
             t = time.monotonic() - t0

@@ -240,7 +240,7 @@ class Link:
         self.bad_packets = 0  # BAD_DATA / unparsable input seen
         self.dropped_unsigned = 0  # with signing on: unsigned messages dropped
         self.dropped_signed = 0  # with signing on: messages signed with another key (or replayed) dropped
-        self.other_autopilots: dict[int, float] = {}  # system → loop time: autopilots heard that are not the target
+        self.other_autopilots: set[int] = set()  # systems of autopilots heard that are not the target
         self.reconnects = 0  # successful re-creations of the connection
         # gaps in the target's HEARTBEATs longer than heartbeat_timeout, or a new connection, counted when its
         # HEARTBEAT is heard again: whoever looks compares this count, so no outage goes unnoticed (issue 33)
@@ -489,8 +489,7 @@ class Link:
                      src[0], src[1], msg.autopilot, msg.type)
         if src[0] != self.target_system:
             if src[0] not in self.other_autopilots:
-                assert self._loop is not None
-                self.other_autopilots[src[0]] = self._loop.time()
+                self.other_autopilots.add(src[0])
                 log.warning("HEARTBEAT from another autopilot, system %d, on %s: ignored (the target is system %d)",
                             src[0], self.url, self.target_system)
             return

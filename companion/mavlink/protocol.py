@@ -461,16 +461,18 @@ class MissionClient:
                 sub, mavlink.MAVLink_mission_request_list_message(ts, tc, mission_type), "MISSION_COUNT",
                 self.timeout, "download", None)
         count = count_msg.count
-        if (expected is not None and count != expected) or count > MAX_READ_ITEMS:
+        refusal: CompanionError | None = None
+        if expected is not None and count != expected:
+            refusal = MissionVerifyError(min(count, expected), "count", expected, count)
+        elif count > MAX_READ_ITEMS:
+            refusal = CompanionError(f"mission download refused: the autopilot reports {count} items, more than "
+                                     f"the {MAX_READ_ITEMS} the companion reads")
+        if refusal is not None:
             # end the download on the autopilot's side too: PX4 stays in its send-list state, answering the next
             # transfer "busy", until it times out
             link.send(mavlink.MAVLink_mission_ack_message(ts, tc, mavlink.MAV_MISSION_OPERATION_CANCELLED,
                                                           mission_type))
-        if expected is not None and count != expected:
-            raise MissionVerifyError(min(count, expected), "count", expected, count)
-        if count > MAX_READ_ITEMS:
-            raise CompanionError(f"mission download refused: the autopilot reports {count} items, more than the "
-                                 f"{MAX_READ_ITEMS} the companion reads")
+            raise refusal
         got = await self._read_items(range(count), mission_type, patient)
         link.send(mavlink.MAVLink_mission_ack_message(ts, tc, ACCEPTED, mission_type))
         log.info("downloaded %d items (mission type %d)", count, mission_type)

@@ -24,6 +24,7 @@ from companion.mission.builder import (
     spec_from_plan_json,
 )
 from companion.mission.geo import Circle, as_circles, circle_ring, enu_to_geodetic, lonlatalt, to_int_e7
+from planner.errors import one_line
 from planner.world.environment import Cylinders
 from planner.world.home import Home
 from planner.world.scenario import Scenario
@@ -37,10 +38,6 @@ VEHICLE_TYPE = {"plane": mavlink.MAV_TYPE_FIXED_WING, "copter": mavlink.MAV_TYPE
 
 
 # --- QGC WPL 110 -----------------------------------------------------------------------------------------------
-
-def _one_line(text: object) -> str:
-    return str(text).replace("\r", " ").replace("\n", " ")
-
 
 def _wpl_number(value: float, decimals: int) -> str:
     return "NaN" if math.isnan(value) else f"{value:.{decimals}f}"
@@ -68,10 +65,16 @@ def waypoints_text(items: Sequence[MissionItem], home: Home | None = None) -> st
     return "\n".join(lines) + "\n"
 
 
-def write_waypoints(path: str | Path, items: Sequence[MissionItem], home: Home | None = None) -> Path:
-    """Write a QGC WPL 110 ``.waypoints`` file (Mission Planner, MAVProxy ``wp load``); see :func:`waypoints_text`."""
+def write_waypoints(path: str | Path, items: Sequence[MissionItem], home: Home | None = None,
+                    unchecked: str | None = None) -> Path:
+    """Write a QGC WPL 110 ``.waypoints`` file (Mission Planner, MAVProxy ``wp load``); see :func:`waypoints_text`.
+    ``unchecked`` (export --force): why, as a ``#`` line after the header, which pymavlink's reader skips."""
+    text = waypoints_text(items, home)
+    if unchecked:
+        header, rest = text.split("\n", 1)
+        text = f"{header}\n# {UNCHECKED}: {one_line(unchecked)}\n{rest}"
     path = Path(path)
-    path.write_text(waypoints_text(items, home), encoding="ascii")
+    path.write_text(text, encoding="ascii", errors="replace")
     return path
 
 
@@ -117,10 +120,16 @@ def qgc_plan(items: Sequence[MissionItem], spec: MissionSpec, fence: Cylinders |
 
 
 def write_qgc_plan(path: str | Path, items: Sequence[MissionItem], spec: MissionSpec,
-                   fence: Cylinders | Sequence[Circle] = (), rally: Iterable[Sequence[float]] = ()) -> Path:
-    """Write a QGroundControl ``.plan`` file; see :func:`qgc_plan`."""
+                   fence: Cylinders | Sequence[Circle] = (), rally: Iterable[Sequence[float]] = (),
+                   unchecked: str | None = None) -> Path:
+    """Write a QGroundControl ``.plan`` file; see :func:`qgc_plan`. ``unchecked`` (export --force): why, in
+    ``groundStation`` and ``fuseplanUnchecked`` (QGroundControl keeps but does not show them)."""
+    doc = qgc_plan(items, spec, fence, rally)
+    if unchecked:
+        doc["groundStation"] = f"fuseplan ({UNCHECKED})"
+        doc["fuseplanUnchecked"] = str(unchecked)
     path = Path(path)
-    path.write_text(json.dumps(qgc_plan(items, spec, fence, rally), indent=2, allow_nan=False), encoding="utf-8")
+    path.write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
     return path
 
 
@@ -201,19 +210,9 @@ def export_from_plan_json(plan_doc: Mapping[str, Any], scenario: Scenario, fmt: 
     items = mission_from_plan_json(plan_doc, scenario, autopilot, **options)
     unchecked = plan_doc.get("unchecked")
     if fmt == "waypoints":
-        text = waypoints_text(items, spec.home)
-        if unchecked:  # a comment line after the header: pymavlink's reader (MAVProxy `wp load`) skips '#' lines
-            header, rest = text.split("\n", 1)
-            text = f"{header}\n# {UNCHECKED}: {_one_line(unchecked)}\n{rest}"
-        Path(path).write_text(text, encoding="ascii", errors="replace")
-        return Path(path)
+        return write_waypoints(path, items, spec.home, unchecked)
     zones: list[Circle] = []
     if fence:
         route_top = float(np.max(np.asarray(trajectory, dtype=float)[:, 2] if trajectory else waypoints[:, 2]))
         zones = [c for c in as_circles(scenario.environment.cylinders, spec.home) if c.top_m >= route_top]
-    doc = qgc_plan(items, spec, zones)
-    if unchecked:  # read by whoever opens the file (QGroundControl keeps but does not show them)
-        doc["groundStation"] = f"fuseplan ({UNCHECKED})"
-        doc["fuseplanUnchecked"] = str(unchecked)
-    Path(path).write_text(json.dumps(doc, indent=2, allow_nan=False), encoding="utf-8")
-    return Path(path)
+    return write_qgc_plan(path, items, spec, zones, unchecked=unchecked)
