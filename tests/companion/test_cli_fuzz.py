@@ -19,7 +19,6 @@ from planner.errors import FuseplanError
 
 ROOT = Path(__file__).resolve().parents[2]
 STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
-FAST = ["--set", "planner.pso.n_pop=200", "--set", "planner.pso.max_iter=80"]
 FUZZ = settings(max_examples=120, deadline=None,
                 suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 
@@ -31,10 +30,8 @@ json_values = st.recursive(
 
 
 @pytest.fixture(scope="module")
-def good_plan(tmp_path_factory) -> dict[str, Any]:
-    out = tmp_path_factory.mktemp("plan") / "PLAN.json"
-    assert main(["plan", str(STATIC), "-o", str(out), *FAST]) == 0
-    return json.loads(out.read_text())
+def good_plan(static_plan_doc) -> dict[str, Any]:
+    return static_plan_doc()
 
 
 def _paths(doc: Any, prefix: tuple = ()) -> list[tuple]:

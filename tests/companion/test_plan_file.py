@@ -19,10 +19,8 @@ FAST = ["--set", "planner.pso.n_pop=200", "--set", "planner.pso.max_iter=80"]
 
 
 @pytest.fixture(scope="module")
-def good_plan(tmp_path_factory) -> dict:
-    out = tmp_path_factory.mktemp("plan") / "PLAN.json"
-    assert main(["plan", str(STATIC), "-o", str(out), *FAST]) == 0
-    return json.loads(out.read_text())
+def good_plan(static_plan_doc) -> dict:
+    return static_plan_doc()
 
 
 def _one_line(capsys) -> str:
