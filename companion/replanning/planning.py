@@ -18,7 +18,6 @@ from companion.replanning.replan import (
     CommitPoint,
     ReplanRecord,
     commit_point,
-    replan_problem,
     replan_settings,
     warm_starts,
 )
@@ -27,6 +26,7 @@ from companion.replanning.threats import Conflict
 from companion.replanning.worker import PlanWorker, WorkerPlan
 from planner.plan import PlanStatus
 from planner.problem import PlanningProblem
+from planner.replan import replan_problem
 from planner.world.config import PlannerSettings
 from planner.world.environment import Threats
 

@@ -8,7 +8,6 @@ threats run on; ADS-B tracks are put on it too.
 
 from __future__ import annotations
 
-import dataclasses
 import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -20,11 +19,9 @@ from companion.mavlink.items import FRAME_REL_ALT, MissionItem, normalise_frame
 from companion.mission.builder import CMD_LOITER_UNLIM, CMD_WAYPOINT, MissionSpec, waypoint_items
 from companion.mission.geo import geodetic_to_enu
 from companion.replanning.threats import route_distances, route_points
-from planner.problem import PlanningProblem
+from planner import replan as planner_replan
 from planner.world.config import PlannerSettings
-from planner.world.environment import Threats
 from planner.world.home import Home
-from planner.world.scenario import Scenario
 
 
 @dataclass(frozen=True)
@@ -32,31 +29,24 @@ class ReplanConfig:
     """Replanning settings; each default lives here only. ``*_s`` in vehicle seconds unless ``wall``."""
 
     enabled: bool = True
-    budget_s: float = 0.15  # wall seconds the planner may use for one replan
+    budget_s: float = planner_replan.BUDGET_S  # wall seconds the planner may use for one replan
     # after a plan that was not safe, the next one for the same conflict gets twice the budget, up to this, when the
     # conflict is far enough off for the longer commit lead (a loaded machine gives the planner less of a core);
     # never less than budget_s. A plan made while the vehicle holds on a checked pattern gets it at once: nothing
     # is flown into while it plans, and its route keeps a wider margin (replan_problem's static_margin)
     max_budget_s: float = 0.6
-    population: int = 100  # swarm size for a replan (the scenario's other planner settings are kept)
-    # a replan stops searching this many swarm iterations after its route first became feasible (clear of the
-    # obstacles and of the traffic by d_coll + margin, flyable), colonies skipped: the vehicle needs a safe route
-    # now more than the shortest one (planner.pso.feasible_iters); 0: search the whole budget
-    settle_iters: int = 10
-    # guide routes from the roadmap for a replan (planner.roadmap.n_routes): each costs a shortest-path search over
-    # the whole roadmap, about a third of a replan's time, and the old route and its bent copies already seed other
-    # corridors (replaying 18 SITL replans, 4 seeds each, 1 route found the same 44 of 72 feasible as 3, in a median
-    # 0.033 s instead of 0.052 s)
-    guide_routes: int = 1
+    population: int = planner_replan.POPULATION  # swarm size for a replan
+    settle_iters: int = planner_replan.SETTLE_ITERS  # stop this many iterations after feasible (planner.replan)
+    guide_routes: int = planner_replan.GUIDE_ROUTES  # roadmap guide routes per replan (planner.replan)
     # replans run the roadmap pipeline (docs/method.md §15) whatever [planner.roadmap] says of the first route;
-    # the worker builds the roadmap once, at its warm-up. False: the scenario's own planner (the paper's fusion)
+    # the worker builds the roadmap once, at its warm-up. False: the scenario's own planner settings
     roadmap: bool = True
     detour_offsets_m: tuple[float, ...] = (-400.0, -250.0, -120.0, 120.0, 250.0, 400.0)  # warm-start bulges
     horizon_s: float = 90.0  # how far ahead conflicts are predicted
-    margin_m: float = 15.0  # a conflict is a predicted separation below d_coll + margin
+    margin_m: float = planner_replan.THREAT_MARGIN_M  # a conflict is a predicted separation below d_coll + margin
     sample_dt_s: float = 0.5  # route sampling for the prediction (18 m/s + 15 m/s → 8 m between samples)
     track_radius_m: float = 40.0  # protected radius assumed for an ADS-B contact (ADS-B carries none)
-    track_growth_m_s: float = 0.5  # uncertainty growth per second of track age and prediction (ADS-B NACv ~1 m/s)
+    track_growth_m_s: float = planner_replan.TRACK_GROWTH_M_S  # per second of track age and prediction
     track_max_age_s: float = 10.0  # drop a contact not heard from for this long
     lead_margin_s: float = 2.0  # added to the commit lead beyond planning and upload time
     min_interval_s: float = 5.0  # rate limit: vehicle seconds between two replans
@@ -194,39 +184,9 @@ def warm_starts(tail: np.ndarray, offsets_m: Sequence[float], n_points: int = 10
     return np.stack([base] + [base + o * bulge for o in offsets_m])
 
 
-def replan_problem(scenario: Scenario, start: np.ndarray, goal: np.ndarray, threats: Threats,
-                   start_time: float, speed: float | None = None,
-                   heading: np.ndarray | None = None, threat_margin: float = 0.0,
-                   static_margin: float = 0.0) -> PlanningProblem:
-    """The scenario's static world with the current threat picture, from ``start`` to ``goal``, flown from
-    mission time ``start_time`` (time-aware threats, docs/method.md §4.6) at ``speed`` (default: the scenario's cruise
-    speed; the replanner passes the vehicle's measured pace), arriving at ``start`` flying along ``heading`` (the
-    turn onto the new route is held to the vehicle's limits: an autopilot overshoots a sharper one). Each threat's
-    radius grows by ``threat_margin`` m: the replanner calls a route clear at d_coll + its margin, so a replan
-    that kept only d_coll would be a new conflict at once. ``static_margin`` m more are kept from everything: a
-    route planned from a hold is flown from the circle once its resume is checked, at d_coll + that margin."""
-    hazard = scenario.hazard
-    if static_margin:
-        d_coll = hazard.d_coll + static_margin
-        hazard = dataclasses.replace(hazard, d_coll=d_coll, d_safe=max(hazard.d_safe, d_coll))
-    if threat_margin:
-        threats = threats.grown(threat_margin)
-    env = dataclasses.replace(scenario.environment, threats=threats)
-    s = scenario.planner
-    vehicle = scenario.vehicle if speed is None else dataclasses.replace(scenario.vehicle, cruise_speed=speed)
-    return PlanningProblem(env, np.asarray(start, dtype=float), np.asarray(goal, dtype=float), vehicle,
-                           hazard, s.weights, s.penalty, start_time, heading)
-
-
 def replan_settings(settings: PlannerSettings, cfg: ReplanConfig) -> PlannerSettings:
-    """The scenario's planner settings with the replanning swarm size and its early stop once feasible, and the
-    roadmap on with the replans' guide routes if ``cfg.roadmap`` (else as the scenario says)."""
-    out = dataclasses.replace(settings, pso=dataclasses.replace(settings.pso, n_pop=cfg.population,
-                                                                feasible_iters=cfg.settle_iters))
-    if cfg.roadmap:
-        out = dataclasses.replace(out, roadmap=dataclasses.replace(out.roadmap, enabled=True,
-                                                                   n_routes=cfg.guide_routes))
-    return out
+    """:func:`planner.replan.replan_settings` with ``cfg``'s swarm size, early stop, roadmap and guide routes."""
+    return planner_replan.replan_settings(settings, cfg.population, cfg.settle_iters, cfg.roadmap, cfg.guide_routes)
 
 
 def padded(route: np.ndarray, n: int, min_leg_m: float) -> np.ndarray:

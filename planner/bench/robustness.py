@@ -32,9 +32,9 @@ from planner.bench.runner import (
     settings_list,
     write_csv,
 )
+from planner.replan import BUDGET_S as REPLAN_BUDGET_S
+from planner.replan import POPULATION as REPLAN_POP
 
-REPLAN_BUDGET_S = 0.15  # the companion's live replan budget (companion ReplanConfig.budget_s)
-REPLAN_POP = 100  # and its swarm (ReplanConfig.population)
 PEER_TIME_S = 2.0
 OURS_BESIDE_PEERS_S = 1.0  # fuseplan's budget in the peers bench: half of OMPL's (issue 15: faster than BIT* at 2 s)
 TARGETS = {"table6": 0.95, "replan": 0.90}  # issue 15: flyable success per family at each budget

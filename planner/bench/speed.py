@@ -41,9 +41,11 @@ import numpy as np
 from planner import kernel
 from planner.bench import runner
 from planner.bench.load import cpu_hog
-from planner.bench.robustness import REPLAN_BUDGET_S, REPLAN_POP
 from planner.bench.runner import PAPER_MODE, ROADMAP_MODE, SCENARIO_DIR, appending, load_records, write_csv
 from planner.errors import FuseplanError
+from planner.replan import BUDGET_S as REPLAN_BUDGET_S
+from planner.replan import POPULATION as REPLAN_POP
+from planner.replan import THREAT_MARGIN_M, replan_problem, scripted_picture
 
 log = logging.getLogger(__name__)
 
@@ -51,8 +53,6 @@ KERNEL_ENV = kernel.ENV_VAR  # FUSEPLAN_KERNEL: compiled | numpy
 BROAD_ENV = kernel.BROAD_ENV_VAR  # FUSEPLAN_BROAD_PHASE: on | off (default on), the compiled kernel's broad phase
 PARTS = ("headline", "reference", "scaling", "latency")
 TABLE6 = (PAPER_MODE, 'planner.algorithm="spso"', "planner.pso.stagnation_iters=100000")  # n_pop/max_iter: defaults
-THREAT_MARGIN_M = 15.0  # each threat grows by this for a replan (as the companion's ReplanConfig.margin_m)
-TRACK_GROWTH_M_S = 0.5  # an intruder's uncertainty growth as an ADS-B track (the companion's track_growth_m_s)
 
 
 @dataclass(frozen=True)
@@ -213,26 +213,6 @@ def _set_environment(job: Job) -> None:
     os.environ[BROAD_ENV] = job.broad_phase
 
 
-def replan_problem(scenario: Any) -> Any:
-    """The scenario's start → goal problem at mission time 0 with the threat picture a live replan plans against:
-    its scripted threats and each ``[[intruders]]`` aircraft as an ADS-B track (seen at its first waypoint, flying
-    its first leg at its speed, radius growing with prediction time), every threat grown by the replanner's margin.
-    (The companion builds the same from its tracks; the planner may not import it.)"""
-    from planner.problem import PlanningProblem
-    from planner.world.environment import Threat, Threats
-
-    items = list(scenario.environment.threats.items)
-    for intr in scenario.intruders:
-        p0, p1 = np.array(intr.waypoints[0], dtype=float), np.array(intr.waypoints[1], dtype=float)
-        vel = intr.speed * (p1 - p0) / max(float(np.linalg.norm(p1 - p0)), 1e-9)
-        items.append(Threat(intr.id, "track", intr.radius, tuple(p0), tuple(vel), radius_growth=TRACK_GROWTH_M_S))
-    threats = Threats(tuple(items)).grown(THREAT_MARGIN_M)
-    env = dataclasses.replace(scenario.environment, threats=threats)
-    p = scenario.planner
-    return PlanningProblem(env, scenario.start, scenario.goal, scenario.vehicle, scenario.hazard, p.weights,
-                           p.penalty, 0.0)
-
-
 def run_job(job: Job) -> dict[str, Any]:
     """Plan once in this worker with the job's kernel and broad phase; a flat, JSON-ready record."""
     from planner.plan import json_safe, plan, problem_from_scenario, uses_roadmap
@@ -250,7 +230,10 @@ def run_job(job: Job) -> dict[str, Any]:
     }
     if job.kernel == "reference":
         return json_safe({**common, **_run_reference(sc, job.seed)})
-    problem = replan_problem(sc) if job.part == "latency" else problem_from_scenario(sc)
+    # a latency job plans against the picture a live replan sees: the scripted threats and every intruder as an
+    # ADS-B track, all grown by the replanner's margin (planner.replan, as the companion builds it)
+    problem = (replan_problem(sc, sc.start, sc.goal, scripted_picture(sc), 0.0, threat_margin=THREAT_MARGIN_M)
+               if job.part == "latency" else problem_from_scenario(sc))
     settings = sc.planner
     if uses_roadmap(settings):  # built once per map before the clock, as the companion's worker does at warm-up
         from planner.search import roadmap

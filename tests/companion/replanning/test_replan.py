@@ -22,7 +22,6 @@ from companion.replanning.replan import (
     ReplanConfig,
     commit_point,
     padded,
-    replan_problem,
     replan_settings,
     splice,
     warm_starts,
@@ -33,6 +32,7 @@ from companion.replanning.separation import (
     separation_to_law,
     separation_to_track,
 )
+from planner.replan import replan_problem
 from planner.world.environment import Threat, Threats
 from planner.world.scenario import load_scenario
 
