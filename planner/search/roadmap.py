@@ -39,7 +39,6 @@ MAX_COLUMNS = 40_000  # the finest grid a configured spacing may ask for (about 
 MIN_SPACING_M = 10.0
 OFFSETS = np.array([(i, j) for i in range(-2, 3) for j in range(-2, 3)
                     if 0 < i * i + j * j <= 5 and (i, j) > (0, 0)])  # half of the 20 neighbours: each edge once
-TERRAIN_SAMPLES = 9  # points per edge checked against the terrain
 BLOCKED_WEIGHT = 1e4  # weight factor of an edge a moving threat occupies when the vehicle would be there
 _CACHE: list[tuple[str, Roadmap]] = []
 _CACHE_SIZE = 8
@@ -138,18 +137,10 @@ def segment_slack(problem: PlanningProblem, a: np.ndarray, b: np.ndarray, margin
 
 
 def band_ok(problem: PlanningProblem, a: np.ndarray, b: np.ndarray, margin: float) -> np.ndarray:
-    """True where segment a→b (E, 3) stays inside the altitude band (less ``margin``) over the terrain and
-    inside the region; checked at TERRAIN_SAMPLES points when there is terrain, exactly without it."""
+    """True where segment a→b (E, 3) stays inside the altitude band (less ``margin``) over the terrain, exactly
+    (:meth:`Environment.band_depth`, the checker's test), and inside the region."""
     env = problem.env
-    lo, hi = env.z_min + margin, env.z_max - margin
-    if env.terrain is None:
-        z = np.stack([a[:, 2], b[:, 2]])
-        ok = (z.min(axis=0) >= lo - 1e-9) & (z.max(axis=0) <= hi + 1e-9)
-    else:
-        t = np.linspace(0.0, 1.0, TERRAIN_SAMPLES)[:, None, None]
-        p = a[None] + t * (b - a)[None]
-        h = p[..., 2] - env.ground(p[..., 0], p[..., 1])
-        ok = (h.min(axis=0) >= lo - 1e-9) & (h.max(axis=0) <= hi + 1e-9)
+    ok = env.band_depth(a, b) <= -margin + 1e-9
     inside = ((np.minimum(a[:, :2], b[:, :2]) >= 0.0).all(axis=1)
               & (np.maximum(a[:, 0], b[:, 0]) <= env.size_x) & (np.maximum(a[:, 1], b[:, 1]) <= env.size_y))
     return ok & inside

@@ -126,6 +126,8 @@ def check_trajectory(
     bad["collision"] = (solid < hazard.d_coll - _TOL_M) | (radar < -_TOL_M)
     h = p[:, 2] - env.ground(p[:, 0], p[:, 1])
     bad["altitude"] = (h < env.z_min - _TOL_M) | (h > env.z_max + _TOL_M)
+    if env.terrain is not None and len(p) > 1:  # between samples too: the chords, exactly over the terrain
+        bad["altitude"][:-1] |= env.band_depth(p[:-1], p[1:]) > _TOL_M
     bad["bounds"] = ((p[:, 0] < -_TOL_M) | (p[:, 0] > env.size_x + _TOL_M)
                      | (p[:, 1] < -_TOL_M) | (p[:, 1] > env.size_y + _TOL_M))
     bad["turn"] = traj.curvature * vehicle.min_turn_radius > 1.0 + _TOL_REL

@@ -232,3 +232,18 @@ class Environment:
         if self.terrain is None:
             return np.zeros(np.broadcast_shapes(np.shape(x), np.shape(y)))
         return self.terrain.height_at(x, y)
+
+    def height_range(self, a: np.ndarray, b: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Least and greatest height above the ground (E,) along straight segments a→b (E, 3), exactly
+        (:meth:`Terrain.clearance_range`; on flat ground the ends' heights)."""
+        a = np.asarray(a, dtype=float).reshape(-1, 3)
+        b = np.asarray(b, dtype=float).reshape(-1, 3)
+        if self.terrain is None:
+            return np.minimum(a[:, 2], b[:, 2]), np.maximum(a[:, 2], b[:, 2])
+        return self.terrain.clearance_range(a, b)
+
+    def band_depth(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+        """Metres (E,) by which straight segments a→b leave the altitude band at their worst point (≤ 0: inside),
+        exactly over the terrain: the one band test of the roadmap, its guides and the checker."""
+        lo, hi = self.height_range(a, b)
+        return np.maximum(self.z_min - lo, hi - self.z_max)
