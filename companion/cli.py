@@ -23,7 +23,9 @@ from planner.cli import (
     EXIT_BAD_INPUT,
     EXIT_INFEASIBLE,
     EXIT_OK,
+    add_paper_option,
     check_writable,
+    mode_overrides,
     write_text,
 )
 from planner.errors import FuseplanError, PlanRefused
@@ -48,6 +50,7 @@ def _parser() -> argparse.ArgumentParser:
     ex.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory")
     ex.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     ex.add_argument("--seed", type=int, default=None)
+    add_paper_option(ex)
     ex.add_argument("--force", action="store_true",
                     help="write a PLAN.json that fails its check against the scenario anyway, marked UNCHECKED in "
                          "the file (never for flying)")
@@ -84,6 +87,7 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
     fl.add_argument("--seed", type=int, default=None)
     fl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None)
+    add_paper_option(fl)
     fl.add_argument("-q", "--quiet", action="store_true")
     _status_options(fl)
     sm = sub.add_parser("sim", help="run the built-in simulated autopilot alone")
@@ -344,7 +348,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     from companion.mission.exports import export_from_plan_json
 
     check_writable(args.output)
-    doc, sc = _plan_doc_for(args.source, args.scenario, args.overrides, args.seed, force=args.force)
+    doc, sc = _plan_doc_for(args.source, args.scenario, list(args.overrides) + mode_overrides(args), args.seed,
+                            force=args.force)
     part = args.output.with_name(args.output.name + ".part")
     try:
         export_from_plan_json(doc, sc, args.format, part, args.autopilot, densify=args.densify)
@@ -422,7 +427,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
     if target is not None and args.sim:
         raise FuseplanError("--target-system is for a real autopilot (--connect): the simulator is system 1")
     status = _status_bind(args)
-    overrides = list(args.overrides) + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else [])
+    overrides = (list(args.overrides) + mode_overrides(args)
+                 + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else []))
     say = (lambda *_: None) if args.quiet else (lambda text: print(text, flush=True))
     say(f"{'checking' if args.scenario.suffix.lower() == '.json' else 'planning'} {args.scenario.name} ...")
     doc, sc = _plan_doc_for(args.scenario, args.scenario_file, overrides, args.seed, feasible_only=False,

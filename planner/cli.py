@@ -17,7 +17,7 @@ import numpy as np
 
 from planner import console
 from planner.errors import FuseplanError
-from planner.world.config import ALGORITHM_NAMES, ACOConfig
+from planner.world.config import ALGORITHM_NAMES, PAPER_MODE, ACOConfig
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_INFEASIBLE = 0, 2, 3
 ACO_INITS: tuple[str, ...] = typing.get_args(typing.get_type_hints(ACOConfig)["init"])
@@ -31,12 +31,25 @@ def make_output_dir(path: Path) -> None:
         raise FuseplanError(f"{path}: cannot create the output directory: {e.strerror or e}") from e
 
 
+def add_paper_option(parser: argparse.ArgumentParser) -> None:
+    """``--paper``: plan in paper mode, the paper's planners as published (no roadmap pipeline)."""
+    parser.add_argument("--paper", action="store_true",
+                        help="paper mode: the paper's planners as published, without the roadmap pipeline "
+                             f"(--set {PAPER_MODE}); the default is the roadmap pipeline")
+
+
+def mode_overrides(args: argparse.Namespace) -> list[str]:
+    """The overrides that ``--paper`` stands for (none without it)."""
+    return [PAPER_MODE] if getattr(args, "paper", False) else []
+
+
 def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.ArgumentParser]:
     """Register plan, compare and bench on ``sub``; returns their parsers by name (the companion adds options)."""
     pl = sub.add_parser("plan", help="plan a route for a scenario and write PLAN.json")
     pl.add_argument("scenario", type=Path, help="scenario TOML file (see docs/scenario_format.md)")
     pl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None,
                     help="optimiser (default: the scenario's planner.algorithm, else fusion)")
+    add_paper_option(pl)
     pl.add_argument("--aco-init", choices=ACO_INITS, default=None,
                     help="fusion: ACO pheromone initialisation (default gkdm)")
     pl.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
@@ -109,7 +122,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from planner.workload import check_workload
     from planner.world.scenario import load_scenario
 
-    overrides = list(args.overrides)
+    overrides = list(args.overrides) + mode_overrides(args)
     if args.algorithm:
         overrides.append(f'planner.algorithm="{args.algorithm}"')
     if args.seed is not None:

@@ -268,15 +268,19 @@ def _auto_or_metres(value: float) -> float:
     return value
 
 
+PAPER_MODE = "planner.roadmap.enabled=false"  # the override that selects paper mode (--paper; the paper benches)
+
+
 @dataclass(frozen=True)
 class RoadmapConfig:
     """The roadmap pipeline of the fusion (docs/method.md §15): a lattice roadmap of the static world gives
     diverse guide routes, the swarm searches around them in the guide-relative encoding, and the colony walks
-    the roadmap. ``enabled = false`` is the paper's fusion as published (docs/method.md §9)."""
+    the roadmap. The default for every plan and replan; ``enabled = false`` is the paper mode: the paper's
+    planners as published (docs/method.md §9), which the paper benches pin."""
 
     __pydantic_config__ = STRICT
 
-    enabled: bool = False  # opt-in until the scripted-intruder encounters follow the route (docs/method.md §15)
+    enabled: bool = True  # false: paper mode (the paper's fusion, SPSO and baselines as published)
     # horizontal lattice spacing, m (0: sqrt(area / 1600), at least 10 m); a finer one than 1 m resolves nothing
     # the cost does not
     spacing: Annotated[float, AfterValidator(_auto_or_metres)] = 0.0
