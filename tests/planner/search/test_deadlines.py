@@ -6,12 +6,14 @@ the margins below are fractions of that delay, not guesses at the machine's spee
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from planner.deadline import Deadline
 from planner.plan import plan, problem_from_scenario
 from planner.problem import Evaluation, PlanningProblem
 from planner.search.aco import AntColony, lattice_setup_s
@@ -69,6 +71,25 @@ def warm() -> None:
 def static():  # noqa: ANN201
     sc = load_scenario(SCENARIOS / "rescue_static.toml", ["planner.pso.n_pop=30"])
     return sc, problem_from_scenario(sc)
+
+
+def test_a_deadline_shares_what_is_left_and_without_a_budget_is_never_out_of_time() -> None:
+    """One object for a budget (issue 34): what is left, a share of it from now (never past the parent), a reserve
+    kept out; ``never()`` is infinite, so the same code runs without a budget."""
+    clock = FakeClock()
+    d = Deadline.after(1.0, clock)
+    assert d.bounded and d.remaining() == 1.0 and d.affords(1.0) and not d.affords(1.01)
+    clock.t += 0.4
+    assert d.elapsed() == pytest.approx(0.4) and d.remaining() == pytest.approx(0.6)
+    half = d.share(0.5)  # from now, half of the 0.6 s left
+    assert half.start == clock.t and half.seconds == pytest.approx(0.3) and half.remaining() == pytest.approx(0.3)
+    assert d.share(2.0).seconds == pytest.approx(0.6)  # a share never ends after its parent
+    assert d.minus(0.1).remaining() == pytest.approx(0.5) and d.minus(5.0).seconds == 0.0
+    clock.t += 1.0  # overrun: nothing left to share
+    assert d.remaining() == pytest.approx(-0.4) and d.share(0.5).seconds == 0.0 and not d.affords(0.0)
+    free = Deadline.never(clock)
+    assert not free.bounded and free.remaining() == math.inf and free.affords(1e9)
+    assert free.share(0.0) is free and not free.minus(1.0).bounded and not Deadline.after(None, clock).bounded
 
 
 def test_wall_clock_predicts_the_next_iteration_from_the_longest_recent_one() -> None:
