@@ -15,6 +15,7 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import Evaluation, PlanningProblem
 from planner.search.alloc import tune_allocator
 from planner.search.spso import SphericalPSO
@@ -97,7 +98,7 @@ def problem_from_scenario(scenario: Scenario, start_time: float | None = None) -
 
 class Optimiser(Protocol):
     def run(self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = ...,
-            budget_s: float | None = ..., progress: Callable[[int, int, float], None] | None = ...,
+            deadline: Deadline = ..., progress: Callable[[int, int, float], None] | None = ...,
             ) -> OptimiserResult: ...
 
 
@@ -128,20 +129,22 @@ def make_optimiser(settings: PlannerSettings) -> Optimiser:
 
 def plan(
     problem: PlanningProblem, settings: PlannerSettings, rng: np.random.Generator,
-    initial_paths: np.ndarray | None = None, budget_s: float | None = None, seed: int | None = None,
+    initial_paths: np.ndarray | None = None, deadline: Deadline = NEVER, seed: int | None = None,
     progress: Callable[[int, int, float], None] | None = None,
 ) -> PlanResult:
-    """Plan a route; every random choice comes from ``rng``. ``budget_s`` bounds the whole plan's wall time:
-    the search gets it less :func:`post_reserve_s` (the smoothing and checks after it) and stops before an
-    iteration that would overrun that (:class:`planner.search.termination.WallClock`); a search the budget
-    cut short ends ``approximate`` (or ``timeout`` when infeasible). Without a budget nothing is timed. Settings
-    that ask for more memory or time than any real job raise :class:`planner.workload.JobTooLarge` first."""
-    check_workload(problem, settings, budget_s)  # an impossible job fails here, in one line, before any allocation
+    """Plan a route; every random choice comes from ``rng``. ``deadline`` bounds the whole plan's wall time
+    (a caller with a budget in seconds passes ``Deadline.after(seconds)``): the search gets it less
+    :func:`post_reserve_s` (the smoothing and checks after it, :meth:`Deadline.minus`) and stops before an
+    iteration that would overrun that (:class:`planner.search.termination.WallClock`); a search the deadline
+    cut short ends ``approximate`` (or ``timeout`` when infeasible). Without a budget (:data:`NEVER`, the
+    default) the search is never cut short. Settings that ask for more memory or time than any real job raise
+    :class:`planner.workload.JobTooLarge` first."""
+    # an impossible job fails here, in one line, before any allocation
+    check_workload(problem, settings, budgeted=deadline.bounded)
     tune_allocator()
     t0 = time.perf_counter()
-    search_s = None if budget_s is None else max(budget_s - post_reserve_s(problem, settings), 0.0)
-    opt = make_optimiser(settings).run(problem, rng, initial_paths=initial_paths, budget_s=search_s,
-                                       progress=progress)
+    opt = make_optimiser(settings).run(problem, rng, initial_paths=initial_paths,
+                                       deadline=deadline.minus(post_reserve_s(problem, settings)), progress=progress)
     waypoints = merge_close_waypoints(opt.path)
     evaluation = problem.evaluate(waypoints[None]) if len(waypoints) != len(opt.path) else opt.evaluation
     traj, check, feasible = assess(problem, settings, waypoints, evaluation)

@@ -191,16 +191,17 @@ def _duration(seconds: float) -> str:
     return f"{seconds / 60:.3g} min" if seconds >= 60 else f"{seconds:.2g} s"
 
 
-def check_workload(problem: PlanningProblem, settings: PlannerSettings, budget_s: float | None = None,
+def check_workload(problem: PlanningProblem, settings: PlannerSettings, budgeted: bool = False,
                    source: str | None = None) -> None:
     """Raise :class:`JobTooLarge` (one line: what, how much, the limit, which setting to change; after
     ``source``, the scenario file, when given) when ``settings`` on ``problem`` would take more memory or time than
-    :data:`MAX_SAMPLES` … :data:`MAX_PLAN_S` allow. ``budget_s``: the plan's time budget, if any."""
+    :data:`MAX_SAMPLES` … :data:`MAX_PLAN_S` allow. ``budgeted``: the plan has a time budget (which bounds its
+    search)."""
     where = f"{source}: " if source else ""
     for part, limit in memory_parts(problem, settings):
         if part.amount > limit:
             raise JobTooLarge(f"{where}{part.detail} (limit {_n(limit)}): {part.advice}")
-    parts = time_parts(problem, settings, budgeted=budget_s is not None)
+    parts = time_parts(problem, settings, budgeted)
     total = sum(p.amount for p in parts)
     if total > MAX_PLAN_S:
         worst = max(parts, key=lambda p: p.amount)
@@ -209,6 +210,6 @@ def check_workload(problem: PlanningProblem, settings: PlannerSettings, budget_s
                           f"{worst.advice}")
 
 
-def estimate_s(problem: PlanningProblem, settings: PlannerSettings, budget_s: float | None = None) -> float:
+def estimate_s(problem: PlanningProblem, settings: PlannerSettings, budgeted: bool = False) -> float:
     """The upper time estimate :func:`check_workload` holds to :data:`MAX_PLAN_S`, in seconds."""
-    return sum(p.amount for p in time_parts(problem, settings, budgeted=budget_s is not None))
+    return sum(p.amount for p in time_parts(problem, settings, budgeted))

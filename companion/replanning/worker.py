@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 
 from planner import kernel
+from planner.deadline import Deadline
 from planner.plan import plan
 from planner.world.scenario import Scenario
 
@@ -35,7 +36,8 @@ class WorkerPlan:
 
 def _plan_job(problem: Any, settings: Any, seed: list[int], initial: np.ndarray, budget_s: float) -> WorkerPlan:
     """One replan in the worker process."""
-    result = plan(problem, settings, np.random.default_rng(seed), initial, budget_s)
+    # the deadline starts here, in the worker process, when the job does
+    result = plan(problem, settings, np.random.default_rng(seed), initial, Deadline.after(budget_s))
     violations = {k: int(v[0]) for k, v in result.evaluation.violations.items() if int(v[0])}
     return WorkerPlan(result.status.value, np.asarray(result.waypoints), violations, result.optimiser.time_s)
 

@@ -86,7 +86,8 @@ class BenchSettings:
         path = generated_map(variant.family, self.seed_base) if variant.family else self.scenario_for(variant)
         sc = load_scenario(path, self.overrides_for(variant))
         if variant.peer is None:
-            check_workload(problem_from_scenario(sc), sc.planner, variant.budget_s, source=str(path))
+            check_workload(problem_from_scenario(sc), sc.planner, budgeted=variant.budget_s is not None,
+                           source=str(path))
 
 
 @dataclass(frozen=True)
@@ -181,6 +182,7 @@ def warm_once(key: Any, problem: Any, settings: Any) -> None:
 
 def run_one(spec: RunSpec) -> dict[str, Any]:
     """Plan once (in a worker process) and return a flat, JSON-ready record."""
+    from planner.deadline import Deadline
     from planner.plan import json_safe, plan, problem_from_scenario, uses_roadmap
     from planner.world.scenario import load_scenario
 
@@ -200,7 +202,8 @@ def run_one(spec: RunSpec) -> dict[str, Any]:
 
         build_s = roadmap.routes(problem, sc.planner.roadmap)[0].build_s  # builds (and caches) what plan uses
     warm_once((spec.scenario, spec.overrides), problem, sc.planner)
-    res = plan(problem, sc.planner, np.random.default_rng(spec.seed), seed=spec.seed, budget_s=spec.budget_s)
+    res = plan(problem, sc.planner, np.random.default_rng(spec.seed), seed=spec.seed,
+               deadline=Deadline.after(spec.budget_s))
     m = res.metrics(sc.hazard.d_safe)
     return json_safe({
         **_planted_length(spec), "roadmap_build_s": build_s,

@@ -215,6 +215,7 @@ def _set_environment(job: Job) -> None:
 
 def run_job(job: Job) -> dict[str, Any]:
     """Plan once in this worker with the job's kernel and broad phase; a flat, JSON-ready record."""
+    from planner.deadline import Deadline
     from planner.plan import json_safe, plan, problem_from_scenario, uses_roadmap
     from planner.world.scenario import load_scenario
 
@@ -241,7 +242,8 @@ def run_job(job: Job) -> dict[str, Any]:
         roadmap.routes(problem, settings.roadmap)
     # the first plan in a process loads the compiled code and the modules: not what is measured
     runner.warm_once((job.scenario, job.overrides, job.kernel, job.broad_phase), problem, settings)
-    res = plan(problem, settings, np.random.default_rng(job.seed), seed=job.seed, budget_s=job.budget_s)
+    res = plan(problem, settings, np.random.default_rng(job.seed), seed=job.seed,
+               deadline=Deadline.after(job.budget_s))
     return json_safe({
         **common, "kernel": kernel.chosen(), "n_waypoints": settings.pso.n_waypoints,
         "algorithm": settings.algorithm, "status": res.status.value, "feasible": res.feasible, "cost": res.cost,
@@ -691,7 +693,8 @@ def check(s: SpeedSettings) -> None:
             if (j.scenario, j.overrides, j.budget_s) not in seen:
                 seen.add((j.scenario, j.overrides, j.budget_s))
                 sc = load_scenario(j.scenario, j.overrides)
-                check_workload(problem_from_scenario(sc), sc.planner, j.budget_s, source=str(j.scenario))
+                check_workload(problem_from_scenario(sc), sc.planner, budgeted=j.budget_s is not None,
+                               source=str(j.scenario))
 
 
 def n_jobs(s: SpeedSettings) -> int:

@@ -18,9 +18,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import PlanningProblem
 from planner.search.swarm import OptimiserResult, take
-from planner.search.termination import AnyOf, MaxIterations, Progress, Stagnation, deadline
+from planner.search.termination import AnyOf, MaxIterations, Progress, Stagnation, WallClock
 from planner.world.config import ACOConfig
 from planner.world.geometry import segment_point_distance
 
@@ -175,23 +176,21 @@ class AntColony:
 
     def run(
         self, problem: PlanningProblem, rng: np.random.Generator, route: np.ndarray, ref_cost: float,
-        budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
+        deadline: Deadline = NEVER, progress: Callable[[int, int, float], None] | None = None,
     ) -> OptimiserResult:
         """Refine ``route`` (L, 3); ``ref_cost`` (the seed's cost) scales deposits: a path of that cost
-        deposits ``cfg.deposit`` per edge. History: best cost after each iteration, seed included. With
-        ``budget_s``: no lattice is built that :func:`lattice_setup_s` says cannot be in time (the seed is the
+        deposits ``cfg.deposit`` per edge. History: best cost after each iteration, seed included. Within
+        ``deadline``: no lattice is built that :func:`lattice_setup_s` says cannot be in time (the seed is the
         answer), and no iteration starts that would end after it (predicted by the seed's evaluation, then by
         the longest recent iteration)."""
         cfg = self.cfg
         t0 = time.perf_counter()
-        wall = deadline(budget_s)
-        stop = AnyOf([MaxIterations(cfg.max_iter), Stagnation(cfg.stagnation_iters)])
-        if wall is not None:
-            stop.criteria.append(wall)
-            if not wall.affords(lattice_setup_s(problem, cfg, len(route))):  # the set-up alone would overrun
-                ev = problem.evaluate(np.asarray(route, dtype=float)[None])
-                return OptimiserResult(np.asarray(route, dtype=float), float(ev.total[0]), ev, [], 0, wall.name,
-                                       time.perf_counter() - t0, 1)
+        wall = WallClock(deadline)
+        stop = AnyOf([MaxIterations(cfg.max_iter), Stagnation(cfg.stagnation_iters), wall])
+        if not wall.affords(lattice_setup_s(problem, cfg, len(route))):  # the set-up alone would overrun
+            ev = problem.evaluate(np.asarray(route, dtype=float)[None])
+            return OptimiserResult(np.asarray(route, dtype=float), float(ev.total[0]), ev, [], 0, wall.name,
+                                   time.perf_counter() - t0, 1)
         lattice = build_lattice(route, cfg)
         graph = colony_graph(lattice, problem, cfg)
         tau = initial_pheromone(lattice, cfg)
@@ -206,10 +205,10 @@ class AntColony:
         history: list[float] = []
         stagnant = 0
         it = 0
-        if wall is not None:  # iterations are timed from here; the seed's evaluation stands in for the first
-            wall.first_s = time.perf_counter() - t_seed
-            wall.restart_lap()
-        while wall is None or not wall.done():
+        # iterations are timed from here; the seed's evaluation stands in for the first
+        wall.first_s = time.perf_counter() - t_seed
+        wall.restart_lap()
+        while not wall.done():
             choice = construct(lattice, graph, tau, cfg, rng)
             paths = lattice.nodes[layers, choice]  # (n_ants, L, 3)
             ev = problem.evaluate(paths)
@@ -224,8 +223,7 @@ class AntColony:
             history.append(best_cost)
             if progress is not None:
                 progress(it, cfg.max_iter, best_cost)
-            if wall is not None:
-                wall.lap()
+            wall.lap()
             if stop.done(Progress(it, best_cost, stagnant, 0.0, stop.elapsed())):
                 break
         else:  # the budget ran out between the checks, or before the first ant moved (the lattice's set-up)
@@ -276,12 +274,12 @@ class ColdColony:
 
     def run(
         self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = None,
-        budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
+        deadline: Deadline = NEVER, progress: Callable[[int, int, float], None] | None = None,
     ) -> OptimiserResult:
         s = np.linspace(0.0, 1.0, self.n_waypoints + 2)[:, None]
         line = problem.start + s * (problem.goal - problem.start)  # (n + 2, 3)
         ref = float(problem.evaluate(line[None]).total[0])
-        return AntColony(self.cfg).run(problem, rng, line, ref, budget_s=budget_s, progress=progress)
+        return AntColony(self.cfg).run(problem, rng, line, ref, deadline=deadline, progress=progress)
 
 
 def lattice_setup_s(problem: PlanningProblem, cfg: ACOConfig, n_points: int) -> float:

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import PlanningProblem
 from planner.search import roadmap
 from planner.search.aco import AntColony, lattice_setup_s
@@ -59,75 +60,63 @@ class Fusion:
 
     def run(
         self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = None,
-        budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
+        deadline: Deadline = NEVER, progress: Callable[[int, int, float], None] | None = None,
     ) -> FusionResult:
-        """Phase I SPSO (its stop criteria are the switch), phase II ACO on what budget is left; with the
-        roadmap enabled, the roadmap pipeline (:meth:`_run_roadmap`)."""
+        """Phase I SPSO (its stop criteria are the switch), phase II ACO on what is left of ``deadline``; with
+        the roadmap enabled, the roadmap pipeline (:meth:`_run_roadmap`)."""
         t0 = time.perf_counter()
         s = self.settings
         if s.roadmap.enabled:
-            return self._run_roadmap(problem, rng, initial_paths, budget_s, progress, t0)
-        pso_budget = None if budget_s is None else budget_s * _swarm_share(
-            budget_s, problem, s.aco, s.pso.n_waypoints + 2)
-        pso = SphericalPSO(s.pso).run(problem, rng, initial_paths=initial_paths, budget_s=pso_budget,
+            return self._run_roadmap(problem, rng, initial_paths, deadline, progress, t0)
+        share = _swarm_share(deadline.remaining(), problem, s.aco, s.pso.n_waypoints + 2)
+        pso = SphericalPSO(s.pso).run(problem, rng, initial_paths=initial_paths, deadline=deadline.share(share),
                                       progress=progress)
-        left = None if budget_s is None else budget_s - (time.perf_counter() - t0)
-        if left is not None and not _affords_lattice(left, problem, s.aco, len(pso.path), _iteration_s(pso)):
+        if not _affords_lattice(deadline.remaining(), problem, s.aco, len(pso.path), _iteration_s(pso)):
             return self._finish([("pso", pso)], t0)  # no time for a colony: SPSO's answer stands
-        aco = AntColony(s.aco).run(problem, rng, pso.path, pso.cost, budget_s=left, progress=progress)
+        aco = AntColony(s.aco).run(problem, rng, pso.path, pso.cost, deadline=deadline, progress=progress)
         return self._finish([("pso", pso), ("aco", aco)], t0)
 
     def _run_roadmap(
         self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None,
-        budget_s: float | None, progress: Callable[[int, int, float], None] | None, t0: float,
+        deadline: Deadline, progress: Callable[[int, int, float], None] | None, t0: float,
     ) -> FusionResult:
         """docs/method.md §15: roadmap guides → SPSO in the guide's encoding, seeded with every guide → GKDM from
         the swarm's elites onto the roadmap → ants walk the roadmap → if they found a better corridor, SPSO
         around it → the corridor-lattice colony refines the winner. Without a roadmap route: the paper's
         fusion, and the record says at which resolution none was found."""
         s = self.settings
-        rm, q, weights, routes, cfg = roadmap.routes(problem, s.roadmap,
-                                                     None if budget_s is None else ROUTES_SHARE * budget_s)
+        rm, q, weights, routes, cfg = roadmap.routes(problem, s.roadmap, deadline.share(ROUTES_SHARE))
         trace: dict[str, list[np.ndarray]] = {"guides": list(routes)}
         extra = {"roadmap": PhaseRecord(math.nan, len(routes), time.perf_counter() - t0, 0,
                                         f"{len(routes)} routes at {rm.spacing:.0f} m resolution" if routes
                                         else f"no route at {rm.spacing:.0f} m resolution")}
-
-        def left() -> float | None:
-            return None if budget_s is None else budget_s - (time.perf_counter() - t0)
-
         if not routes:  # the paper's planner from the cone (SPSO alone for the spso algorithm)
-            budget = left()
-            budget = None if budget is None else max(budget, 0.0)
             if self.swarm_only:
-                pso = SphericalPSO(s.pso).run(problem, rng, initial_paths=initial_paths, budget_s=budget,
+                pso = SphericalPSO(s.pso).run(problem, rng, initial_paths=initial_paths, deadline=deadline,
                                               progress=progress)
                 return self._finish([("pso", pso)], t0, extra)
             paper = Fusion(replace(s, roadmap=replace(s.roadmap, enabled=False))).run(
-                problem, rng, initial_paths, budget, progress)
+                problem, rng, initial_paths, deadline, progress)
             paper.phases = {**extra, **paper.phases}
             paper.time_s = time.perf_counter() - t0
             return paper
-        enc, seeds = self._guided(problem, routes[0], routes[1:], initial_paths, rng, left(), extra)
-        budget = left()
+        enc, seeds = self._guided(problem, routes[0], routes[1:], initial_paths, rng, deadline, extra)
+        left = deadline.remaining()
         share = 1.0 - s.aco.budget_share
         guided = replace(s.pso, stagnation_tol=cfg.stagnation_tol)
         # the swarm's share of what is left: all of it when nothing follows (swarm only) or nothing could (neither
         # colony affordable in the rest), else 1 − budget_share
-        first = None if budget is None else max(budget, 0.0) * (
-            1.0 if self.swarm_only else share if _affords_colony(budget * (1.0 - share), q, 0.0)
-            else _swarm_share(budget, problem, s.aco, enc.n + 2))
+        first = (1.0 if self.swarm_only else share if _affords_colony(left * (1.0 - share), q, 0.0)
+                 else _swarm_share(left, problem, s.aco, enc.n + 2))
         pso = SphericalPSO(guided).run(problem, rng, initial_paths=seeds, encoding=enc, progress=progress,
-                                      budget_s=first)
+                                      deadline=deadline.share(first))
         done: list[tuple[str, OptimiserResult]] = [("pso", pso)]
         if self.swarm_only or pso.stop_reason == Settled.name:  # a safe route was all that was asked for
             return self._finish(done, t0, extra, lattice=False, trace=trace)
-        budget = left()
         step_s = _iteration_s(pso)  # what one swarm iteration took: the guess at any later phase's first step
-        if budget is None or _affords_colony(budget, q, step_s):
+        if _affords_colony(deadline.remaining(), q, step_s):
             colony = RoadmapColony(s.aco, enc.n + 2, cfg.colony_iter).run(
-                q, weights, problem, self._elites(pso, enc, rm.spacing), rng,
-                None if budget is None else 0.5 * budget, first_s=step_s)
+                q, weights, problem, self._elites(pso, enc, rm.spacing), rng, deadline.share(0.5), first_s=step_s)
             trace["ants"] = colony.ant_paths
             if colony.route is not None:
                 done.append(("colony", OptimiserResult(
@@ -136,36 +125,33 @@ class Fusion:
                 guide = roadmap.guide(colony.path, rm, problem, cfg)
                 # the ants found a cheaper route (on a hard map: a way SPSO could not make flyable) or another
                 # corridor: the swarm makes it flyable around the ants' corridor
-                budget = left()
-                # (with a budget, only when a repair step, the swarm's first evaluation and an iteration fit)
+                # (only when a repair step, the swarm's first evaluation and an iteration fit)
                 if (colony.cost < pso.cost or roadmap.mean_distance(guide, pso.path) > rm.spacing) and (
-                        budget is None or budget >= 3.0 * step_s):
-                    enc2, seeds2 = self._guided(problem, guide, [colony.route, pso.path], None, rng, left())
-                    budget = left()
+                        deadline.affords(3.0 * step_s)):
+                    enc2, seeds2 = self._guided(problem, guide, [colony.route, pso.path], None, rng, deadline)
                     pso2 = SphericalPSO(replace(guided, max_iter=max(1, s.pso.max_iter // 2))).run(
                         problem, rng, initial_paths=seeds2, encoding=enc2, progress=progress,
-                        budget_s=None if budget is None else max(budget, 0.0) * share)
+                        deadline=deadline.share(share))
                     done.append(("pso2", pso2))
         best = min(done, key=lambda d: d[1].cost)[1]
-        budget = left()
-        if budget is None or _affords_lattice(budget, problem, s.aco, len(best.path), step_s):
-            done.append(("aco", AntColony(s.aco).run(problem, rng, best.path, best.cost, budget_s=budget,
+        if _affords_lattice(deadline.remaining(), problem, s.aco, len(best.path), step_s):
+            done.append(("aco", AntColony(s.aco).run(problem, rng, best.path, best.cost, deadline=deadline,
                                                      progress=progress)))
         return self._finish(done, t0, extra, trace=trace)
 
     def _guided(self, problem: PlanningProblem, guide: np.ndarray, others: list[np.ndarray],
-                initial_paths: np.ndarray | None, rng: np.random.Generator, budget_s: float | None,
+                initial_paths: np.ndarray | None, rng: np.random.Generator, deadline: Deadline,
                 record: dict[str, PhaseRecord] | None = None) -> tuple[Encoding, np.ndarray]:
         """The encoding around ``guide`` (docs/method.md §15.2) and the seeds: the guide as the swarm's points,
-        repaired where it has faults (§15.5, on at most ``REPAIR_SHARE`` of ``budget_s``), then ``others`` and
-        the caller's ``initial_paths``, each fitted to the encoding's waypoint count. ``record``: gets the
-        repair's phase record."""
+        repaired where it has faults (§15.5, on at most ``REPAIR_SHARE`` of what is left of ``deadline``), then
+        ``others`` and the caller's ``initial_paths``, each fitted to the encoding's waypoint count. ``record``:
+        gets the repair's phase record."""
         cfg = self.settings.roadmap
         if len(guide) - 2 > cfg.max_guide_points:
             guide = resample_paths(guide[None], cfg.max_guide_points + 2)[0]
         enc, guide_pts = guided_encoding(problem, self.settings.pso, guide)
         t = time.perf_counter()
-        fix = repair(problem, guide_pts, rng, None if budget_s is None else t + REPAIR_SHARE * max(budget_s, 0.0))
+        fix = repair(problem, guide_pts, rng, deadline.share(REPAIR_SHARE))
         if fix.rounds:  # the guide had faults: the encoding follows the repaired route
             enc, guide_pts = guided_encoding(problem, self.settings.pso, fix.path, n=len(fix.path) - 2)
         if record is not None:
@@ -221,23 +207,24 @@ def _fit(route: np.ndarray, count: int) -> np.ndarray:
     return resample_paths(route[None], count)[0]
 
 
-def _affords_lattice(budget_s: float, problem: PlanningProblem, cfg: ACOConfig, n_points: int,
+def _affords_lattice(left_s: float, problem: PlanningProblem, cfg: ACOConfig, n_points: int,
                      step_s: float) -> bool:
-    """True when a corridor-lattice colony fits in ``budget_s``: its set-up (the estimate with a quarter more),
-    the seed's evaluation and an iteration (each guessed as ``step_s``, a swarm iteration's time)."""
-    return budget_s >= max(MIN_ACO_BUDGET_S, 1.25 * lattice_setup_s(problem, cfg, n_points) + 2.0 * step_s)
+    """True when a corridor-lattice colony fits in ``left_s`` seconds: its set-up (the estimate with a quarter
+    more), the seed's evaluation and an iteration (each guessed as ``step_s``, a swarm iteration's time)."""
+    return left_s >= max(MIN_ACO_BUDGET_S, 1.25 * lattice_setup_s(problem, cfg, n_points) + 2.0 * step_s)
 
 
-def _affords_colony(budget_s: float, q: roadmap.Query, step_s: float) -> bool:
-    """True when the roadmap colony, given half of ``budget_s``, fits its set-up (the estimate with a quarter
+def _affords_colony(left_s: float, q: roadmap.Query, step_s: float) -> bool:
+    """True when the roadmap colony, given half of ``left_s``, fits its set-up (the estimate with a quarter
     more, :func:`planner.search.roadmap_colony.setup_s`) and a first walk (guessed as two ``step_s``)."""
-    return budget_s > MIN_COLONY_BUDGET_S and 0.5 * budget_s >= 1.25 * colony_setup_s(q) + 2.0 * step_s
+    return left_s > MIN_COLONY_BUDGET_S and 0.5 * left_s >= 1.25 * colony_setup_s(q) + 2.0 * step_s
 
 
-def _swarm_share(budget_s: float, problem: PlanningProblem, cfg: ACOConfig, n_points: int) -> float:
-    """The share of ``budget_s`` a swarm phase gets before the colonies: ``1 − budget_share``, or all of it when
-    what it would leave could not pay for a lattice colony's set-up (the colony would be skipped anyway)."""
-    rest = budget_s * cfg.budget_share
+def _swarm_share(left_s: float, problem: PlanningProblem, cfg: ACOConfig, n_points: int) -> float:
+    """The share of the ``left_s`` seconds a swarm phase gets before the colonies: ``1 − budget_share``, or all
+    of it when what it would leave could not pay for a lattice colony's set-up (the colony would be skipped
+    anyway)."""
+    rest = left_s * cfg.budget_share
     return 1.0 - cfg.budget_share if _affords_lattice(rest, problem, cfg, n_points, 0.0) else 1.0
 
 

@@ -6,11 +6,11 @@ the whole route's cost falls."""
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, replace
 
 import numpy as np
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import PlanningProblem
 from planner.search.termination import WallClock
 
@@ -42,19 +42,19 @@ def fault_windows(problem: PlanningProblem, path: np.ndarray) -> np.ndarray:
     return j[bad]
 
 
-def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator, deadline: float | None = None,
+def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator, deadline: Deadline = NEVER,
            rounds: int = 8, candidates: int = 48) -> RepairResult:
     """Move the waypoints of each faulty window of ``path`` (N, 3; the ends stay) until the route has no
-    violation, ``rounds`` rounds pass or ``deadline`` (time.perf_counter()) is reached: each step (locating the
-    faults, or one window's candidates) starts only if it is predicted to end by then, as long as the longest
-    recent step (:class:`planner.search.termination.WallClock`). Per window and round,
+    violation, ``rounds`` rounds pass or ``deadline`` is reached: each step (locating the faults, or one window's
+    candidates) starts only if it is predicted to end by then, as long as the longest recent step
+    (:class:`planner.search.termination.WallClock`). Per window and round,
     ``candidates`` routes with that window's interior points displaced (Gaussian, a third of the shorter
     neighbouring leg horizontally, a quarter of that vertically; the scale halves after a round without
     gain) are scored by the cost of the stretch they change (every other term of the route's cost is the same
     for all of them; with moving threats, the whole route), and the cheapest replaces the route when it is
     cheaper. Without a located fault (a moving threat) every interior point may move."""
     best = np.array(path, dtype=float)
-    t = time.perf_counter()
+    t = deadline.clock()
     ev = problem.evaluate(best)
     cost, viol = float(ev.total[0]), int(ev.n_violations[0])
     n = len(best)
@@ -63,15 +63,14 @@ def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator,
     timed = problem.timed_threats
     evaluations = used = 1
     # the first step is predicted from the route's own evaluation
-    wall = None if deadline is None else WallClock(deadline - time.perf_counter(), first_s=time.perf_counter() - t)
-    while used <= rounds and viol and n > 2 and (wall is None or not wall.done()):
+    wall = WallClock(deadline, first_s=deadline.clock() - t)
+    while used <= rounds and viol and n > 2 and not wall.done():
         starts = fault_windows(problem, best)
         evaluations += max(n - WINDOW + 1, 0)  # the windows scored
-        if wall is not None:
-            wall.lap()
+        wall.lap()
         for idx in [np.arange(j, j + WINDOW) for j in starts] or [np.arange(n)]:  # a route's few faults
             idx = idx[(idx > 0) & (idx < n - 1)]
-            if not len(idx) or (wall is not None and wall.done()):
+            if not len(idx) or wall.done():
                 continue
             reach = np.minimum(legs[idx - 1], legs[idx]) * scale[idx]  # interior: both legs exist
             step = rng.standard_normal((candidates, len(idx), 3)) * reach[None, :, None]
@@ -92,8 +91,7 @@ def repair(problem: PlanningProblem, path: np.ndarray, rng: np.random.Generator,
                 legs = np.linalg.norm(np.diff(best[:, :2], axis=0), axis=1)
             else:
                 scale[idx] *= 0.5
-            if wall is not None:
-                wall.lap()
+            wall.lap()
             if not viol:
                 break
         used += 1

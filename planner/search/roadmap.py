@@ -26,8 +26,9 @@ from scipy.sparse import coo_matrix, csr_matrix
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import PlanningProblem
-from planner.search.termination import WallClock, deadline
+from planner.search.termination import WallClock
 from planner.trajectory.checks import CHUNK_PAIRS, obstacle_clearance, radar_clearance
 from planner.trajectory.smoothing import deviation_bound, peak_curvature, peak_factor, segment_samples
 from planner.world.config import RoadmapConfig
@@ -511,23 +512,24 @@ def guide(points: np.ndarray, rm: Roadmap, problem: PlanningProblem, cfg: Roadma
 
 
 def diverse_routes(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, q: Query | None = None,
-                   weights: np.ndarray | None = None, wall: WallClock | None = None) -> list[np.ndarray]:
+                   weights: np.ndarray | None = None, deadline: Deadline = NEVER) -> list[np.ndarray]:
     """Up to ``cfg.n_routes`` start→goal routes (M_k, 3) in different corridors, best first, shortcut: after
     each, edges within three spacings of it weigh ``reuse_penalty`` times more and the search repeats; a roadmap
     path within one spacing (mean distance) of an earlier one is dropped before it is made a guide.
     ``q``/``weights``: the attached query and its
     edge weights (default: :func:`attach`, clearance and threat weights). Empty: no route at this resolution.
-    ``wall``: a time budget; a route after the first is searched only when one more (as long as the longest so
-    far) fits in it."""
+    ``deadline``: a route after the first is searched only when one more (as long as the longest so far) fits in
+    it."""
     if q is None:
         q = attach(rm, problem, cfg)
     if weights is None:
         weights = timed_weights(q, problem, clearance_weights(q, problem))
     base = weights
+    wall = WallClock(deadline)
     routes: list[np.ndarray] = []
     found: list[np.ndarray] = []  # the roadmap paths of the routes kept
     for k in range(cfg.n_routes):
-        if wall is not None and k:
+        if k:
             wall.lap()  # the route before this one
             if wall.done():
                 break
@@ -546,18 +548,18 @@ def diverse_routes(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, q:
     return routes
 
 
-def routes(problem: PlanningProblem, cfg: RoadmapConfig, budget_s: float | None = None,
+def routes(problem: PlanningProblem, cfg: RoadmapConfig, deadline: Deadline = NEVER,
            ) -> tuple[Roadmap, Query, np.ndarray, list[np.ndarray], RoadmapConfig]:
     """:func:`diverse_routes` on the cached roadmap; when it finds none, again without the extra margin, then at
     half the spacing (a finer roadmap, built once and cached too). Returns the roadmap, query, edge weights and
     routes of the last attempt and the settings it used; no routes: none at the finest resolution tried.
-    ``budget_s``: a fallback is tried only when it (as long as the longest attempt so far, plus a roadmap build
+    ``deadline``: a fallback is tried only when it (as long as the longest attempt so far, plus a roadmap build
     if it needs one) fits in what is left, and further routes only while one more fits (:func:`diverse_routes`)."""
     h = auto_spacing(problem, cfg)
-    wall = deadline(budget_s)
+    wall = WallClock(deadline)
     first: Roadmap | None = None
     for c in (cfg, replace(cfg, margin=0.0), replace(cfg, margin=0.0, spacing=0.5 * h)):
-        if wall is not None and first is not None:
+        if first is not None:
             wall.lap()
             if not wall.affords(wall.predicted_s() + _build_estimate_s(problem, c, first)):
                 break
@@ -565,7 +567,7 @@ def routes(problem: PlanningProblem, cfg: RoadmapConfig, budget_s: float | None 
         first = first or rm
         q = attach(rm, problem, c)
         weights = timed_weights(q, problem, clearance_weights(q, problem))
-        found = diverse_routes(rm, problem, c, q, weights, None if wall is None else deadline(wall.left()))
+        found = diverse_routes(rm, problem, c, q, weights, deadline)
         if found:
             break
     return rm, q, weights, found, c

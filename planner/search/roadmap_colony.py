@@ -19,12 +19,13 @@ import numpy as np
 from scipy.sparse.csgraph import dijkstra
 from scipy.spatial import cKDTree
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import Evaluation, PlanningProblem
 from planner.search.aco import enhanced_update
 from planner.search.encoding import resample_paths
 from planner.search.roadmap import Query, densify
 from planner.search.swarm import take
-from planner.search.termination import deadline
+from planner.search.termination import WallClock
 from planner.world.config import ACOConfig
 
 ELITE_WEIGHT = 0.5  # GKDM weight of the elite routes after the best
@@ -143,12 +144,12 @@ class RoadmapColony:
         self.max_iter = max_iter
 
     def run(self, q: Query, weights: np.ndarray, problem: PlanningProblem, elites: list[np.ndarray],
-            rng: np.random.Generator, budget_s: float | None = None, first_s: float = 0.0) -> ColonyResult:
-        """Walk the ants until ``max_iter``, stagnation or ``budget_s`` (checked before each walk against the
+            rng: np.random.Generator, deadline: Deadline = NEVER, first_s: float = 0.0) -> ColonyResult:
+        """Walk the ants until ``max_iter``, stagnation or ``deadline`` (checked before each walk against the
         longest recent one; ``first_s``: the caller's guess at the first, e.g. a swarm iteration's time)."""
         cfg = self.cfg
         t0 = time.perf_counter()
-        wall = deadline(budget_s, first_s=first_s)  # counts the set-up below too
+        wall = WallClock(deadline, first_s=first_s)  # the deadline counts the set-up below too
         adj = adjacency(q)
         to_goal = dijkstra(q.graph(weights), indices=q.goal)
         if not np.isfinite(to_goal[q.start]):
@@ -160,12 +161,11 @@ class RoadmapColony:
         it, evals, arrived_total, stagnant = 0, 0, 0, 0
         last_paths: list[np.ndarray] = []
         history: list[float] = []  # best so far after each iteration
-        if wall is not None:  # iterations are timed from here
-            wall.restart_lap()
+        wall.restart_lap()  # iterations are timed from here
         while it < self.max_iter and stagnant < cfg.stagnation_iters:
-            if it and wall is not None:  # the iteration just ended (its body may `continue`)
+            if it:  # the iteration just ended (its body may `continue`)
                 wall.lap()
-            if wall is not None and wall.done():  # the next walk, as long as the longest recent one, would overrun
+            if wall.done():  # the next walk, as long as the longest recent one, would overrun
                 break
             seq, arrived = walk(adj, tau, weights, to_goal, DETOUR_SCALE * spacing, q.start, q.goal, cfg.n_ants,
                                 MAX_STEPS_FACTOR * hops, cfg, rng)

@@ -12,6 +12,7 @@ from collections.abc import Callable
 import numpy as np
 
 from planner import kernel
+from planner.deadline import NEVER, Deadline
 from planner.problem import PlanningProblem
 from planner.search.encoding import Encoding, make_encoding
 from planner.search.swarm import (  # noqa: F401  (re-exported: the result types used to live here)
@@ -75,7 +76,7 @@ class SphericalPSO:
 
     def run(
         self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = None,
-        budget_s: float | None = None, encoding: Encoding | None = None,
+        deadline: Deadline = NEVER, encoding: Encoding | None = None,
         progress: Callable[[int, int, float], None] | None = None,
     ) -> OptimiserResult:
         """Optimise; ``initial_paths`` (k, n + 2, 3) replace the first k random particles (warm start)."""
@@ -93,4 +94,4 @@ class SphericalPSO:
             st.w = float(np.mean(w))
             return x
 
-        return run_swarm("spso", problem, cfg, enc, x0, step, budget_s, progress, v0=np.zeros_like(x0))
+        return run_swarm("spso", problem, cfg, enc, x0, step, deadline, progress, v0=np.zeros_like(x0))

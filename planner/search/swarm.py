@@ -5,7 +5,7 @@ An optimiser supplies a decision space (an object with ``sample``, ``encode``, `
 ``hi``, like :class:`planner.search.encoding.Encoding`) and a *step*: a function ``(it, state) → new positions``
 that moves the swarm once (it may keep velocities in ``state.v``). :func:`run_swarm` evaluates, updates
 the bests, records the history and stops on ``max_iterations``, ``stagnation``, ``diversity`` or
-``timeout`` (:mod:`planner.search.termination`; the time budget is checked before each iteration, against its
+``timeout`` (:mod:`planner.search.termination`; the deadline is checked before each iteration, against its
 predicted duration). Used by SPSO and all four baselines, so they stop and report alike.
 """
 
@@ -13,23 +13,22 @@ from __future__ import annotations
 
 import logging
 import math
-import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
 
 import numpy as np
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import Evaluation, PlanningProblem
 from planner.search.termination import (
     AnyOf,
-    Clock,
     Diversity,
     MaxIterations,
     Progress,
     Settled,
     Stagnation,
-    deadline,
+    WallClock,
 )
 from planner.world.config import SPSOConfig
 
@@ -130,32 +129,32 @@ def diversity(x: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
 
 def run_swarm(
     name: str, problem: PlanningProblem, budget: SPSOConfig, space: DecisionSpace, x0: np.ndarray,
-    step: Step, budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
-    v0: np.ndarray | None = None, clock: Clock = time.perf_counter,
+    step: Step, deadline: Deadline = NEVER, progress: Callable[[int, int, float], None] | None = None,
+    v0: np.ndarray | None = None,
 ) -> OptimiserResult:
     """Evaluate ``x0``, then apply ``step`` until a stop criterion fires.
 
     ``budget`` gives max_iter, stagnation_iters and diversity_min (the shared Table 6 budget);
-    ``budget_s`` adds a wall-clock limit that counts the initial evaluation too and is kept *before* each
+    ``deadline`` adds a wall-clock limit that counts the initial evaluation too and is kept *before* each
     iteration: the search stops when the next iteration, predicted from the ones measured so far (the initial
     evaluation standing in for the first), would end after it (:class:`WallClock`), so a budgeted search ends
-    within it unless its initial evaluation alone does not fit. Without ``budget_s`` nothing is timed and the
-    search is exactly the unbudgeted one. ``progress(it, max_iter, best)`` is called after every iteration.
-    ``clock``: the time source (tests inject a fake). Evaluations = n_pop × (iterations + 1).
+    within it unless its initial evaluation alone does not fit. Without a budget (:data:`planner.deadline.NEVER`)
+    the deadline never fires and the search is exactly the unbudgeted one. ``progress(it, max_iter, best)`` is
+    called after every iteration. ``time_s`` is measured on the deadline's clock (tests inject a fake).
+    Evaluations = n_pop × (iterations + 1).
     """
+    clock = deadline.clock
     t0 = clock()
-    wall = deadline(budget_s, clock=clock)  # its clock starts now: the budget counts init too
+    wall = WallClock(deadline)  # its laps start now: the first one is the initial evaluation
     stop = AnyOf([MaxIterations(budget.max_iter), Stagnation(budget.stagnation_iters),
-                  Diversity(budget.diversity_min), Settled(budget.feasible_iters)])
+                  Diversity(budget.diversity_min), Settled(budget.feasible_iters), wall])
     st = SwarmState.start(x0, problem.evaluate(space.decode(x0)))
     st.v = v0
     st.tol = budget.stagnation_tol
     history = [st.gbest_f]
     it = 0
-    if wall is not None:
-        wall.lap()  # the initial evaluation: the first guess at what an iteration costs
-        stop.criteria.append(wall)
-    if wall is not None and wall.done():  # not even one iteration fits
+    wall.lap()  # the initial evaluation: the first guess at what an iteration costs
+    if wall.done():  # not even one iteration fits
         stop.fired = wall.name
     else:
         while True:
@@ -168,8 +167,7 @@ def run_swarm(
             prog = Progress(it, st.gbest_f, st.stagnant, div, stop.elapsed(), st.feasible)
             if progress is not None:
                 progress(it, budget.max_iter, st.gbest_f)
-            if wall is not None:
-                wall.lap()
+            wall.lap()
             if stop.done(prog):
                 break
     log.debug("%s stopped after %d iterations (%s), cost %.3f", name, it, stop.fired, st.gbest_f)

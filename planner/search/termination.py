@@ -4,9 +4,10 @@ from __future__ import annotations
 
 import time
 from collections import deque
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Protocol
+
+from planner.deadline import Deadline
 
 
 @dataclass
@@ -25,7 +26,6 @@ class Criterion(Protocol):
     name: str
 
     def done(self, p: Progress) -> bool: ...
-
 
 
 @dataclass(frozen=True)
@@ -70,66 +70,53 @@ class Diversity:
         return self.minimum > 0 and p.diversity < self.minimum
 
 
-Clock = Callable[[], float]  # seconds on a monotonic clock (time.perf_counter, or a test's fake)
-
-
 @dataclass
 class WallClock:
-    """A planning budget in seconds that stops a search *before* an iteration that would overrun it (issue 16);
-    firing it means status timeout/approximate.
+    """Stops a search *before* an iteration that would overrun its :class:`~planner.deadline.Deadline` (issue
+    16); firing it means status timeout/approximate.
 
     The loop calls :meth:`lap` at the end of every iteration (and once after its set-up, e.g. the initial
-    evaluation, which is a fair first guess at an iteration's cost). :meth:`done` fires when the time used so
-    far, plus the predicted duration of the next iteration, plus ``reserve_s`` (what must still run after the
-    search: decoding, smoothing, the final checks) would exceed ``budget_s``. The prediction is the *maximum of
-    the last* ``window`` *laps*: on a shared machine an iteration is slowed now and then by preemption, a cache
-    flush or the garbage collector, and such bursts come in runs, so the recent maximum covers them where a
-    mean or a median would not; an upper quantile needs more samples than a 0.15 s search has. A single slow
-    lap costs at most ``window`` iterations of conservatism and then ages out, so one spike does not end the
-    search for good. With no lap yet the prediction is ``first_s``: a prior the caller measured (the time of one
-    evaluation, say), 0 if it has none.
+    evaluation, which is a fair first guess at an iteration's cost). :meth:`done` fires when the deadline does not
+    afford the predicted duration of the next iteration (what must still run after the search, the plan's
+    decoding, smoothing and final checks, is kept out of the deadline with :meth:`Deadline.minus`). The prediction
+    is the *maximum of the last* ``window`` *laps*: on a shared machine an iteration is slowed now and then by
+    preemption, a cache flush or the garbage collector, and such bursts come in runs, so the recent maximum covers
+    them where a mean or a median would not; an upper quantile needs more samples than a 0.15 s search has. A
+    single slow lap costs at most ``window`` iterations of conservatism and then ages out, so one spike does not
+    end the search for good. With no lap yet the prediction is ``first_s``: a prior the caller measured (the time
+    of one evaluation, say), 0 if it has none. Without a budget (:meth:`Deadline.never`) it never fires.
 
-    The clock starts when the criterion is made (``clock``: injectable for tests).
+    Laps are timed on the deadline's clock from when the criterion is made.
     """
 
-    budget_s: float
-    reserve_s: float = 0.0
+    deadline: Deadline
     window: int = 8
-    clock: Clock = time.perf_counter
     first_s: float = 0.0
     name: str = "timeout"
-    _t0: float = field(init=False)
     _last: float = field(init=False)
     _laps: deque[float] = field(init=False)
 
     def __post_init__(self) -> None:
-        self._t0 = self._last = self.clock()
+        self._last = self.deadline.clock()
         self._laps = deque(maxlen=self.window)
 
     def lap(self) -> None:
         """Record the time since the previous lap (or since the start) as one iteration's duration."""
-        now = self.clock()
+        now = self.deadline.clock()
         self._laps.append(now - self._last)
         self._last = now
 
     def restart_lap(self) -> None:
         """Start timing the next iteration from now (work since the last lap was not an iteration)."""
-        self._last = self.clock()
+        self._last = self.deadline.clock()
 
     def predicted_s(self) -> float:
         """Predicted duration of the next iteration: the longest of the last ``window`` laps."""
         return max(self._laps, default=self.first_s)
 
-    def elapsed(self) -> float:
-        return self.clock() - self._t0
-
-    def left(self) -> float:
-        """Seconds of the budget not yet used (negative once overrun); the reserve is not subtracted."""
-        return self.budget_s - self.elapsed()
-
     def affords(self, seconds: float) -> bool:
-        """True when ``seconds`` more of work still ends within the budget, reserve kept."""
-        return self.elapsed() + seconds + self.reserve_s <= self.budget_s
+        """True when ``seconds`` more of work still ends within the deadline."""
+        return self.deadline.affords(seconds)
 
     def done(self, p: Progress | None = None) -> bool:
         return not self.affords(self.predicted_s())
@@ -153,8 +140,3 @@ class AnyOf:
                 return True
         return False
 
-
-def deadline(budget_s: float | None, reserve_s: float = 0.0, clock: Clock = time.perf_counter,
-             first_s: float = 0.0) -> WallClock | None:
-    """A :class:`WallClock` for ``budget_s``, or None without a budget (the search then runs as it always did)."""
-    return None if budget_s is None else WallClock(budget_s, reserve_s, clock=clock, first_s=first_s)

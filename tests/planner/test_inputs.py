@@ -232,4 +232,4 @@ def test_plan_refuses_before_it_allocates() -> None:
     with pytest.raises(JobTooLarge, match="lower planner.pso.n_pop or planner.pso.max_iter"):
         plan(problem, sc.planner, np.random.default_rng(0))
     assert time.perf_counter() - started < 1.0
-    check_workload(problem, sc.planner, budget_s=0.5)
+    check_workload(problem, sc.planner, budgeted=True)

@@ -30,6 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import PlanningProblem
 from planner.search.spso import pso_velocity
 from planner.search.swarm import OptimiserResult, SwarmState, initial_swarm, run_swarm
@@ -149,7 +150,7 @@ class BPSO:
 
     def run(
         self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = None,
-        budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
+        deadline: Deadline = NEVER, progress: Callable[[int, int, float], None] | None = None,
     ) -> OptimiserResult:
         """Optimise; ``initial_paths`` (k, n + 2, 3) replace the first k random particles (nearest cells)."""
         pso, cfg = self.pso, self.cfg
@@ -166,4 +167,4 @@ class BPSO:
                                 r1, r2, u)
             return x
 
-        return run_swarm("bpso", problem, pso, lat, x0, step, budget_s, progress, v0=np.zeros_like(x0))
+        return run_swarm("bpso", problem, pso, lat, x0, step, deadline, progress, v0=np.zeros_like(x0))

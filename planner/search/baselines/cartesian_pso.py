@@ -17,6 +17,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import PlanningProblem
 from planner.search.spso import SphericalPSO
 from planner.search.swarm import OptimiserResult
@@ -32,7 +33,7 @@ class CartesianPSO:
 
     def run(
         self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = None,
-        budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
+        deadline: Deadline = NEVER, progress: Callable[[int, int, float], None] | None = None,
     ) -> OptimiserResult:
         """Optimise; ``initial_paths`` (k, n + 2, 3) replace the first k random particles (warm start)."""
-        return SphericalPSO(self.pso).run(problem, rng, initial_paths, budget_s, progress=progress)
+        return SphericalPSO(self.pso).run(problem, rng, initial_paths, deadline, progress=progress)

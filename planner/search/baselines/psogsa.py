@@ -34,6 +34,7 @@ from collections.abc import Callable
 import numpy as np
 from threadpoolctl import threadpool_limits
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import PlanningProblem
 from planner.search.encoding import make_encoding
 from planner.search.swarm import OptimiserResult, SwarmState, damped_inertia, initial_swarm, run_swarm
@@ -89,7 +90,7 @@ class PSOGSA:
 
     def run(
         self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = None,
-        budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
+        deadline: Deadline = NEVER, progress: Callable[[int, int, float], None] | None = None,
     ) -> OptimiserResult:
         """Optimise; ``initial_paths`` (k, n + 2, 3) replace the first k random particles (warm start)."""
         pso, cfg = self.pso, self.cfg
@@ -108,4 +109,4 @@ class PSOGSA:
             return x
 
         with threadpool_limits(limits=1, user_api="blas"):  # same seed, same plan, wherever it runs
-            return run_swarm("psogsa", problem, pso, enc, x0, step, budget_s, progress, v0=np.zeros_like(x0))
+            return run_swarm("psogsa", problem, pso, enc, x0, step, deadline, progress, v0=np.zeros_like(x0))

@@ -19,6 +19,7 @@ from collections.abc import Callable
 
 import numpy as np
 
+from planner.deadline import NEVER, Deadline
 from planner.problem import PlanningProblem
 from planner.search.encoding import make_encoding
 from planner.search.swarm import OptimiserResult, SwarmState, initial_swarm, run_swarm
@@ -56,7 +57,7 @@ class QPSO:
 
     def run(
         self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = None,
-        budget_s: float | None = None, progress: Callable[[int, int, float], None] | None = None,
+        deadline: Deadline = NEVER, progress: Callable[[int, int, float], None] | None = None,
     ) -> OptimiserResult:
         """Optimise; ``initial_paths`` (k, n + 2, 3) replace the first k random particles (warm start)."""
         pso, cfg = self.pso, self.cfg
@@ -71,4 +72,4 @@ class QPSO:
             return qpso_step(st.x, st.pbest_x, st.gbest_x, qpso_beta(cfg, it, pso.max_iter),
                              enc.lo, enc.hi, phi, u, coin)
 
-        return run_swarm("qpso", problem, pso, enc, x0, step, budget_s, progress)
+        return run_swarm("qpso", problem, pso, enc, x0, step, deadline, progress)

@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner.deadline import Deadline
 from planner.plan import problem_from_scenario
 from planner.search.baselines.bpso import BPSO, bpso_step, gray_to_index, index_to_gray, make_lattice
 from planner.search.baselines.cartesian_pso import CartesianPSO
@@ -50,7 +51,7 @@ def test_same_seed_same_path_and_the_search_improves(rescue, name) -> None:
 @pytest.mark.parametrize("name", list(OPTIMISERS))
 def test_budget_and_stagnation_stop(rescue, name) -> None:
     prob, pso = rescue
-    timed = OPTIMISERS[name](pso).run(prob, np.random.default_rng(0), budget_s=0.0)
+    timed = OPTIMISERS[name](pso).run(prob, np.random.default_rng(0), deadline=Deadline.after(0.0))
     # a spent budget stops before the first iteration (issue 16: no iteration starts that would overrun it)
     assert timed.stop_reason == "timeout" and timed.iterations == 0 and len(timed.history) == 1
     flat = OPTIMISERS[name](dataclasses.replace(pso, stagnation_iters=1)).run(prob, np.random.default_rng(0))

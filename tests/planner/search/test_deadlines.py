@@ -6,12 +6,14 @@ the margins below are fractions of that delay, not guesses at the machine's spee
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from pathlib import Path
 
 import numpy as np
 import pytest
 
+from planner.deadline import Deadline
 from planner.plan import plan, problem_from_scenario
 from planner.problem import Evaluation, PlanningProblem
 from planner.search.aco import AntColony, lattice_setup_s
@@ -71,15 +73,34 @@ def static():  # noqa: ANN201
     return sc, problem_from_scenario(sc)
 
 
+def test_a_deadline_shares_what_is_left_and_without_a_budget_is_never_out_of_time() -> None:
+    """One object for a budget (issue 34): what is left, a share of it from now (never past the parent), a reserve
+    kept out; ``never()`` is infinite, so the same code runs without a budget."""
+    clock = FakeClock()
+    d = Deadline.after(1.0, clock)
+    assert d.bounded and d.remaining() == 1.0 and d.affords(1.0) and not d.affords(1.01)
+    clock.t += 0.4
+    assert d.elapsed() == pytest.approx(0.4) and d.remaining() == pytest.approx(0.6)
+    half = d.share(0.5)  # from now, half of the 0.6 s left
+    assert half.start == clock.t and half.seconds == pytest.approx(0.3) and half.remaining() == pytest.approx(0.3)
+    assert d.share(2.0).seconds == pytest.approx(0.6)  # a share never ends after its parent
+    assert d.minus(0.1).remaining() == pytest.approx(0.5) and d.minus(5.0).seconds == 0.0
+    clock.t += 1.0  # overrun: nothing left to share
+    assert d.remaining() == pytest.approx(-0.4) and d.share(0.5).seconds == 0.0 and not d.affords(0.0)
+    free = Deadline.never(clock)
+    assert not free.bounded and free.remaining() == math.inf and free.affords(1e9)
+    assert free.share(0.0) is free and not free.minus(1.0).bounded and not Deadline.after(None, clock).bounded
+
+
 def test_wall_clock_predicts_the_next_iteration_from_the_longest_recent_one() -> None:
     clock = FakeClock()
-    wall = WallClock(1.0, reserve_s=0.1, window=3, clock=clock, first_s=0.05)
+    wall = WallClock(Deadline.after(1.0, clock).minus(0.1), window=3, first_s=0.05)  # 0.1 s kept in reserve
     assert wall.predicted_s() == 0.05 and not wall.done()  # the prior, before any lap
     for lap in (0.1, 0.3, 0.1, 0.1):
         clock.t += lap
         wall.lap()
     assert wall.predicted_s() == pytest.approx(0.3)  # the 0.3 s lap is one of the last three
-    assert wall.elapsed() == pytest.approx(0.6) and not wall.done()  # 0.6 + 0.3 + 0.1 reserve = 1.0: fits
+    assert wall.deadline.elapsed() == pytest.approx(0.6) and not wall.done()  # 0.6 + 0.3 + 0.1 reserve = 1.0: fits
     clock.t += 0.1
     wall.lap()  # the 0.3 s lap ages out of the window
     assert wall.predicted_s() == pytest.approx(0.1)
@@ -104,12 +125,12 @@ def test_run_swarm_on_an_injected_clock_stops_before_the_iteration_that_would_ov
         return np.clip(st.x + 0.01 * (enc.hi - enc.lo) * rng.standard_normal(st.x.shape), enc.lo, enc.hi)
 
     x0 = initial_swarm(enc, rng, cfg.n_pop)
-    res = run_swarm("test", problem, cfg, enc, x0, step, budget_s=0.14, clock=clock)
+    res = run_swarm("test", problem, cfg, enc, x0, step, Deadline.after(0.14, clock))
     assert res.stop_reason == "timeout" and res.iterations == 4
     assert res.time_s == pytest.approx(0.125) and len(res.history) == 5
-    spent = run_swarm("test", problem, cfg, enc, x0, step, budget_s=0.02, clock=clock)
+    spent = run_swarm("test", problem, cfg, enc, x0, step, Deadline.after(0.02, clock))
     assert spent.iterations == 0 and spent.stop_reason == "timeout"  # the initial evaluation used it all
-    free = run_swarm("test", problem, dataclasses.replace(cfg, max_iter=7), enc, x0, step, clock=clock)
+    free = run_swarm("test", problem, dataclasses.replace(cfg, max_iter=7), enc, x0, step, Deadline.never(clock))
     assert free.iterations == 7 and free.stop_reason == "max_iterations"  # no budget: nothing timed
 
 
@@ -119,7 +140,8 @@ def test_spso_with_a_slow_evaluation_ends_within_its_budget(static) -> None:
     evaluating is a millisecond or two."""
     sc, prob = static
     delay, budget = 0.030, 0.160
-    res = SphericalPSO(sc.planner.pso).run(slow(prob, delay), np.random.default_rng(1), budget_s=budget)
+    res = SphericalPSO(sc.planner.pso).run(slow(prob, delay), np.random.default_rng(1),
+                                              deadline=Deadline.after(budget))
     assert res.stop_reason == "timeout"
     assert res.iterations in (3, 4)  # 3 when the machine stretched an iteration by more than 2 ms
     assert res.time_s <= budget + 0.5 * delay
@@ -134,11 +156,11 @@ def test_aco_with_a_slow_evaluation_ends_within_its_budget(static) -> None:
     route = prob.start + np.linspace(0.0, 1.0, sc.planner.pso.n_waypoints + 2)[:, None] * (prob.goal - prob.start)
     colony = AntColony(sc.planner.aco)
     budget = lattice_setup_s(prob, sc.planner.aco, len(route)) + 0.2
-    res = colony.run(slow(prob, delay), np.random.default_rng(2), route, 1.0, budget_s=budget)
+    res = colony.run(slow(prob, delay), np.random.default_rng(2), route, 1.0, deadline=Deadline.after(budget))
     assert res.stop_reason == "timeout" and res.iterations >= 1
     assert res.time_s <= budget + 0.5 * delay
     assert res.iterations == len(res.history) and res.iterations <= int(budget / delay)
-    seed = colony.run(slow(prob, delay), np.random.default_rng(2), route, 1.0, budget_s=0.01)
+    seed = colony.run(slow(prob, delay), np.random.default_rng(2), route, 1.0, deadline=Deadline.after(0.01))
     assert seed.iterations == 0 and seed.stop_reason == "timeout" and np.array_equal(seed.path, route)
 
 
@@ -154,8 +176,8 @@ def test_plan_with_a_slow_evaluation_ends_within_its_budget(algorithm: str, road
                                                           "planner.pso.n_pop=30"])
     delay, budget = 0.020, 0.150
     problem = slow(problem_from_scenario(sc), delay)
-    plan(problem, sc.planner, np.random.default_rng(0), budget_s=budget)  # roadmap cache and imports warm
-    res = plan(problem, sc.planner, np.random.default_rng(1), budget_s=budget)
+    plan(problem, sc.planner, np.random.default_rng(0), deadline=Deadline.after(budget))  # roadmap cache, imports
+    res = plan(problem, sc.planner, np.random.default_rng(1), deadline=Deadline.after(budget))
     assert res.optimiser.stop_reason == "timeout"  # the budget, not the iteration limit, ended it
     assert res.plan_time_s <= budget + 1.5 * delay
 
@@ -171,7 +193,7 @@ def test_a_budget_that_never_fires_changes_nothing(algorithm: str, roadmap: bool
                                                           "planner.aco.max_iter=5"])
     problem = problem_from_scenario(sc)
     free = plan(problem, sc.planner, np.random.default_rng(3))
-    timed = plan(problem, sc.planner, np.random.default_rng(3), budget_s=1e6)
+    timed = plan(problem, sc.planner, np.random.default_rng(3), deadline=Deadline.after(1e6))
     assert np.array_equal(free.waypoints, timed.waypoints)
     assert free.optimiser.history == timed.optimiser.history
     assert free.optimiser.stop_reason == timed.optimiser.stop_reason != "timeout"

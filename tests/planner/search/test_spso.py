@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from planner.deadline import Deadline
 from planner.plan import PlanStatus, plan, problem_from_scenario
 from planner.search.encoding import make_encoding
 from planner.search.spso import SphericalPSO, diversity, inertia, pso_step
@@ -114,7 +115,8 @@ def test_stagnation_and_budget_stop_early(rescue_static) -> None:
     sc = load_scenario(rescue_static, ["planner.pso.n_pop=50", "planner.pso.stagnation_iters=5"])
     res = SphericalPSO(sc.planner.pso).run(problem_from_scenario(sc), np.random.default_rng(0))
     assert res.stop_reason == "stagnation" and res.iterations < sc.planner.pso.max_iter
-    timed = SphericalPSO(sc.planner.pso).run(problem_from_scenario(sc), np.random.default_rng(0), budget_s=0.0)
+    timed = SphericalPSO(sc.planner.pso).run(problem_from_scenario(sc), np.random.default_rng(0),
+                                             deadline=Deadline.after(0.0))
     assert timed.stop_reason == "timeout" and timed.iterations == 0  # issue 16: no iteration past the budget
 
 
