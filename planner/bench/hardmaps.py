@@ -10,26 +10,45 @@ map's. Families (docs/method.md §2 for the obstacle kinds):
 - ``ridge``: a ridge of hemispherical peaks above the altitude band with one saddle, and radars on the summits
   flanking it, so the only way across is through the saddle, low;
 - ``canyon``: a narrow meandering channel between two chains of unlimited cylinders running edge to edge.
+
+Terrain families (issue 34): the ground is a DEM, an ESRI ASCII grid written beside the scenario
+(``HardMap.dem``, ``[terrain] kind = "file"``), and the altitude band (:data:`TERRAIN_BAND`, above the ground) is
+lower than the terrain it must get past, so the barrier is the climb limit, not an obstacle:
+
+- ``valley``: a winding valley cut into a plateau, edge to edge; its walls rise far above the band's ceiling,
+  too steep to spiral up and too high to climb along, so the only way is along the valley floor;
+- ``saddle``: a ridge across the start→goal direction, too high and steep to cross but at one saddle (a pass);
+- ``saddle_radar``: the same with radars on the two summits flanking the saddle, which cap the pass from above;
+- ``mixed``: rolling hills with steep mountains off the planted route, unlimited cylinders and a radar.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Iterable, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from planner.problem import PlanningProblem
 from planner.trajectory.checks import check_trajectory, obstacle_clearance, radar_clearance, smooth
 from planner.trajectory.smoothing import flown_deviation, segment_samples
 from planner.world.config import HazardConfig, PlannerSettings, VehicleLimits
+from planner.world.dem import grid_axis, parse_esri_ascii
 from planner.world.environment import Cylinders, Environment, Radars, Spheres
 from planner.world.geometry import cylinder_signed_distance, horizontal_turn
+from planner.world.home import Home
+from planner.world.terrain import Terrain
 
-FAMILIES = ("gates", "dense", "maze", "ridge", "canyon")
+OBSTACLE_FAMILIES = ("gates", "dense", "maze", "ridge", "canyon")
+TERRAIN_FAMILIES = ("valley", "saddle", "saddle_radar", "mixed")
+FAMILIES = OBSTACLE_FAMILIES + TERRAIN_FAMILIES
 BAND = (50.0, 300.0)  # altitude band above terrain, m
+TERRAIN_BAND = (30.0, 150.0)  # the terrain families' band, m above the ground: low, under the terrain around
+DEM_CELL_M = 25.0  # node spacing of the terrain families' DEM (heights written to 0.1 m)
 HAZARD = HazardConfig(d_safe=60.0, d_coll=15.0)  # as sitl_scenarios/large_obstacle_field.toml
 BUFFER_M = 10.0  # extra corridor beyond d_coll and the tracking margin
 CHORD_STEP_M = 5.0  # spacing of the samples on the waypoint chords
@@ -50,6 +69,22 @@ class HardMap:
     planted: np.ndarray
     n_obstacles: int
     straight_blocked: bool
+    dem: str = ""  # the terrain families' DEM: the text of the ESRI ASCII grid the scenario names ("" for none)
+    dem_name: str = ""  # its file name, beside the scenario ([terrain] path)
+
+    @property
+    def name(self) -> str:
+        return f"hardmap_{self.family}_{self.seed}"
+
+    def write(self, directory: str | Path, extra: str = "") -> Path:
+        """Write the scenario to ``directory`` as ``{name}.toml`` (its text, then ``extra``) and its DEM beside it,
+        the DEM first (a scenario file on disk has its DEM); returns the scenario's path."""
+        out = Path(directory)
+        if self.dem:
+            (out / self.dem_name).write_text(self.dem, encoding="ascii")
+        path = out / f"{self.name}.toml"
+        path.write_text(self.toml + extra)
+        return path
 
 
 def generate(family: str, seed: int, **options: Any) -> HardMap:
@@ -66,25 +101,31 @@ ROADMAP_SECTION = """
 [planner.roadmap]
 enabled = true
 """
+TERRAIN_ROADMAP_SECTION = """
+# Planned with the roadmap pipeline (method.md §15), as the other hard maps; how it and the paper's fusion fare on
+# terrain that the band must follow (issue 34) has not been benched yet.
+[planner.roadmap]
+enabled = true
+"""
+
+
+def roadmap_section(family: str) -> str:
+    """The text that turns the roadmap pipeline on in a shipped hard map of ``family`` (``write_scenarios``)."""
+    return TERRAIN_ROADMAP_SECTION if family in TERRAIN_FAMILIES else ROADMAP_SECTION
 
 
 def write_scenarios(directory: str | Path, families: Sequence[str] = FAMILIES, seeds: Iterable[int] = (0,),
                     roadmap: bool = False) -> list[Path]:
     """Write the map of every family and seed to ``directory`` (created if missing) as
-    ``hardmap_{family}_{seed}.toml``, the text exactly ``HardMap.toml`` (``roadmap``: then :data:`ROADMAP_SECTION`,
-    which plans it with the roadmap pipeline, as the shipped ones in sitl_scenarios/), so the bench and
-    ``fuseplan plan`` can read them like any scenario; returns the paths in the order written (families outer,
-    seeds inner)."""
+    ``hardmap_{family}_{seed}.toml``, the text exactly ``HardMap.toml`` (``roadmap``: then ``roadmap_section``,
+    which plans it with the roadmap pipeline, as the shipped ones in sitl_scenarios/), and the terrain families'
+    DEM beside it as ``hardmap_{family}_{seed}.asc`` (``HardMap.write``), so the bench and ``fuseplan plan`` can
+    read them like any scenario; returns the scenario paths in the order written (families outer, seeds inner)."""
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     seeds = tuple(seeds)
-    paths = []
-    for family in families:
-        for seed in seeds:
-            path = out / f"hardmap_{family}_{seed}.toml"
-            path.write_text(generate(family, seed).toml + (ROADMAP_SECTION if roadmap else ""))
-            paths.append(path)
-    return paths
+    return [generate(family, seed).write(out, roadmap_section(family) if roadmap else "")
+            for family in families for seed in seeds]
 
 
 # --- route verification (docs/method.md §11, §12) ------------------------------------------------------------
@@ -141,17 +182,33 @@ def free_section(env: Environment, x: float, hazard: HazardConfig = HAZARD, step
 
 
 def _planted_ok(route: np.ndarray, env: Environment, hazard: HazardConfig) -> bool:
-    """The checks of a planted route on the full map ``env``: flyable without obstacles (limits, band, bounds),
-    its corridor clear of every solid obstacle, its tracking margin + buffer (the corridor less d_coll, which is
-    for solids only) clear of every radar range, and flyable among them all (``route_violations``)."""
-    if any(route_violations(route, _free_env(env.size_x, env.size_y), hazard).values()):
+    """The checks of a planted route on the full map ``env``: flyable without obstacles (limits, band, bounds;
+    over the terrain if any), its corridor clear of every solid obstacle, its tracking margin + buffer (the corridor
+    less d_coll, which is for solids only) clear of every radar range, with terrain its corridor inside the band
+    with a margin (``band_margin_ok``), and flyable among them all (``route_violations``)."""
+    bare = replace(env, cylinders=Cylinders.empty(), spheres=Spheres.empty(), radars=Radars.empty())
+    if any(route_violations(route, bare, hazard).values()):
         return False
     points, need = corridor(route, hazard)
     if (obstacle_clearance(points, None, env, include_radars=False) < need).any():
         return False
     if (radar_clearance(points, env.radars) < need - hazard.d_coll).any():
         return False
+    if env.terrain is not None and not band_margin_ok(points, env):
+        return False
     return not any(route_violations(route, env, hazard).values())
+
+
+def band_margin_ok(points: np.ndarray, env: Environment, vehicle: VehicleLimits = VehicleLimits(),
+                   buffer: float = BUFFER_M) -> bool:
+    """True if every point (M, 3) keeps ``buffer`` m inside the altitude band over every ground within the tracking
+    margin + buffer (A/2 + buffer) of it horizontally (sampled at its centre and four points on that circle): where
+    the autopilot cuts a corner over sloping ground, the ground under it differs from the ground under the plan."""
+    reach = 0.5 * vehicle.acceptance_radius + buffer
+    offsets = ((0.0, 0.0), (reach, 0.0), (-reach, 0.0), (0.0, reach), (0.0, -reach))
+    g = np.stack([env.ground(points[:, 0] + dx, points[:, 1] + dy) for dx, dy in offsets])
+    return bool(((points[:, 2] - g.max(axis=0) >= env.z_min + buffer)
+                 & (points[:, 2] - g.min(axis=0) <= env.z_max - buffer)).all())
 
 
 def _free_env(size_x: float, size_y: float) -> Environment:
@@ -535,6 +592,414 @@ def _canyon(seed: int, rng: np.random.Generator, size_x: float = 2500.0,
     raise RuntimeError(f"canyon: no flyable route in {MAX_ROUTE_DRAWS} draws (seed {seed})")
 
 
+# --- terrain (issue 34) -------------------------------------------------------------------------------------
+def profile_flyable(xy: np.ndarray, env: Environment, vehicle: VehicleLimits = VehicleLimits(),
+                    z0: float | None = None, z1: float | None = None, step: float = CHORD_STEP_M) -> bool:
+    """True if some height profile along the horizontal polyline ``xy`` (N, 2) stays inside the altitude band over
+    the terrain at every sample (``step`` m apart) and climbs or descends no steeper than the vehicle's limit,
+    starting at ``z0`` and ending at ``z1`` when given (obstacles aside). A sweep of the interval of heights the
+    vehicle can be at (an interval stays one: the band is one and the climb limit widens it evenly). False means
+    that no route flying this plan view can keep the band, whatever its heights: the terrain is a barrier to it."""
+    xy = np.asarray(xy, dtype=float)
+    seg = np.diff(xy, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    idx, t = segment_samples(np.maximum(np.ceil(seg_len / step).astype(int), 1))
+    pts = np.vstack([xy[idx] + t[:, None] * seg[idx], xy[-1:]])
+    ds = np.linalg.norm(np.diff(pts, axis=0), axis=1) * math.tan(vehicle.max_climb)
+    ground = env.ground(pts[:, 0], pts[:, 1])
+    lo_band, hi_band = ground + env.z_min - 1e-6, ground + env.z_max + 1e-6
+    lo, hi = (lo_band[0], hi_band[0]) if z0 is None else (z0, z0)
+    if not lo_band[0] <= lo <= hi <= hi_band[0]:
+        return False
+    for k in range(1, len(pts)):
+        lo, hi = max(lo - ds[k - 1], lo_band[k]), min(hi + ds[k - 1], hi_band[k])
+        if lo > hi:
+            return False
+    return z1 is None or lo <= z1 <= hi
+
+
+def _dem(heights: np.ndarray, cell: float) -> tuple[str, Terrain]:
+    """The ESRI ASCII text of ``heights`` (ny, nx), m above home on the nodes (i·cell, j·cell) with row j running
+    north (written m AMSL to 0.1 m, rows north to south), and the Terrain the scenario loader makes of that text."""
+    ny, nx = heights.shape
+    rows = "\n".join(" ".join(f"{v:.1f}" for v in row) for row in (HOME[2] + heights)[::-1])
+    text = f"ncols {nx}\nnrows {ny}\nxllcenter 0\nyllcenter 0\ncellsize {cell:g}\nNODATA_value -9999\n{rows}\n"
+    return text, parse_esri_ascii(text, Home(*HOME))
+
+
+def _grid(size_x: float, size_y: float, cell: float) -> tuple[np.ndarray, np.ndarray]:
+    """Node coordinates (ny, nx) x and y of a DEM covering [0, size_x] × [0, size_y] (``grid_axis``)."""
+    return np.meshgrid(grid_axis(size_x, cell), grid_axis(size_y, cell))
+
+
+def _smoothstep(t: np.ndarray) -> np.ndarray:
+    """3t² − 2t³ on t clipped to [0, 1]: 0 → 1 with zero slope at both ends, steepest (1.5) at t = 1/2."""
+    t = np.clip(t, 0.0, 1.0)
+    return t * t * (3.0 - 2.0 * t)
+
+
+def _wall_rise(contour: float, run: float, band: tuple[float, float] = TERRAIN_BAND,
+               vehicle: VehicleLimits = VehicleLimits()) -> float:
+    """The least height a wall rising on a smoothstep over ``run`` m must have for its top to be out of the
+    vehicle's reach from its foot, when its contours are at most ``contour`` m long.
+
+    Where the wall's slope exceeds (band width + tan γ·π R_min) / (2 R_min) (2.24 for the default plane in
+    :data:`TERRAIN_BAND`), a plane cannot turn on it: a U-turn sweeps 2 R_min across the slope, climbing at most
+    tan γ·π R_min, and the band cannot hold the change of ground. On that steep part it can only climb along the
+    wall one way, tan γ per metre, at most tan γ × ``contour``; it enters it at most a band's ceiling above the
+    gentle foot, whose height δ (and the gentle top's) the smoothstep gives. So the top is out of reach if the rise
+    exceeds band width + 2δ + tan γ × contour, which this returns (δ itself shrinks as the wall grows steeper)."""
+    width, tan = band[1] - band[0], math.tan(vehicle.max_climb)
+    r = vehicle.min_turn_radius
+    need = (width + tan * math.pi * r) / (2.0 * r)
+    rise = width + tan * contour
+    for _ in range(100):
+        m = rise / run  # mean slope; the smoothstep's is 6t(1 − t)·m
+        if need / (6.0 * m) >= 0.2:  # hardly anywhere steep enough: steepen
+            rise *= 1.5
+            continue
+        t = 0.5 - math.sqrt(0.25 - need / (6.0 * m))
+        new = width + tan * contour + 2.0 * float(_smoothstep(np.array(t))) * rise
+        if abs(new - rise) < 0.01:
+            break
+        rise = new
+    return rise
+
+
+def _contour_length(xy: np.ndarray, offsets: Iterable[float], size_x: float) -> float:
+    """Longest of the curves offset from the polyline ``xy`` (M, 2) by each of ``offsets`` m along its normals,
+    within x ∈ [0, size_x]: the wall contours of a valley along it (an offset curve that folds at a tight bend
+    only counts longer)."""
+    d = np.diff(xy, axis=0)
+    tangent = np.vstack([d[:1], 0.5 * (d[1:] + d[:-1]), d[-1:]])
+    normal = np.column_stack([-tangent[:, 1], tangent[:, 0]]) / np.linalg.norm(tangent, axis=1)[:, None]
+    longest = 0.0
+    for off in offsets:
+        c = xy + off * normal
+        c = c[(c[:, 0] >= 0.0) & (c[:, 0] <= size_x)]
+        longest = max(longest, float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum()))
+    return longest
+
+
+def _ground_heights(xy: np.ndarray, env: Environment, above: float, slope: float, margin: float = 15.0,
+                    reach: float = 30.0, fixed: dict[int, float] | None = None) -> np.ndarray | None:
+    """Heights (N,) of horizontal waypoints xy (N, 2) over the terrain of ``env``: ``above`` m over the highest
+    ground within ``reach`` m of the legs either side of the waypoint (its chord and two parallels), but not above
+    the band less ``margin`` over the lowest; then raised where a leg would climb or descend steeper than ``slope``
+    (rise per metre; one backward and one forward pass, raising only). ``fixed``: heights given (index → z), kept.
+    None if a height ends outside [band floor + margin over the highest, ceiling − margin over the lowest ground]."""
+    seg = np.diff(xy, axis=0)
+    seg_len = np.linalg.norm(seg, axis=1)
+    n = np.maximum(np.ceil(seg_len / CHORD_STEP_M).astype(int), 1)
+    idx, t = segment_samples(n)
+    idx, t = np.append(idx, len(seg) - 1), np.append(t, 1.0)
+    pts = xy[idx] + t[:, None] * seg[idx]
+    normal = np.column_stack([-seg[:, 1], seg[:, 0]]) / seg_len[:, None]
+    g = np.stack([env.ground(*(pts + k * reach * normal[idx]).T) for k in (-1.0, 0.0, 1.0)])
+    leg_hi = np.full(len(seg), -np.inf)
+    leg_lo = np.full(len(seg), np.inf)
+    np.maximum.at(leg_hi, idx, g.max(axis=0))
+    np.minimum.at(leg_lo, idx, g.min(axis=0))
+    ground_hi = np.maximum(np.append(leg_hi, -np.inf), np.insert(leg_hi, 0, -np.inf))
+    ground_lo = np.minimum(np.append(leg_lo, np.inf), np.insert(leg_lo, 0, np.inf))
+    lo, hi = ground_hi + env.z_min + margin, ground_lo + env.z_max - margin
+    z = np.minimum(ground_hi + above, hi)
+    for i, v in (fixed or {}).items():
+        z[i] = v
+    step = slope * seg_len
+    for i in range(len(z) - 2, -1, -1):  # no leg climbs steeper than slope
+        z[i] = max(z[i], z[i + 1] - step[i])
+    for i in range(1, len(z)):  # nor descends
+        z[i] = max(z[i], z[i - 1] - step[i - 1])
+    if fixed and any(abs(z[i] - v) > 1e-9 for i, v in fixed.items()):
+        return None
+    if (z < lo - 1e-9).any() or (z > hi + 1e-9).any():
+        return None
+    return z
+
+
+def _terrain_env(size_x: float, size_y: float, terrain: Terrain, **obstacles: Any) -> Environment:
+    """A map in the terrain families' band over ``terrain``, with ``obstacles`` (cylinders, spheres, radars)."""
+    return Environment(size_x, size_y, *TERRAIN_BAND, terrain=terrain, **obstacles)
+
+
+def _terrain_map(family: str, seed: int, env: Environment, route: np.ndarray, hazard: HazardConfig, what: str,
+                 dem: str, body: str = "", n_obstacles: int = 0) -> HardMap:
+    """The HardMap of a terrain family: the header naming its DEM ``hardmap_{family}_{seed}.asc``, then ``body``."""
+    name = f"hardmap_{family}_{seed}.asc"
+    text = _header(family, seed, env.size_x, env.size_y, route, hazard, what, TERRAIN_BAND, name) + body
+    return HardMap(family, seed, text, route, n_obstacles, _straight_blocked(route, env, hazard), dem, name)
+
+
+def _valley(seed: int, rng: np.random.Generator, size_x: float = 2200.0,
+            floor_width: tuple[float, float] = (170.0, 230.0), wall_run: tuple[float, float] = (280.0, 340.0),
+            sinuosity_deg: tuple[float, float] = (55.0, 70.0), wavelength: tuple[float, float] = (1500.0, 2000.0),
+            floor_height: tuple[float, float] = (0.0, 80.0), above: tuple[float, float] = (60.0, 90.0),
+            step: float = 70.0, cell: float = DEM_CELL_M, hazard: HazardConfig = HAZARD) -> HardMap:
+    """A winding valley cut into a plateau from the west edge to the east edge (issue 34).
+
+    The valley's centre line is a meander (``_meander``, as the canyon's: heading swinging ±``sinuosity_deg`` about
+    east, ``wavelength`` m of valley per swing; its tightest bend, λ/(2π·psi) ≥ 195 m at the defaults, is 6 R_min of
+    the default plane). Its floor, ``floor_width`` m wide, is flat across and rises or falls evenly along the valley
+    between two heights drawn from ``floor_height``; the walls rise from its edges to a flat plateau on a smoothstep
+    over ``wall_run`` m. The plateau stands out of a vehicle's reach (``_wall_rise``: the walls are too steep to
+    turn on, so a climb out runs one way along a wall, at most tan γ × its longest contour, ``_contour_length``)
+    plus a margin of 30-80 m: 1.2-1.4 km above the floor at the defaults, where the band (:data:`TERRAIN_BAND`)
+    ends 150 m above the ground. Start and goal lie on the centre line 100 m inside the edges, the planted route follows it with a
+    waypoint every ``step`` m of valley (as the canyon's) ``above`` m above its floor, and the straight line
+    between them crosses the walls: no height profile along it keeps the band (``profile_flyable``)."""
+    vehicle = VehicleLimits()
+    for _ in range(MAX_ROUTE_DRAWS):
+        psi = np.radians(rng.uniform(*sinuosity_deg))
+        lam = rng.uniform(*wavelength)
+        half = 0.5 * rng.uniform(*floor_width)
+        run = rng.uniform(*wall_run)
+        f0, f1 = rng.uniform(*floor_height, 2)
+        h_above = rng.uniform(*above)
+        xy, _ = _meander(psi, lam, rng.uniform(0.0, 2.0 * np.pi), -150.0, size_x + 150.0)
+        margin = rng.uniform(30.0, 80.0)
+        if lam / (2.0 * np.pi * psi) < half + 50.0:  # the floor would pinch at the tightest bend
+            continue
+        size_y = float(np.ceil((np.ptp(xy[:, 1]) + 2.0 * (half + run) + 300.0) / 10.0) * 10.0)
+        xy[:, 1] += 0.5 * (size_y - xy[:, 1].min() - xy[:, 1].max())
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+        inside = np.flatnonzero((xy[:, 0] >= 0.0) & (xy[:, 0] <= size_x))
+        floor = f0 + (f1 - f0) * (s - s[inside[0]]) / (s[inside[-1]] - s[inside[0]])
+        off = half + run * np.linspace(0.0, 1.0, 5)
+        contour = _contour_length(xy, np.concatenate([off, -off]), size_x)
+        plateau = float(np.ceil((max(f0, f1) + _wall_rise(contour, run) + margin) / 10.0) * 10.0)
+        gx, gy = _grid(size_x, size_y, cell)
+        dist, near = cKDTree(xy).query(np.column_stack([gx.ravel(), gy.ravel()]))
+        wall = _smoothstep((dist - half) / run)
+        heights = (floor[near] + (plateau - floor[near]) * wall).reshape(gx.shape)
+        dem, terrain = _dem(heights, cell)
+        env = _terrain_env(size_x, size_y, terrain)
+        s0 = np.interp(100.0, xy[:, 0], s)  # the valley's arc length at x = 100 and x = size_x - 100
+        s1 = np.interp(size_x - 100.0, xy[:, 0], s)
+        at = np.linspace(s0, s1, max(int(round((s1 - s0) / step)), 2) + 1)
+        wp = np.column_stack([np.interp(at, s, xy[:, 0]), np.interp(at, s, xy[:, 1])])
+        z = _ground_heights(wp, env, h_above, 0.5 * math.tan(vehicle.max_climb))
+        if z is None:
+            continue
+        route = np.round(np.column_stack([wp, z]), 2)
+        if not _planted_ok(route, env, hazard) or not straight_fails(route, env, hazard):
+            continue
+        if profile_flyable(route[[0, -1], :2], env, vehicle):
+            continue
+        what = (f"a valley {2 * half:.0f} m wide at the floor winding ±{np.degrees(psi):.0f} deg every {lam:.0f} m "
+                f"from the west edge to the east edge, its walls rising over {run:.0f} m to a plateau "
+                f"{plateau - max(f0, f1):.0f}-{plateau - min(f0, f1):.0f} m above the floor")
+        return _terrain_map("valley", seed, env, route, hazard, what, dem)
+    raise RuntimeError(f"valley: no flyable route in {MAX_ROUTE_DRAWS} draws (seed {seed})")
+
+
+def _s_curve(p: np.ndarray, q: np.ndarray, step: float) -> np.ndarray:
+    """Waypoints (K, 2) from p to q (2,), about ``step`` m apart in x, whose y moves from p's to q's on a
+    smoothstep of x: heading east at both ends, the turns spread over many small ones (none past 60° for a
+    lateral move up to 2.2 × the forward one)."""
+    n = max(int(np.ceil(abs(q[0] - p[0]) / step)), 3)
+    x = np.linspace(p[0], q[0], n + 1)
+    return np.column_stack([x, p[1] + (q[1] - p[1]) * _smoothstep((x - p[0]) / (q[0] - p[0]))])
+
+
+def _saddle(seed: int, rng: np.random.Generator, radars: bool = False, size_x: float = 2600.0,
+            size_y: float = 1800.0, crest_half: tuple[float, float] = (30.0, 60.0),
+            flank_run: tuple[float, float] = (280.0, 340.0), pass_half: tuple[float, float] = (70.0, 100.0),
+            pass_run: tuple[float, float] = (220.0, 300.0), pass_height: tuple[float, float] = (30.0, 60.0),
+            above: tuple[float, float] = (50.0, 70.0), offset: tuple[float, float] = (500.0, 750.0),
+            ceiling: tuple[float, float] = (40.0, 55.0), step: float = 80.0, cell: float = DEM_CELL_M,
+            hazard: HazardConfig = HAZARD) -> HardMap:
+    """A terrain ridge across the start→goal direction (x) from the south edge to the north edge, with one saddle
+    (issue 34); ``radars``: with a radar on each summit flanking the saddle (``saddle_radar``).
+
+    The plain is flat at home's height. The ridge runs along x = x_r: a crest ``crest_half`` m either side of it,
+    flanks falling on a smoothstep over ``flank_run`` m. The pass is a notch cut through it around y = y_s: a floor
+    at ``pass_height`` m (below the band's ceiling over the plain, so a plane crosses it without climbing)
+    2·``pass_half`` m wide, its walls rising on a smoothstep over ``pass_run`` m (the ground is the lower of the
+    ridge and the notch). The crest stands out of reach (``_wall_rise``: flanks and notch walls too steep to turn
+    on; the longest contour runs up one flank, round the notch and down the other; then a margin of 30-80 m):
+    1.1-1.25 km above the plain at the defaults. Start and goal lie on the plain, 150 m inside the west and east edges, where the
+    straight line between them crosses the ridge ``offset`` m from the saddle, at the crest: no height profile along
+    it keeps the band (``profile_flyable``). The planted route swings over to y_s (``_s_curve``), crosses the pass
+    square-on and swings back to the goal, a waypoint at least every ``step`` m (the cost's terrain margin grows
+    with a leg's length and the DEM's steepest slope, docs/method.md §5.2), ``above`` m above the highest ground
+    near its legs (``_ground_heights``).
+
+    With ``radars`` each flanking summit (on the crest 50-150 m past the notch's walls, 10 m above the ground)
+    carries a radar whose range meets ``ceiling`` m above the route's pass height in the middle of the saddle (as
+    ``ridge``'s), lower off it: the way through is low, and the generator checks with ``free_section`` that nothing
+    in the notch is free above that cover."""
+    vehicle = VehicleLimits()
+    for _ in range(MAX_ROUTE_DRAWS):
+        xr = 0.5 * size_x + rng.uniform(-150.0, 150.0)
+        ys = rng.uniform(600.0, size_y - 600.0)
+        top, run = rng.uniform(*crest_half), rng.uniform(*flank_run)
+        p_half, p_run, p_h = rng.uniform(*pass_half), rng.uniform(*pass_run), rng.uniform(*pass_height)
+        margin = rng.uniform(30.0, 80.0)
+        contour = 2.0 * max(ys, size_y - ys) + 2.0 * (top + run) + 2.0 * p_run  # one flank, the notch, the other
+        crest = float(np.ceil((_wall_rise(contour, max(run, p_run)) + margin) / 10.0) * 10.0)
+        gx, gy = _grid(size_x, size_y, cell)
+        ridge = crest * (1.0 - _smoothstep((np.abs(gx - xr) - top) / run))
+        notch = p_h + (crest - p_h) * _smoothstep((np.abs(gy - ys) - p_half) / p_run)
+        dem, terrain = _dem(np.minimum(ridge, notch), cell)
+        side = rng.choice([-1.0, 1.0])
+        y_cross = ys + side * rng.uniform(*offset)
+        if not 200.0 <= y_cross <= size_y - 200.0:
+            y_cross = 2.0 * ys - y_cross
+        y0, y1 = np.clip(y_cross + rng.uniform(-150.0, 150.0, 2), 100.0, size_y - 100.0)
+        x0, x1 = 150.0, size_x - 150.0
+        reach = top + run + 100.0  # the pass straight runs 100 m past the flanks' feet
+        a, b = np.array([xr - reach, ys]), np.array([xr + reach, ys])
+        xy = _densify(np.vstack([_s_curve(np.array([x0, y0]), a, step)[:-1],
+                                 np.linspace(a, b, int(np.ceil(2.0 * reach / step)) + 1)[:-1],
+                                 _s_curve(b, np.array([x1, y1]), step)]), step)
+        env = _terrain_env(size_x, size_y, terrain)
+        z_ends = rng.uniform(70.0, 110.0, 2) + env.ground(xy[[0, -1], 0], xy[[0, -1], 1])
+        z = _ground_heights(xy, env, rng.uniform(*above), 0.5 * math.tan(vehicle.max_climb),
+                            fixed={0: float(z_ends[0]), len(xy) - 1: float(z_ends[1])})
+        if z is None:
+            continue
+        route = np.round(np.column_stack([xy, z]), 2)
+        body, n_obstacles = "", 0
+        if radars:
+            in_pass = np.abs(route[:, 0] - xr) <= top + run
+            h_cover = float(route[in_pass, 2].max()) + rng.uniform(*ceiling)
+            dy = p_half + p_run + rng.uniform(50.0, 150.0)
+            sites = np.array([[xr, ys - dy], [xr, ys + dy]])
+            zs = env.ground(sites[:, 0], sites[:, 1]) + 10.0
+            rows = np.round(np.column_stack([sites, zs, np.hypot(dy, zs - h_cover)]), 2)
+            env = replace(env, radars=Radars(rows[:, :3], rows[:, 3], np.ones(2)))
+            body, n_obstacles = _toml_radars(rows), 2
+        if not _planted_ok(route, env, hazard) or not straight_fails(route, env, hazard):
+            continue
+        if profile_flyable(route[[0, -1], :2], env, vehicle):
+            continue
+        if radars:
+            way = free_section(env, xr, hazard)
+            notch_way = way[np.abs(way[:, 0] - ys) <= p_half + p_run]
+            if not len(notch_way) or notch_way[:, 1].max() > h_cover + 1.0:
+                continue
+        what = (f"a ridge {crest:.0f} m high across the map with one saddle {2 * p_half:.0f} m wide at "
+                f"{p_h:.0f} m" + (f", radars on its two flanking summits covering the pass above {h_cover:.0f} m"
+                                  if radars else ""))
+        return _terrain_map("saddle_radar" if radars else "saddle", seed, env, route, hazard, what, dem, body,
+                            n_obstacles)
+    raise RuntimeError(f"saddle: no flyable route in {MAX_ROUTE_DRAWS} draws (seed {seed})")
+
+
+def _saddle_radar(seed: int, rng: np.random.Generator, **options: Any) -> HardMap:
+    """``_saddle`` with radars on the summits flanking the saddle."""
+    return _saddle(seed, rng, radars=True, **options)
+
+
+def _densify(xy: np.ndarray, step: float) -> np.ndarray:
+    """The polyline xy (N, 2) with points inserted so no leg is longer than ``step`` m (the turns stay where they
+    were; the cost's terrain margin grows with a leg's length, docs/method.md §5.2)."""
+    seg = np.diff(xy, axis=0)
+    idx, t = segment_samples(np.maximum(np.ceil(np.linalg.norm(seg, axis=1) / step).astype(int), 1))
+    return np.vstack([xy[idx] + t[:, None] * seg[idx], xy[-1:]])
+
+
+def _gaussians(gx: np.ndarray, gy: np.ndarray, centre: np.ndarray, sigma: np.ndarray, peak: np.ndarray
+               ) -> np.ndarray:
+    """Sum over K Gaussian hills (centres (K, 2), widths σ (K,), peaks (K,)) on the grid (ny, nx)."""
+    h = np.zeros(gx.shape)
+    for (cx, cy), s, p in zip(centre, sigma, peak):
+        h += p * np.exp(-0.5 * ((gx - cx) ** 2 + (gy - cy) ** 2) / (s * s))
+    return h
+
+
+def _polyline_distance(points: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """Plan-view distance (M,) from points (M, 2) to the polyline xy (N, 2)."""
+    near = np.full(len(points), np.inf)
+    for p, q in zip(xy[:-1], xy[1:]):
+        d = q - p
+        t = np.clip(((points - p) @ d) / max(float(d @ d), 1e-12), 0.0, 1.0)
+        near = np.minimum(near, np.linalg.norm(points - (p + t[:, None] * d), axis=1))
+    return near
+
+
+def _mixed(seed: int, rng: np.random.Generator, size: float = 2400.0, hills: tuple[int, int] = (6, 10),
+           hill_height: tuple[float, float] = (80.0, 150.0), hill_sigma: tuple[float, float] = (250.0, 450.0),
+           mountains: tuple[int, int] = (3, 5), mountain_height: tuple[float, float] = (350.0, 600.0),
+           mountain_sigma: tuple[float, float] = (120.0, 200.0), cylinders: tuple[int, int] = (25, 35),
+           radius: tuple[float, float] = (40.0, 80.0), radar_range: tuple[float, float] = (150.0, 250.0),
+           n_legs: int = 12, amplitude: float = 500.0, max_turn_deg: float = 40.0,
+           divisors: Sequence[float] = (1.0, 2.0, 3.0), above: tuple[float, float] = (50.0, 70.0),
+           step: float = 120.0, cell: float = DEM_CELL_M, hazard: HazardConfig = HAZARD) -> HardMap:
+    """Terrain, cylinders and a radar together (issue 34), around a planted route from the south-west corner to the
+    north-east one.
+
+    The ground is rolling hills (``hills`` Gaussians of ``hill_sigma`` m, scaled to a highest node of
+    ``hill_height``) and ``mountains`` steep Gaussian peaks of ``mountain_height`` and ``mountain_sigma`` m, far
+    above the band's ceiling. The route's plan view weaves first (``_planted_wiggle``: ``n_legs`` legs, turns up to
+    ``max_turn_deg``), then the mountains stand off it, every one at least 3σ + 50 m from it and half of them
+    centred on the straight start→goal line; the route, its legs cut to ``step`` m, takes heights ``above`` m over
+    the highest ground near them (``_ground_heights``). Unlimited cylinders of ``radius`` m (half near the straight
+    line) and one radar on the ground near the line (range ``radar_range``) come last, outside the route's
+    corridor. The straight route fails the checker (the generator checks)."""
+    vehicle = VehicleLimits()
+    gx, gy = _grid(size, size, cell)
+    start2, goal2 = np.array([150.0, 150.0]), np.array([size - 150.0, size - 150.0])
+    for _ in range(MAX_ROUTE_DRAWS):
+        wiggle = _planted_wiggle(rng, np.append(start2, 0.0), np.append(goal2, 0.0), n_legs, amplitude,
+                                 max_turn_deg, divisors)
+        if wiggle is None or (wiggle[:, :2] < 100.0).any() or (wiggle[:, :2] > size - 100.0).any():
+            continue
+        xy = _densify(wiggle[:, :2], step)
+        k = int(rng.integers(hills[0], hills[1] + 1))
+        base = _gaussians(gx, gy, rng.uniform(0.0, size, (k, 2)), rng.uniform(*hill_sigma, k),
+                          rng.uniform(0.3, 1.0, k))
+        base *= rng.uniform(*hill_height) / base.max()
+        n_m = int(rng.integers(mountains[0], mountains[1] + 1))
+        peaks: list[tuple[float, float, float, float]] = []  # x, y, sigma, height
+        for _ in range(50 * n_m):
+            if len(peaks) == n_m:
+                break
+            on_line = len(peaks) < (n_m + 1) // 2
+            c = start2 + rng.uniform(0.15, 0.85) * (goal2 - start2) if on_line else rng.uniform(0.0, size, 2)
+            sigma, height = rng.uniform(*mountain_sigma), rng.uniform(*mountain_height)
+            if (_polyline_distance(c[None], xy)[0] >= 3.0 * sigma + 50.0
+                    and min(np.linalg.norm(c - start2), np.linalg.norm(c - goal2)) >= 3.0 * sigma + 50.0):
+                peaks.append((float(c[0]), float(c[1]), sigma, height))
+        if len(peaks) < n_m:
+            continue
+        pk = np.array(peaks)
+        dem, terrain = _dem(base + _gaussians(gx, gy, pk[:, :2], pk[:, 2], pk[:, 3]), cell)
+        env = _terrain_env(size, size, terrain)
+        ends = rng.uniform(60.0, 100.0, 2) + env.ground(xy[[0, -1], 0], xy[[0, -1], 1])
+        z = _ground_heights(xy, env, rng.uniform(*above), 0.5 * math.tan(vehicle.max_climb),
+                            fixed={0: float(ends[0]), len(xy) - 1: float(ends[1])})
+        if z is None:
+            continue
+        route = np.round(np.column_stack([xy, z]), 2)
+        points, need = corridor(route, hazard)
+        n_c = int(rng.integers(cylinders[0], cylinders[1] + 1))
+        cand = np.where((rng.random(20 * n_c) < 0.5)[:, None],
+                        start2 + rng.uniform(0.1, 0.9, (20 * n_c, 1)) * (goal2 - start2)
+                        + rng.normal(0.0, 120.0, (20 * n_c, 2)), rng.uniform(0.0, size, (20 * n_c, 2)))
+        r = rng.uniform(*radius, 20 * n_c)
+        clear = cylinder_signed_distance(points[None], cand[:, 0, None], cand[:, 1, None], r[:, None], np.inf)
+        ok = np.flatnonzero((clear >= need).all(axis=1) & (cand >= 0.0).all(axis=1) & (cand <= size).all(axis=1))
+        cyl, rc = np.round(cand[ok[:n_c]], 2), np.round(r[ok[:n_c]], 2)
+        site = start2 + rng.uniform(0.3, 0.7, (30, 1)) * (goal2 - start2) + rng.uniform(-100.0, 100.0, (30, 2))
+        site_z = env.ground(site[:, 0], site[:, 1]) + 10.0
+        r_det = rng.uniform(*radar_range, 30)
+        rad_clear = np.linalg.norm(points[None] - np.column_stack([site, site_z])[:, None], axis=-1) - r_det[:, None]
+        fits = np.flatnonzero((rad_clear >= need - hazard.d_coll).all(axis=1))
+        if len(cyl) < n_c or not len(fits):
+            continue
+        radar = np.round(np.append(np.column_stack([site, site_z])[fits[0]], r_det[fits[0]]), 2)[None]
+        env = replace(env, cylinders=_cylinders(cyl, rc), radars=Radars(radar[:, :3], radar[:, 3], np.ones(1)))
+        if not _planted_ok(route, env, hazard) or not straight_fails(route, env, hazard):
+            continue
+        what = (f"{n_m} mountains {pk[:, 3].min():.0f}-{pk[:, 3].max():.0f} m high off a planted route over hills up "
+                f"to {base.max():.0f} m, {len(cyl)} unlimited cylinders and a radar (range {radar[0, 3]:.0f} m)")
+        return _terrain_map("mixed", seed, env, route, hazard, what, dem, _toml_cylinders(cyl, rc)
+                            + _toml_radars(radar), len(cyl) + 1)
+    raise RuntimeError(f"mixed: no flyable route in {MAX_ROUTE_DRAWS} draws (seed {seed})")
+
+
 # --- shared -------------------------------------------------------------------------------------------------
 def _cylinders(xy: np.ndarray, r: np.ndarray) -> Cylinders:
     """Unlimited cylinders at centres xy (K, 2) with radii r (K,)."""
@@ -588,25 +1053,41 @@ def _walled_map(family: str, seed: int, env: Environment, route: np.ndarray, haz
 
 
 def _straight_blocked(route: np.ndarray, env: Environment, hazard: HazardConfig) -> bool:
-    """True if the straight start→goal segment comes within d_coll of an obstacle (§12's collision test)."""
+    """True if the straight start→goal segment comes within d_coll of an obstacle (§12's collision test) or, over
+    terrain, leaves the altitude band (flat ground: start and goal lie in the band, so the segment does too)."""
     t = np.linspace(0.0, 1.0, int(np.linalg.norm(route[-1] - route[0]) / CHORD_STEP_M) + 2)[:, None]
     pts = route[0] + t * (route[-1] - route[0])
-    return bool((obstacle_clearance(pts, None, env) < hazard.d_coll).any())
+    h = pts[:, 2] - env.ground(pts[:, 0], pts[:, 1])
+    return bool((obstacle_clearance(pts, None, env) < hazard.d_coll).any()
+                or ((h < env.z_min) | (h > env.z_max)).any())
+
+
+def straight_fails(route: np.ndarray, env: Environment, hazard: HazardConfig = HAZARD) -> bool:
+    """True if the straight start→goal route (two waypoints) fails the checker or the cost (``route_violations``):
+    the map is not trivial."""
+    return any(route_violations(route[[0, -1]], env, hazard).values())
 
 
 def _header(family: str, seed: int, size_x: float, size_y: float, route: np.ndarray, hazard: HazardConfig,
-            what: str) -> str:
-    """Scenario text up to the obstacles (docs/scenario_format.md); default vehicle and planner settings."""
+            what: str, band: tuple[float, float] = BAND, dem_name: str = "") -> str:
+    """Scenario text up to the obstacles (docs/scenario_format.md); default vehicle and planner settings; with
+    ``dem_name`` a ``[terrain]`` table naming that DEM beside the scenario."""
     s, g = (", ".join(f"{v:.2f}" for v in p) for p in (route[0], route[-1]))
-    return (f'# Generated by planner.bench.hardmaps (issue 15): family "{family}", seed {seed}.\n'
-            f"# A planted route ({len(route)} waypoints) is flyable; obstacles keep a corridor around it.\n"
+    terrain = (f"# ESRI ASCII grid beside this file: ENU metres from home, heights m AMSL (docs/scenario_format.md)\n"
+               f'[terrain]\nkind = "file"\npath = "{dem_name}"\n\n' if dem_name else "")
+    keeps = "the terrain and obstacles keep" if dem_name else "obstacles keep"
+    return (f'# Generated by planner.bench.hardmaps (issue {34 if dem_name else 15}): family "{family}", seed {seed}.\n'
+            f"# A planted route ({len(route)} waypoints) is flyable; {keeps} a corridor around it.\n"
             f'name = "hardmap_{family}_{seed}"\ndescription = "{what}"\n\n'
             f"[home]\nlat = {HOME[0]}\nlon = {HOME[1]}\nalt = {HOME[2]}\n\n"
             f"[bounds]\nx = {size_x:.2f}\ny = {size_y:.2f}\n\n"
-            f"[altitude]\nmin = {BAND[0]:.2f}\nmax = {BAND[1]:.2f}\n\n"
+            f"[altitude]\nmin = {band[0]:.2f}\nmax = {band[1]:.2f}\n\n"
+            f"{terrain}"
             f"[route]\nstart = [{s}]\ngoal = [{g}]\n\n"
             f"[hazard]\nd_safe = {hazard.d_safe:.2f}\nd_coll = {hazard.d_coll:.2f}\n")
 
 
 _GENERATORS: dict[str, Callable[..., HardMap]] = {"gates": _gates, "dense": _dense, "maze": _maze,
-                                                   "ridge": _ridge, "canyon": _canyon}
+                                                   "ridge": _ridge, "canyon": _canyon,
+                                                   "valley": _valley, "saddle": _saddle,
+                                                   "saddle_radar": _saddle_radar, "mixed": _mixed}

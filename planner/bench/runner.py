@@ -143,14 +143,15 @@ def hard_map(family: str, seed: int) -> Any:
 
 
 def generated_map(family: str, seed: int) -> Path:
-    """The scenario file of hard map ``family``/``seed``, written once per process."""
+    """The scenario file of hard map ``family``/``seed``, written once per process (with its DEM beside it, for
+    the terrain families)."""
     import tempfile
 
     if not _MAP_DIR:
         _MAP_DIR.append(Path(tempfile.mkdtemp(prefix="fuseplan-maps-")))
     path = _MAP_DIR[0] / f"hardmap_{family}_{seed}.toml"
     if not path.exists():
-        path.write_text(hard_map(family, seed).toml)
+        hard_map(family, seed).write(_MAP_DIR[0])
     return path
 
 

@@ -82,9 +82,17 @@ def read_esri_ascii(path: str | Path, home: Home) -> Terrain:
     """ESRI ASCII grid with coordinates in the local ENU frame (m) and heights in m AMSL → heights above home."""
     path = Path(path)
     try:
-        lines = _read(path, MAX_ESRI_BYTES).decode("ascii").splitlines()
+        text = _read(path, MAX_ESRI_BYTES).decode("ascii")
     except UnicodeError as exc:
         raise ValueError(f"cannot read ESRI ASCII grid {path}: {exc}") from exc
+    return parse_esri_ascii(text, home, path)
+
+
+def parse_esri_ascii(text: str, home: Home, path: str | Path = "grid.asc") -> Terrain:
+    """The text of an ESRI ASCII grid (see :func:`read_esri_ascii`; ``path`` names it in errors) → heights above
+    home: what the loader makes of a file with this text, number for number."""
+    path = Path(path)
+    lines = text.splitlines()
     header: dict[str, float] = {}
     n_header = 0
     for line in lines[: len(_ESRI_KEYS)]:

@@ -8,7 +8,13 @@ import numpy as np
 import pymap3d
 import pytest
 
-from planner.world.dem import hgt_tile_origin, read_esri_ascii, read_hgt, synthetic_hills
+from planner.world.dem import (
+    hgt_tile_origin,
+    parse_esri_ascii,
+    read_esri_ascii,
+    read_hgt,
+    synthetic_hills,
+)
 from planner.world.home import Home
 
 HILLS = dict(count=12, max_height=180.0, sigma_range=(120.0, 300.0), spacing=25.0)
@@ -76,6 +82,19 @@ def test_esri_round_trip(tmp_path: Path, centre: bool) -> None:
     x = np.array([0.0, 123.0, 640.5, 1000.0])
     y = np.array([0.0, 550.0, 321.0, 600.0])
     np.testing.assert_allclose(t.height_at(x, y), _plane(x, y) - home.alt, atol=1e-9)
+
+
+def test_esri_text_parses_as_the_file_reads(tmp_path: Path) -> None:
+    """parse_esri_ascii is the reader without the file: same heights, same grid (the hard-map generator checks its
+    routes on what the loader will make of the DEM it writes)."""
+    home = Home(-35.36, 149.16, 580.0)
+    _write_esri(tmp_path / "plane.asc")
+    a = read_esri_ascii(tmp_path / "plane.asc", home)
+    b = parse_esri_ascii((tmp_path / "plane.asc").read_text(), home)
+    assert (a.x0, a.y0, a.dx, a.dy) == (b.x0, b.y0, b.dx, b.dy)
+    np.testing.assert_array_equal(a.heights, b.heights)
+    with pytest.raises(ValueError, match="text.asc: expected 2×3"):
+        parse_esri_ascii("ncols 3\nnrows 2\nxllcorner 0\nyllcorner 0\ncellsize 10\n1 2 3\n4 5\n", home, "text.asc")
 
 
 def test_esri_nodata_is_an_error(tmp_path: Path) -> None:
