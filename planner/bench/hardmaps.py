@@ -76,14 +76,14 @@ class HardMap:
     def name(self) -> str:
         return f"hardmap_{self.family}_{self.seed}"
 
-    def write(self, directory: str | Path, extra: str = "") -> Path:
-        """Write the scenario to ``directory`` as ``{name}.toml`` (its text, then ``extra``) and its DEM beside it,
+    def write(self, directory: str | Path) -> Path:
+        """Write the scenario to ``directory`` as ``{name}.toml`` (its text) and its DEM beside it,
         the DEM first (a scenario file on disk has its DEM); returns the scenario's path."""
         out = Path(directory)
         if self.dem:
             (out / self.dem_name).write_text(self.dem, encoding="ascii")
         path = out / f"{self.name}.toml"
-        path.write_text(self.toml + extra)
+        path.write_text(self.toml)
         return path
 
 
@@ -95,36 +95,17 @@ def generate(family: str, seed: int, **options: Any) -> HardMap:
     return _GENERATORS[family](seed, np.random.default_rng(seed), **options)
 
 
-ROADMAP_SECTION = """
-# The paper's fusion (the default planner) fails on most maps like this one: their way through leaves the ±45°
-# cone around the start->goal line (docs/results/robustness.md). Planned with the roadmap pipeline (method.md §15).
-[planner.roadmap]
-enabled = true
-"""
-TERRAIN_ROADMAP_SECTION = """
-# Planned with the roadmap pipeline (method.md §15), as the other hard maps; how it and the paper's fusion fare on
-# terrain that the band must follow (issue 34) has not been benched yet.
-[planner.roadmap]
-enabled = true
-"""
-
-
-def roadmap_section(family: str) -> str:
-    """The text that turns the roadmap pipeline on in a shipped hard map of ``family`` (``write_scenarios``)."""
-    return TERRAIN_ROADMAP_SECTION if family in TERRAIN_FAMILIES else ROADMAP_SECTION
-
-
 def write_scenarios(directory: str | Path, families: Sequence[str] = FAMILIES, seeds: Iterable[int] = (0,),
-                    roadmap: bool = False) -> list[Path]:
+                    ) -> list[Path]:
     """Write the map of every family and seed to ``directory`` (created if missing) as
-    ``hardmap_{family}_{seed}.toml``, the text exactly ``HardMap.toml`` (``roadmap``: then ``roadmap_section``,
-    which plans it with the roadmap pipeline, as the shipped ones in sitl_scenarios/), and the terrain families'
+    ``hardmap_{family}_{seed}.toml``, the text exactly ``HardMap.toml`` (as the shipped ones in sitl_scenarios/;
+    the default planner, the roadmap pipeline, plans them), and the terrain families'
     DEM beside it as ``hardmap_{family}_{seed}.asc`` (``HardMap.write``), so the bench and ``fuseplan plan`` can
     read them like any scenario; returns the scenario paths in the order written (families outer, seeds inner)."""
     out = Path(directory)
     out.mkdir(parents=True, exist_ok=True)
     seeds = tuple(seeds)
-    return [generate(family, seed).write(out, roadmap_section(family) if roadmap else "")
+    return [generate(family, seed).write(out)
             for family in families for seed in seeds]
 
 
@@ -739,15 +720,15 @@ def _valley(seed: int, rng: np.random.Generator, size_x: float = 2200.0,
     """A winding valley cut into a plateau from the west edge to the east edge (issue 34).
 
     The valley's centre line is a meander (``_meander``, as the canyon's: heading swinging ±``sinuosity_deg`` about
-    east, ``wavelength`` m of valley per swing; its tightest bend, λ/(2π·psi) ≥ 195 m at the defaults, is 6 R_min of
-    the default plane). Its floor, ``floor_width`` m wide, is flat across and rises or falls evenly along the valley
-    between two heights drawn from ``floor_height``; the walls rise from its edges to a flat plateau on a smoothstep
-    over ``wall_run`` m. The plateau stands out of a vehicle's reach (``_wall_rise``: the walls are too steep to
-    turn on, so a climb out runs one way along a wall, at most tan γ × its longest contour, ``_contour_length``)
-    plus a margin of 30-80 m: 1.2-1.4 km above the floor at the defaults, where the band (:data:`TERRAIN_BAND`)
-    ends 150 m above the ground. Start and goal lie on the centre line 100 m inside the edges, the planted route follows it with a
-    waypoint every ``step`` m of valley (as the canyon's) ``above`` m above its floor, and the straight line
-    between them crosses the walls: no height profile along it keeps the band (``profile_flyable``)."""
+    east, ``wavelength`` m of valley per swing; its tightest bend, λ/(2π·psi) ≥ 195 m at the defaults, is 6 R_min of the
+    default plane). Its floor, ``floor_width`` m wide, is flat across and rises or falls evenly along the valley between
+    two heights drawn from ``floor_height``; the walls rise from its edges to a flat plateau on a smoothstep over
+    ``wall_run`` m. The plateau stands out of a vehicle's reach (``_wall_rise``: the walls are too steep to turn on, so
+    a climb out runs one way along a wall, at most tan γ × its longest contour, ``_contour_length``) plus a margin of
+    30-80 m: 1.2-1.4 km above the floor at the defaults, where the band (:data:`TERRAIN_BAND`) ends 150 m above the
+    ground. Start and goal lie on the centre line 100 m inside the edges, the planted route follows it with a waypoint
+    every ``step`` m of valley (as the canyon's) ``above`` m above its floor, and the straight line between them crosses
+    the walls: no height profile along it keeps the band (``profile_flyable``)."""
     vehicle = VehicleLimits()
     for _ in range(MAX_ROUTE_DRAWS):
         psi = np.radians(rng.uniform(*sinuosity_deg))
@@ -812,19 +793,18 @@ def _saddle(seed: int, rng: np.random.Generator, radars: bool = False, size_x: f
     """A terrain ridge across the start→goal direction (x) from the south edge to the north edge, with one saddle
     (issue 34); ``radars``: with a radar on each summit flanking the saddle (``saddle_radar``).
 
-    The plain is flat at home's height. The ridge runs along x = x_r: a crest ``crest_half`` m either side of it,
-    flanks falling on a smoothstep over ``flank_run`` m. The pass is a notch cut through it around y = y_s: a floor
-    at ``pass_height`` m (below the band's ceiling over the plain, so a plane crosses it without climbing)
-    2·``pass_half`` m wide, its walls rising on a smoothstep over ``pass_run`` m (the ground is the lower of the
-    ridge and the notch). The crest stands out of reach (``_wall_rise``: flanks and notch walls too steep to turn
-    on; the longest contour runs up one flank, round the notch and down the other; then a margin of 30-80 m):
-    1.1-1.25 km above the plain at the defaults. Start and goal lie on the plain, 150 m inside the west and east edges, where the
-    straight line between them crosses the ridge ``offset`` m from the saddle, at the crest: no height profile along
-    it keeps the band (``profile_flyable``). The planted route swings over to y_s (``_s_curve``), crosses the pass
-    square-on and swings back to the goal, a waypoint at least every ``step`` m (the cost's terrain margin grows
-    with a leg's length and the DEM's steepest slope, docs/method.md §5.2), ``above`` m above the highest ground
-    near its legs (``_ground_heights``).
-
+    The plain is flat at home's height. The ridge runs along x = x_r: a crest ``crest_half`` m either side of it, flanks
+    falling on a smoothstep over ``flank_run`` m. The pass is a notch cut through it around y = y_s: a floor at
+    ``pass_height`` m (below the band's ceiling over the plain, so a plane crosses it without climbing) 2·``pass_half``
+    m wide, its walls rising on a smoothstep over ``pass_run`` m (the ground is the lower of the ridge and the notch).
+    The crest stands out of reach (``_wall_rise``: flanks and notch walls too steep to turn on; the longest contour runs
+    up one flank, round the notch and down the other; then a margin of 30-80 m): 1.1-1.25 km above the plain at the
+    defaults. Start and goal lie on the plain, 150 m inside the west and east edges, where the straight line between
+    them crosses the ridge ``offset`` m from the saddle, at the crest: no height profile along it keeps the band
+    (``profile_flyable``). The planted route swings over to y_s (``_s_curve``), crosses the pass square-on and swings
+    back to the goal, a waypoint at least every ``step`` m (the cost's terrain margin grows with a leg's length and the
+    DEM's steepest slope, docs/method.md §5.2), ``above`` m above the highest ground near its legs
+    (``_ground_heights``).
     With ``radars`` each flanking summit (on the crest 50-150 m past the notch's walls, 10 m above the ground)
     carries a radar whose range meets ``ceiling`` m above the route's pass height in the middle of the saddle (as
     ``ridge``'s), lower off it: the way through is low, and the generator checks with ``free_section`` that nothing

@@ -141,7 +141,7 @@ def test_write_scenarios_writes_the_generated_text(tmp_path: Path) -> None:
 
 
 def test_the_shipped_hard_maps_are_the_generators_own_planned_with_the_roadmap(tmp_path: Path) -> None:
-    """sitl_scenarios/hardmap_*.toml are write_scenarios(..., roadmap=True) of today's generator, byte for byte,
+    """sitl_scenarios/hardmap_*.toml are write_scenarios(...) of today's generator, byte for byte,
     the terrain families' DEMs beside them too (regenerate them when the generator changes), and they load with the
     roadmap pipeline on."""
     shipped = sorted((REPO / "sitl_scenarios").glob("hardmap_*.toml"))
@@ -150,7 +150,7 @@ def test_the_shipped_hard_maps_are_the_generators_own_planned_with_the_roadmap(t
     assert {p.stem for p in dems} == {f"hardmap_{f}_0" for f in TERRAIN_FAMILIES}
     for p in dems:
         assert p.stat().st_size <= 150_000, p.name  # small enough to ship
-    for p in write_scenarios(tmp_path, roadmap=True):
+    for p in write_scenarios(tmp_path):
         assert p.read_text() == (REPO / "sitl_scenarios" / p.name).read_text(), p.name
         assert load_scenario(p).planner.roadmap.enabled
         assert load_scenario(REPO / "sitl_scenarios" / p.name).planner.roadmap.enabled
