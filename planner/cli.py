@@ -166,10 +166,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
             no_route = road["stop_reason"].startswith("no route")
             print(f"  roadmap   {'infeasible: ' if no_route and not result.feasible else ''}{road['stop_reason']} "
                   f"({road['time_s']:.2f} s{', then the paper fusion' if no_route else ''})")
-        names = {"pso": "SPSO", "colony": "roadmap colony", "pso2": "SPSO (colony's corridor)", "aco": "ACO"}
+        names = {"pso": "SPSO", "colony": "roadmap colony", "pso2": "SPSO (colony's corridor)", "aco": "ACO",
+                 "paper": "then the paper fusion"}
         print("  phases    " + " -> ".join(
             f"{names.get(k, k)} " + ("n/a" if v["best_cost"] is None else f"{v['best_cost']:.1f}")
-            + f" ({v['iterations']} it, {v['time_s']:.2f} s)" for k, v in ph.items()) + f"; winner {winner}")
+            + f" ({v['iterations']} it, {v['time_s']:.2f} s)" for k, v in ph.items() if "/" not in k)
+              + f"; winner {winner}")
     if args.output:
         write_text(args.output, json.dumps(doc, indent=1, allow_nan=False) + "\n")
         print(f"  wrote {args.output}")

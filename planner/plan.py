@@ -10,7 +10,7 @@ from __future__ import annotations
 import enum
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
@@ -34,6 +34,7 @@ from planner.world.config import PlannerSettings
 from planner.world.scenario import Scenario
 
 MERGE_TOLERANCE_M = 1.0
+PAPER_MIN_S = 0.05  # the least search time the paper's fusion is run on after an infeasible pipeline route
 
 
 class PlanStatus(str, enum.Enum):
@@ -143,17 +144,57 @@ def plan(
     check_workload(problem, settings, budgeted=deadline.bounded)
     tune_allocator()
     t0 = time.perf_counter()
-    opt = make_optimiser(settings).run(problem, rng, initial_paths=initial_paths,
-                                       deadline=deadline.minus(post_reserve_s(problem, settings)), progress=progress)
-    waypoints = merge_close_waypoints(opt.path)
-    evaluation = problem.evaluate(waypoints[None]) if len(waypoints) != len(opt.path) else opt.evaluation
-    traj, check, feasible = assess(problem, settings, waypoints, evaluation)
+    reserve = post_reserve_s(problem, settings)
+    opt = make_optimiser(settings).run(problem, rng, initial_paths=initial_paths, deadline=deadline.minus(reserve),
+                                       progress=progress)
+    waypoints, evaluation, traj, check, feasible = _verdict(problem, settings, opt)
+    if not feasible and _paper_may_follow(settings, opt) and deadline.affords(2.0 * reserve + PAPER_MIN_S):
+        # the pipeline's best still fails: the paper's fusion in what is left, and the better route is kept, so on a
+        # map the paper's planner solves the pipeline does not lose (docs/method.md §15.6)
+        paper_settings = replace(settings, roadmap=replace(settings.roadmap, enabled=False))
+        paper = make_optimiser(paper_settings).run(problem, rng, initial_paths=initial_paths,
+                                                   deadline=deadline.minus(reserve), progress=progress)
+        verdict = _verdict(problem, settings, paper)
+        opt = _with_paper(opt, paper, verdict[4] or paper.cost < opt.cost)
+        if opt.winner == "paper":
+            waypoints, evaluation, traj, check, feasible = verdict
     if opt.stop_reason == "timeout":
         status = PlanStatus.APPROXIMATE if feasible else PlanStatus.TIMEOUT
     else:
         status = PlanStatus.EXACT if feasible else PlanStatus.INFEASIBLE
     return PlanResult(status, settings.algorithm, seed, waypoints, evaluation, traj, check, opt,
                       time.perf_counter() - t0)
+
+
+def _verdict(problem: PlanningProblem, settings: PlannerSettings, opt: OptimiserResult,
+             ) -> tuple[np.ndarray, Evaluation, Trajectory, CheckResult, bool]:
+    """An optimiser's route as it is handed on: close waypoints merged, its cost, and :func:`assess`'s verdict."""
+    waypoints = merge_close_waypoints(opt.path)
+    evaluation = problem.evaluate(waypoints[None]) if len(waypoints) != len(opt.path) else opt.evaluation
+    return (waypoints, evaluation, *assess(problem, settings, waypoints, evaluation))
+
+
+def _paper_may_follow(settings: PlannerSettings, opt: OptimiserResult) -> bool:
+    """True for a roadmap-pipeline fusion that did not already end in the paper's fusion (no roadmap route)."""
+    phases = getattr(opt, "phases", None) or {}
+    road = phases.get("roadmap")
+    return uses_roadmap(settings) and settings.algorithm == "fusion" and road is not None and road.iterations > 0
+
+
+def _with_paper(pipeline: Any, paper: Any, paper_wins: bool) -> Any:
+    """The pipeline's FusionResult with the paper's fusion as one more phase (``paper``, its phases under
+    ``paper/…``): the winner's route, the histories one after the other, the times and counts summed."""
+    from planner.search.fusion import FusionResult, PhaseRecord
+
+    phases = dict(pipeline.phases)
+    phases.update({f"paper/{k}": v for k, v in paper.phases.items()})
+    phases["paper"] = PhaseRecord(paper.cost, paper.iterations, paper.time_s, paper.evaluations, paper.stop_reason)
+    win = paper if paper_wins else pipeline
+    history = list(pipeline.history) + [min(pipeline.history[-1], h) for h in paper.history]
+    stop = "timeout" if "timeout" in (pipeline.stop_reason, paper.stop_reason) else win.stop_reason
+    return FusionResult(win.path, win.cost, win.evaluation, history, pipeline.iterations + paper.iterations, stop,
+                        pipeline.time_s + paper.time_s, pipeline.evaluations + paper.evaluations, pipeline.state,
+                        phases, "paper" if paper_wins else pipeline.winner, pipeline.trace)
 
 
 def assess(problem: PlanningProblem, settings: PlannerSettings, waypoints: np.ndarray,

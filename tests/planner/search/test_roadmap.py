@@ -290,3 +290,33 @@ def test_a_roadmap_plan_asked_for_a_safe_route_skips_the_colonies_once_its_swarm
     full = plan(prob, full_sc.planner, np.random.default_rng(2))
     assert "aco" in full.optimiser.phases and full.optimiser.phases["aco"].iterations > 0
     assert full.optimiser.evaluations > quick.optimiser.evaluations
+
+
+def test_an_infeasible_pipeline_route_gives_way_to_the_papers_feasible_one(monkeypatch) -> None:
+    """docs/method.md §15.6: when the pipeline's best route still fails and time is left, the paper's fusion runs
+    and the better route is kept. The pipeline is made to return the straight line through rescue_static's
+    cylinders; the paper's fusion flies round them, and its route is the plan, recorded as the winning phase."""
+    from planner.search.fusion import Fusion, FusionResult, PhaseRecord
+
+    sc = load_scenario(Path(__file__).parents[3] / "sitl_scenarios" / "rescue_static.toml")
+    pb = problem_from_scenario(sc)
+    straight = np.linspace(pb.start, pb.goal, 12)
+    ev = pb.evaluate(straight[None])
+    assert ev.n_violations[0] > 0
+
+    def failing_pipeline(self, problem, rng, initial_paths, deadline, progress, t0):  # noqa: ANN001, ANN202
+        return FusionResult(straight, float(ev.total[0]), ev, [float(ev.total[0])], 1, "max_iterations", 0.01, 1,
+                            None, {"roadmap": PhaseRecord(math.nan, 1, 0.01, 0, "1 routes at 25 m resolution"),
+                                   "pso": PhaseRecord(float(ev.total[0]), 1, 0.01, 1, "max_iterations")}, "pso")
+
+    monkeypatch.setattr(Fusion, "_run_roadmap", failing_pipeline)
+    assert sc.planner.roadmap.enabled  # the default
+    res = plan(pb, sc.planner, np.random.default_rng(0))
+    assert res.feasible and res.optimiser.winner == "paper"
+    assert {"roadmap", "pso", "paper", "paper/pso", "paper/aco"} <= set(res.optimiser.phases)
+    assert res.cost < float(ev.total[0]) and not np.array_equal(res.waypoints, straight)
+    # paper mode never runs it twice, and a spent deadline leaves the pipeline's route as it is
+    from planner.deadline import Deadline
+
+    late = plan(pb, sc.planner, np.random.default_rng(0), deadline=Deadline.after(1e-6))
+    assert "paper" not in late.optimiser.phases and not late.feasible
