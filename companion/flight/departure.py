@@ -64,6 +64,11 @@ class Departure:
             self.clearance_m) else None, "nearest_obstacle": self.nearest_obstacle, "refusal": self.refusal}
 
 
+def _compass(v: np.ndarray) -> float:
+    """Compass degrees (0 north, 90 east) of a horizontal vector (east, north)."""
+    return math.degrees(math.atan2(float(v[0]), float(v[1]))) % 360.0
+
+
 def _unit(deg: float) -> np.ndarray:
     r = math.radians(deg)
     return np.array([math.sin(r), math.cos(r)])
@@ -143,11 +148,36 @@ def departure_paths(fix: VehicleFix, start: np.ndarray, takeoff_alt: float,
     return paths
 
 
+def join_paths(paths: list[np.ndarray], onto: np.ndarray, limits: AutopilotLimits) -> list[np.ndarray]:
+    """The turns (M, 3) from each departure path's arrival at the route's start onto its first leg, towards
+    ``onto`` (the route's next waypoint): a plane's path-follower turns from the heading it arrives on, at its
+    tightest and at its wide (L1) radius, and may swing well past the start when the leg turns back; a copter
+    turns on the spot (none)."""
+    if limits.vehicle_type != "plane" and not limits.vertical_takeoff:
+        return []
+    out = []
+    for path in paths:
+        start = path[-1]
+        arrive = start[:2] - path[-2][:2]
+        norm = float(np.linalg.norm(arrive))
+        if norm < 1e-6:
+            continue
+        for radius in sorted({limits.turn_radius, limits.wide_turn_radius()}):
+            flat = turn_then_straight(start[:2], arrive / norm, np.asarray(onto[:2], dtype=float), radius)
+            run = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(flat, axis=0), axis=1))])
+            z = start[2] + (float(onto[2]) - start[2]) * run / max(float(run[-1]), 1e-9)
+            out.append(_densify(np.column_stack([flat, z])))
+    return out
+
+
 def check_departure(fix: VehicleFix, start: np.ndarray, takeoff_alt: float, limits: AutopilotLimits,
-                    env: Environment, d_coll: float, on_ground: bool = True) -> Departure:
+                    env: Environment, d_coll: float, on_ground: bool = True,
+                    onto: np.ndarray | None = None) -> Departure:
     """The departure's verdict: refused (one line) when the vehicle is outside the region, its home's altitude
     is not the scenario's, or any path of the envelope comes within d_coll + :data:`DEPARTURE_MARGIN_M` of a
-    static obstacle. An airborne vehicle flies straight to the start from where it is (checked the same way)."""
+    static obstacle. An airborne vehicle flies straight to the start from where it is (checked the same way).
+    ``onto``: the route's next waypoint; the turns from the envelope's arrival onto the first leg
+    (:func:`join_paths`) are checked too."""
     p = np.asarray(fix.position, dtype=float)
     where = f"at ({p[0]:.0f}, {p[1]:.0f}) m"
     if fix.home is not None and abs(float(fix.home[2])) > HOME_ALT_TOLERANCE_M:
@@ -158,9 +188,19 @@ def check_departure(fix: VehicleFix, start: np.ndarray, takeoff_alt: float, limi
         return Departure([], math.nan, None, f"the vehicle is {where}, outside the scenario's region "
                          f"(0..{env.size_x:g} × 0..{env.size_y:g} m): it cannot be flown from there")
     paths = departure_paths(fix, start, takeoff_alt, limits) if on_ground else [_densify(np.stack([p, start]))]
-    pts = np.vstack(paths)
-    clearance, nearest = nearest_obstacle(pts, env)
+    joins = [] if onto is None else join_paths(paths, onto, limits)
+    clearance, nearest = nearest_obstacle(np.vstack(paths), env)
     need = d_coll + DEPARTURE_MARGIN_M
+    if joins:
+        join_clearance, join_nearest = nearest_obstacle(np.vstack(joins), env)
+        if join_clearance < min(clearance, need):
+            return Departure(paths + joins, join_clearance, join_nearest, (
+                f"the vehicle {where} would reach the route's start heading "
+                f"{_compass(paths[0][-1][:2] - paths[0][-2][:2]):.0f}° and its turn onto the first leg comes "
+                + (f"{-join_clearance:.0f} m inside {join_nearest}" if join_clearance < 0
+                   else f"{join_clearance:.0f} m from {join_nearest}")
+                + f" (needs {need:g} m): nothing uploaded; turn or move the vehicle, or start the route elsewhere"))
+        paths = paths + joins
     if clearance < need:
         how = (f"take off on heading {fix.heading_deg or 0.0:.0f}° and climb out" if on_ground and
                limits.vehicle_type == "plane" else "climb out" if on_ground else "fly")

@@ -218,9 +218,9 @@ def _departure_check(plan_doc: dict[str, Any], scenario: Scenario, limits: Autop
                      events: EventLog) -> Callable[[VehicleFix, bool], None]:
     """The supervisor's check of the departure from where the vehicle is (before anything is uploaded)."""
     def check(fix: VehicleFix, on_ground: bool) -> None:
-        start = np.asarray(plan_doc["waypoints"][0], dtype=float)
-        verdict = check_departure(fix, start, scenario.vehicle.takeoff_alt, limits, scenario.environment,
-                                  scenario.hazard.d_coll, on_ground)
+        route = np.asarray(plan_doc["waypoints"], dtype=float)
+        verdict = check_departure(fix, route[0], scenario.vehicle.takeoff_alt, limits, scenario.environment,
+                                  scenario.hazard.d_coll, on_ground, onto=route[1] if len(route) > 1 else None)
         events.log("departure", on_ground=on_ground, **verdict.summary())
         if verdict.refusal is not None:
             raise DepartureRefused(verdict.refusal)

@@ -79,8 +79,9 @@ def test_fly_copter_scenario_on_sim(tmp_path) -> None:
 
 def test_fly_infeasible_plan_exits_3_without_flying(tmp_path, capsys) -> None:
     report = tmp_path / "no"
-    code = main(["fly", str(STATIC), "--sim", "--report", str(report), "-q", "--set", "hazard.d_coll=60",
-                 "--set", "hazard.d_safe=80", "--set", "planner.pso.n_pop=30", "--set", "planner.pso.max_iter=5",
+    # d_coll 90 m: the start itself is 80 m from a cylinder, so no route can be feasible
+    code = main(["fly", str(STATIC), "--sim", "--report", str(report), "-q", "--set", "hazard.d_coll=90",
+                 "--set", "hazard.d_safe=100", "--set", "planner.pso.n_pop=30", "--set", "planner.pso.max_iter=5",
                  "--algorithm", "spso"])
     assert code == 3
     assert (report / "PLAN.json").exists() and not (report / "flight.json").exists()

@@ -33,6 +33,7 @@ from companion.replanning.separation import (
     separation_to_track,
 )
 from planner.replan import replan_problem
+from planner.world.config import PAPER_MODE
 from planner.world.environment import Threat, Threats
 from planner.world.scenario import load_scenario
 
@@ -236,8 +237,9 @@ def test_separation_to_scripted_threats_runs_on_mission_time() -> None:
 def test_replan_settings_take_the_swarm_size_and_the_roadmap_unless_told_not_to() -> None:
     """A replan plans with the replanning swarm and the roadmap pipeline (``ReplanConfig.roadmap``, the default;
     off, the scenario's planner as it says), every other setting as the scenario says."""
-    assert not SC.planner.roadmap.enabled
-    plain = replan_settings(SC.planner, ReplanConfig(population=37, roadmap=False))
+    assert SC.planner.roadmap.enabled  # the default planner
+    paper = load_scenario(SC.source, [PAPER_MODE]).planner  # a scenario in paper mode keeps it
+    plain = replan_settings(paper, ReplanConfig(population=37, roadmap=False))
     assert plain.pso.n_pop == 37 and not plain.roadmap.enabled and plain.aco == SC.planner.aco
     on = replan_settings(SC.planner, ReplanConfig())  # the default: replans by the roadmap
     assert on.roadmap.enabled and on.roadmap.spacing == SC.planner.roadmap.spacing and on.pso.n_pop == 100
