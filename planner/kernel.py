@@ -794,7 +794,7 @@ _COST_ARGS = 17  # of _arrays' tuple: what _cost reads
 def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -> tuple:  # noqa: ANN001
     """Everything the kernel reads from a problem, as contiguous float arrays (made once per problem): the cost's
     (the first _COST_ARGS), then the grid the ant colonies' segment_blocked finds obstacles in."""
-    from planner.trajectory.smoothing import _PEAK_FACTOR  # the same G(cos θ) table as the reference
+    from planner.trajectory.smoothing import PEAK_FACTOR  # the same G(cos θ) table as the reference
     from planner.world.geometry import GOLDEN_ITERS
 
     env, veh, hz, pen = problem.env, problem.vehicle, problem.hazard, problem.penalty
@@ -826,7 +826,7 @@ def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -
         f(rad.center, (-1, 3)), f(rad.r_det), f(rad.soft_weight),
         f(ter.heights, ter.heights.shape) if ter is not None else np.zeros((2, 2)),
         _threat_rows(thr),
-        f(_PEAK_FACTOR), f(threat_t), f(terrain_t), np.int64(GOLDEN_ITERS),
+        f(PEAK_FACTOR), f(threat_t), f(terrain_t), np.int64(GOLDEN_ITERS),
         grid, ob_x, ob_y, ob_r, *_cells(grid, ob_x, ob_y, ob_r),
     )
 
