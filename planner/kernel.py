@@ -16,8 +16,14 @@ from __future__ import annotations
 
 import math
 import os
+from dataclasses import dataclass
 
 import numpy as np
+
+from planner.trajectory.smoothing import PEAK_FACTOR
+from planner.world.config import CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
+from planner.world.environment import LOITER, PATROL, Environment, Threats
+from planner.world.geometry import GOLDEN_ITERS
 
 try:
     from numba import njit
@@ -32,7 +38,6 @@ KERNELS = ("compiled", "numpy")
 _EPS = 1e-9  # as planner.problem: unit directions
 _EPS_CURV = 1e-12  # as planner.trajectory.smoothing: curvature's segment-length floor
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
-_LOITER, _PATROL, _TRACK = 0, 1, 2  # planner.world.environment's threat kinds
 
 
 def broad_phase() -> bool:
@@ -421,12 +426,12 @@ def _threat_terms(pt, s, p, seg_len, s0, dev, thr, threat_t, start_time, cruise,
         time = start_time + (s0 + tt * seg_len) / cruise
         for k in range(thr.shape[0]):  # centre and radius at this time (Threats.positions, .radii)
             kind, rad, t_ref = thr[k, 0], thr[k, 1], thr[k, 3]
-            if kind == _LOITER:  # a1 circle radius, a2 angular rate, a3 phase
+            if kind == LOITER:  # a1 circle radius, a2 angular rate, a3 phase
                 ang = thr[k, 9] + thr[k, 8] * time
                 cx = thr[k, 4] + thr[k, 7] * math.cos(ang)
                 cy = thr[k, 5] + thr[k, 7] * math.sin(ang)
                 cz = thr[k, 6]
-            elif kind == _PATROL:  # a1..a3 unit direction A→B, a4 length, a5 speed
+            elif kind == PATROL:  # a1..a3 unit direction A→B, a4 length, a5 speed
                 along = (thr[k, 11] * time) % (2 * thr[k, 10])
                 if along > thr[k, 10]:
                     along = 2 * thr[k, 10] - along
@@ -473,18 +478,17 @@ def _terrain_terms(pt, seg, q2, s, p, terrain_t, slope, z_min, z_max, tx0, ty0, 
 
 
 @_jit
-def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w,
-          terrain_h, thr, peak_table, threat_t, terrain_t, golden_iters):  # noqa: ANN001, ANN202
-    """terms (P, 5), penalty (P,), violations (P, 5) and the weighted total (P,) for paths (P, N, 3); ``sc`` holds
-    the scalars and ``thr`` the threats' laws, a row each (see _arrays).
+def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d_coll, pen_c, per_m, per_rad,
+          w_length, w_hazard, w_altitude, w_smoothness, w_destination, z_min, z_max, size_x, size_y, direct,
+          has_heading, heading, timed, start_time, max_speed, thr, has_terrain, tx0, ty0, tdx, tdy, slope, terrain_h,
+          cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w, peak_table, threat_t, terrain_t,
+          golden_iters, broad):  # noqa: ANN001, ANN202
+    """terms (P, 5), penalty (P,), violations (P, 5) and the weighted total (P,) for paths (P, N, 3), from the
+    fields of :class:`KernelInputs` (see :func:`evaluate`); ``thr`` holds the threats' laws, a row each.
 
     Particles are the innermost loop (the swarm is transposed to waypoint × axis × particle first), so the common
     passes run in SIMD lanes; each particle's own sums are still added term by term in the order of one particle
     at a time: segment, then obstacle, then category."""
-    (acc_r, d_safe, d_coll, pen_c, per_m, per_rad, max_turn, r_min, max_climb, z_min, z_max, size_x, size_y,
-     direct, cruise, start_time, timed, max_speed, has_heading, has_terrain, tx0, ty0, tdx, tdy, slope) = (
-        sc[0], sc[1], sc[2], sc[3], sc[4], sc[5], sc[6], sc[7], sc[8], sc[9], sc[10], sc[11], sc[12], sc[13], sc[14],
-        sc[15], sc[16] > 0, sc[17], sc[18] > 0, sc[19] > 0, sc[20], sc[21], sc[22], sc[23], sc[24])
     n_p, n_pts = paths.shape[0], paths.shape[1]
     n_s = n_pts - 1
     pt = np.empty((n_pts, 3, n_p))  # the swarm, particles innermost
@@ -513,8 +517,6 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
     viol = np.zeros((5, n_p), dtype=np.int64)  # collision, altitude, bounds, turn, climb
     n_cyl = cyl_x.shape[0]
     n_sph = sph_r.shape[0]
-    broad = sc[30] > 0  # skip obstacles out of the swarm's reach (FUSEPLAN_BROAD_PHASE)
-    overshoot = sc[31]  # m per radian of turn (VehicleLimits.turn_overshoot)
     climb_tan2 = math.tan(max_climb) ** 2 * (1.0 - 1e-9) if max_climb < 0.5 * math.pi else math.inf
     peak_max = peak_table.max()
     gap_cap = d_safe - d_coll
@@ -567,7 +569,7 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
         # swarm's segments s share a small box, and obstacles beyond every particle's reach from it add exact zeros
         # for all of them: they are skipped, and the sums stay bit for bit those without skipping (method.md §4.3)
         reach = math.inf
-        if broad:
+        if broad:  # FUSEPLAN_BROAD_PHASE
             dev_hi = 0.0
             for p in range(n_p):
                 dev_hi = max(dev_hi, dev[s, p])
@@ -733,25 +735,24 @@ def _cost(paths, sc, heading, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
         terms[p, 2] = j3[p]
         terms[p, 3] = j4[p]
         terms[p, 4] = seg_len[n_s - 1, p] / inv_direct
-        t = pen[p]
         for i in range(5):
             violations[p, i] = viol[i, p]
-            t = t + sc[25 + i] * terms[p, i]
-        total[p] = t
+        total[p] = (pen[p] + w_length * terms[p, 0] + w_hazard * terms[p, 1] + w_altitude * terms[p, 2]
+                    + w_smoothness * terms[p, 3] + w_destination * terms[p, 4])  # the reference's order
     return terms, pen, violations, total
 
 
-def _threat_rows(thr) -> np.ndarray:  # noqa: ANN001
+def _threat_rows(thr: Threats) -> np.ndarray:
     """Threats (K, 12): kind, radius, radius growth, t_ref, p0, then per kind the law's constants, computed as
     Threats.positions computes them (so the kernel's centres match the reference's to the last bit)."""
     rows = np.zeros((len(thr), 12))
     rows[:, 0], rows[:, 1], rows[:, 2], rows[:, 3] = thr.kind, thr.radius, thr.radius_growth, thr.t_ref
     rows[:, 4:7] = thr.p0
     for k in range(len(thr)):  # a handful of threats, once per problem
-        if thr.kind[k] == _LOITER:
+        if thr.kind[k] == LOITER:
             r = thr.circle_radius[k]
             rows[k, 7:10] = r, thr.direction[k] * thr.speed[k] / (r if r > 0 else 1.0), thr.phase[k]
-        elif thr.kind[k] == _PATROL:
+        elif thr.kind[k] == PATROL:
             ab = thr.p1[k] - thr.p0[k]
             length = float(np.linalg.norm(ab))
             safe = length if length > 0 else 1.0
@@ -761,98 +762,173 @@ def _threat_rows(thr) -> np.ndarray:  # noqa: ANN001
     return rows
 
 
-def _grid(size_x: float, size_y: float, obstacles: int, on: bool) -> np.ndarray:
-    """Broad-phase grid (origin x, origin y, cell, nx, ny) over the map; one cell holding everything when off.
-    About one obstacle per cell (cells of √(area / obstacles)), at most GRID_CELLS along the longer side: finer
-    cells cost more cell visits per segment than the distances they save."""
-    if not on or obstacles < GRID_MIN_OBSTACLES:
-        return np.array([0.0, 0.0, 1e300, 1.0, 1.0])
-    cell = max(max(size_x, size_y, 1.0) / GRID_CELLS, math.sqrt(max(size_x * size_y, 1.0) / obstacles))
-    return np.array([0.0, 0.0, cell, max(math.ceil(size_x / cell), 1), max(math.ceil(size_y / cell), 1)], dtype=float)
+def _f64(a, shape: tuple[int, ...] = (-1,)) -> np.ndarray:  # noqa: ANN001
+    """A contiguous, writeable float64 copy: one compiled signature for every problem."""
+    return np.array(a, dtype=np.float64, order="C").reshape(shape)
 
 
-def _cells(grid: np.ndarray, x: np.ndarray, y: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Compressed rows (start (cells + 1,), items) of the obstacles whose plan-view discs (centre x, y, radius r)
-    reach each cell, ascending within a cell; off-map parts go to the edge cells, as the query clamps too."""
-    ox, oy, cell, nx, ny = grid[0], grid[1], grid[2], int(grid[3]), int(grid[4])
-    lists: list[list[int]] = [[] for _ in range(nx * ny)]
-    for k in range(len(x)):  # once per problem, over the obstacles
-        i0, i1 = (min(max(int(math.floor((v - ox) / cell)), 0), nx - 1) for v in (x[k] - r[k], x[k] + r[k]))
-        j0, j1 = (min(max(int(math.floor((v - oy) / cell)), 0), ny - 1) for v in (y[k] - r[k], y[k] + r[k]))
-        for j in range(j0, j1 + 1):
-            for i in range(i0, i1 + 1):
-                lists[j * nx + i].append(k)
-    start = np.zeros(nx * ny + 1, dtype=np.int64)
-    start[1:] = np.cumsum([len(c) for c in lists])
-    items = np.array([k for c in lists for k in c], dtype=np.int64)
-    return start, items
+@dataclass(frozen=True, eq=False)
+class ObstacleGrid:
+    """The broad phase's uniform grid over the map (cells of ``cell`` metres from x0, y0) and, per cell, the
+    obstacles (cylinders, then spheres) whose plan-view discs reach it; one cell holding everything when off."""
+
+    x0: float
+    y0: float
+    cell: float
+    nx: int
+    ny: int
+    start: np.ndarray  # (nx·ny + 1,) int64: cell c holds items[start[c]:start[c + 1]], ascending
+    items: np.ndarray  # int64 indices into KernelInputs.ob_x, ob_y, ob_r
+
+    @classmethod
+    def over(cls, size_x: float, size_y: float, x: np.ndarray, y: np.ndarray, r: np.ndarray,
+             on: bool) -> ObstacleGrid:
+        """The grid for obstacles of plan-view centres x, y and radii r on a size_x × size_y map. About one
+        obstacle per cell (cells of √(area / obstacles)), at most GRID_CELLS along the longer side: finer cells
+        cost more cell visits per segment than the distances they save. Off-map parts go to the edge cells, as
+        the query clamps too."""
+        if not on or len(x) < GRID_MIN_OBSTACLES:
+            ox, oy, cell, nx, ny = 0.0, 0.0, 1e300, 1, 1
+        else:
+            ox, oy = 0.0, 0.0
+            cell = max(max(size_x, size_y, 1.0) / GRID_CELLS, math.sqrt(max(size_x * size_y, 1.0) / len(x)))
+            nx, ny = max(math.ceil(size_x / cell), 1), max(math.ceil(size_y / cell), 1)
+        lists: list[list[int]] = [[] for _ in range(nx * ny)]
+        for k in range(len(x)):  # once per problem, over the obstacles
+            i0, i1 = (min(max(int(math.floor((v - ox) / cell)), 0), nx - 1) for v in (x[k] - r[k], x[k] + r[k]))
+            j0, j1 = (min(max(int(math.floor((v - oy) / cell)), 0), ny - 1) for v in (y[k] - r[k], y[k] + r[k]))
+            for j in range(j0, j1 + 1):
+                for i in range(i0, i1 + 1):
+                    lists[j * nx + i].append(k)
+        start = np.zeros(nx * ny + 1, dtype=np.int64)
+        start[1:] = np.cumsum([len(c) for c in lists])
+        items = np.array([k for c in lists for k in c], dtype=np.int64)
+        return cls(ox, oy, float(cell), int(nx), int(ny), start, items)
 
 
-_COST_ARGS = 17  # of _arrays' tuple: what _cost reads
+@dataclass(frozen=True, eq=False)
+class KernelInputs:
+    """Everything the compiled kernel reads of one problem, by name, made once per problem
+    (:attr:`planner.problem.PlanningProblem.kernel_inputs`): arrays contiguous and writeable, so that every
+    problem runs the same compiled code, and the sample parameters and tables the reference uses."""
+
+    # the vehicle (VehicleLimits)
+    acceptance_radius: float
+    turn_overshoot: float  # m per radian of turn
+    max_turn: float
+    min_turn_radius: float
+    max_climb: float
+    cruise_speed: float
+    # clearances and the penalty (HazardConfig, PenaltyConfig)
+    d_safe: float
+    d_coll: float
+    penalty_constant: float
+    penalty_per_metre: float
+    penalty_per_radian: float
+    # b1…b5 (CostWeights): the total adds them in this order, as the reference does
+    weight_length: float
+    weight_hazard: float
+    weight_altitude: float
+    weight_smoothness: float
+    weight_destination: float
+    # the map and the route
+    z_min: float
+    z_max: float
+    size_x: float
+    size_y: float
+    direct_distance: float
+    has_heading: bool
+    heading: np.ndarray  # (3,) the start heading; zeros without one
+    # moving threats, met in time only when timed (PlanningProblem.timed_threats)
+    timed: bool
+    start_time: float  # s; 0 when not timed
+    threat_max_speed: float
+    threats: np.ndarray  # (K, 12): see _threat_rows
+    # terrain (terrain.Terrain); a flat ground without
+    has_terrain: bool
+    terrain_x0: float
+    terrain_y0: float
+    terrain_dx: float
+    terrain_dy: float
+    terrain_slope: float  # Terrain.max_slope
+    terrain_heights: np.ndarray  # (ny, nx); zeros (2, 2) without terrain
+    # static obstacles
+    cyl_x: np.ndarray
+    cyl_y: np.ndarray
+    cyl_r: np.ndarray
+    cyl_top: np.ndarray
+    sph_c: np.ndarray  # (K, 3)
+    sph_r: np.ndarray
+    rad_c: np.ndarray  # (K, 3)
+    rad_det: np.ndarray
+    rad_w: np.ndarray
+    # the broad phase: cylinders then spheres in plan view, and their grids (FUSEPLAN_BROAD_PHASE on, off)
+    ob_x: np.ndarray
+    ob_y: np.ndarray
+    ob_r: np.ndarray
+    grid: ObstacleGrid
+    one_cell: ObstacleGrid
+    # what the reference samples and tabulates, shared so that the two compute the same thing
+    peak_factor: np.ndarray  # smoothing.PEAK_FACTOR: G(cos θ)
+    threat_t: np.ndarray  # sample parameters per segment for the moving threats
+    terrain_t: np.ndarray  # and for the terrain
+    golden_iters: int  # geometry.GOLDEN_ITERS
+
+    @classmethod
+    def build(cls, env: Environment, vehicle: VehicleLimits, hazard: HazardConfig, penalty: PenaltyConfig,
+              weights: CostWeights, direct_distance: float, start_time: float | None,
+              start_heading: np.ndarray | None, threat_t: np.ndarray, terrain_t: np.ndarray) -> KernelInputs:
+        """The inputs of a problem; ``start_time`` None when moving threats do not count (none, or no time)."""
+        ter, cyl, sph, rad = env.terrain, env.cylinders, env.spheres, env.radars
+        ob_x = _f64(np.concatenate([cyl.x, sph.center[:, 0]]))  # cylinders then spheres: one grid for both
+        ob_y = _f64(np.concatenate([cyl.y, sph.center[:, 1]]))
+        ob_r = _f64(np.concatenate([cyl.radius, sph.radius]))
+        return cls(
+            acceptance_radius=float(vehicle.acceptance_radius), turn_overshoot=float(vehicle.turn_overshoot),
+            max_turn=float(vehicle.max_turn), min_turn_radius=float(vehicle.min_turn_radius),
+            max_climb=float(vehicle.max_climb), cruise_speed=float(vehicle.cruise_speed),
+            d_safe=float(hazard.d_safe), d_coll=float(hazard.d_coll), penalty_constant=float(penalty.constant),
+            penalty_per_metre=float(penalty.per_metre), penalty_per_radian=float(penalty.per_radian),
+            weight_length=float(weights.length), weight_hazard=float(weights.hazard),
+            weight_altitude=float(weights.altitude), weight_smoothness=float(weights.smoothness),
+            weight_destination=float(weights.destination),
+            z_min=float(env.z_min), z_max=float(env.z_max), size_x=float(env.size_x), size_y=float(env.size_y),
+            direct_distance=float(direct_distance),
+            has_heading=start_heading is not None,
+            heading=_f64(start_heading if start_heading is not None else np.zeros(3)),
+            timed=start_time is not None, start_time=float(start_time) if start_time is not None else 0.0,
+            threat_max_speed=float(env.threats.max_speed), threats=_threat_rows(env.threats),
+            has_terrain=ter is not None,
+            terrain_x0=float(ter.x0) if ter is not None else 0.0, terrain_y0=float(ter.y0) if ter is not None else 0.0,
+            terrain_dx=float(ter.dx) if ter is not None else 1.0, terrain_dy=float(ter.dy) if ter is not None else 1.0,
+            terrain_slope=float(ter.max_slope) if ter is not None else 0.0,
+            terrain_heights=_f64(ter.heights, ter.heights.shape) if ter is not None else np.zeros((2, 2)),
+            cyl_x=_f64(cyl.x), cyl_y=_f64(cyl.y), cyl_r=_f64(cyl.radius), cyl_top=_f64(cyl.top),
+            sph_c=_f64(sph.center, (-1, 3)), sph_r=_f64(sph.radius),
+            rad_c=_f64(rad.center, (-1, 3)), rad_det=_f64(rad.r_det), rad_w=_f64(rad.soft_weight),
+            ob_x=ob_x, ob_y=ob_y, ob_r=ob_r,
+            grid=ObstacleGrid.over(env.size_x, env.size_y, ob_x, ob_y, ob_r, True),
+            one_cell=ObstacleGrid.over(env.size_x, env.size_y, ob_x, ob_y, ob_r, False),
+            peak_factor=_f64(PEAK_FACTOR), threat_t=_f64(threat_t), terrain_t=_f64(terrain_t),
+            golden_iters=int(GOLDEN_ITERS),
+        )
 
 
-def _arrays(problem, threat_t: np.ndarray, terrain_t: np.ndarray, broad: bool) -> tuple:  # noqa: ANN001
-    """Everything the kernel reads from a problem, as contiguous float arrays (made once per problem): the cost's
-    (the first _COST_ARGS), then the grid the ant colonies' segment_blocked finds obstacles in."""
-    from planner.trajectory.smoothing import PEAK_FACTOR  # the same G(cos θ) table as the reference
-    from planner.world.geometry import GOLDEN_ITERS
-
-    env, veh, hz, pen = problem.env, problem.vehicle, problem.hazard, problem.penalty
-    ter, thr = env.terrain, env.threats
-    timed = problem.timed_threats
-    heading = problem.start_heading
-    scalars = np.array([
-        veh.acceptance_radius, hz.d_safe, hz.d_coll, pen.constant, pen.per_metre, pen.per_radian, veh.max_turn,
-        veh.min_turn_radius, veh.max_climb, env.z_min, env.z_max, env.size_x, env.size_y,
-        problem.direct_distance, veh.cruise_speed, problem.start_time if timed else 0.0, float(timed),
-        thr.max_speed, float(heading is not None), float(ter is not None),
-        ter.x0 if ter is not None else 0.0, ter.y0 if ter is not None else 0.0,
-        ter.dx if ter is not None else 1.0, ter.dy if ter is not None else 1.0, problem._terrain_slope,
-        *problem.weights.by_term().values(),  # J1…J5's weights: the total is summed here, in the reference's order
-        float(broad), veh.turn_overshoot,
-    ], dtype=float)
-
-    def f(a, shape=(-1,)):  # noqa: ANN001, ANN202 - a writeable copy: one compiled signature for every problem
-        return np.array(a, dtype=np.float64, order="C").reshape(shape)
-
-    cyl, sph, rad = env.cylinders, env.spheres, env.radars
-    grid = _grid(env.size_x, env.size_y, len(cyl.x) + len(sph.radius), broad)
-    ob_x = f(np.concatenate([cyl.x, sph.center[:, 0]]))  # cylinders then spheres: one grid for both
-    ob_y = f(np.concatenate([cyl.y, sph.center[:, 1]]))
-    ob_r = f(np.concatenate([cyl.radius, sph.radius]))
-    return (
-        scalars, f(heading if heading is not None else np.zeros(3)),
-        f(cyl.x), f(cyl.y), f(cyl.radius), f(cyl.top), f(sph.center, (-1, 3)), f(sph.radius),
-        f(rad.center, (-1, 3)), f(rad.r_det), f(rad.soft_weight),
-        f(ter.heights, ter.heights.shape) if ter is not None else np.zeros((2, 2)),
-        _threat_rows(thr),
-        f(PEAK_FACTOR), f(threat_t), f(terrain_t), np.int64(GOLDEN_ITERS),
-        grid, ob_x, ob_y, ob_r, *_cells(grid, ob_x, ob_y, ob_r),
-    )
-
-
-def _packed(problem, threat_t: np.ndarray, terrain_t: np.ndarray) -> tuple:  # noqa: ANN001
-    """(broad phase on, the kernel's arrays) for ``problem``, made once per problem and broad-phase setting; the
-    sample parameters are the reference's constants, so the first caller's are everyone's."""
-    broad = broad_phase()
-    cache = problem.__dict__.get("_kernel_arrays")
-    if cache is None or cache[0] != broad:
-        cache = (broad, _arrays(problem, threat_t, terrain_t, broad))
-        object.__setattr__(problem, "_kernel_arrays", cache)
-    return cache
-
-
-def evaluate(
-    problem, paths: np.ndarray, threat_t: np.ndarray, terrain_t: np.ndarray  # noqa: ANN001
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def evaluate(inputs: KernelInputs, paths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Unweighted terms (P, 5) J1…J5, penalty (P,), violation counts (P, 5) in CATEGORIES order and the weighted
-    total (P,) for paths (P, N, 3) metres, from the compiled kernel; ``threat_t``/``terrain_t`` are the reference's
-    sample parameters."""
-    packed = _packed(problem, threat_t, terrain_t)[1]
+    total (P,) for paths (P, N, 3) metres, from the compiled kernel."""
     paths = np.asarray(paths, dtype=np.float64)
     if not (paths.flags.c_contiguous and paths.flags.writeable):  # one signature: C-ordered and writeable
         paths = np.array(paths, dtype=np.float64, order="C")
-    return _cost(paths, *packed[:_COST_ARGS])
+    k = inputs
+    return _cost(paths, k.acceptance_radius, k.turn_overshoot, k.max_turn, k.min_turn_radius, k.max_climb,
+                 k.cruise_speed, k.d_safe, k.d_coll, k.penalty_constant, k.penalty_per_metre, k.penalty_per_radian,
+                 k.weight_length, k.weight_hazard, k.weight_altitude, k.weight_smoothness, k.weight_destination,
+                 k.z_min, k.z_max, k.size_x, k.size_y, k.direct_distance, k.has_heading, k.heading, k.timed,
+                 k.start_time, k.threat_max_speed, k.threats, k.has_terrain, k.terrain_x0, k.terrain_y0,
+                 k.terrain_dx, k.terrain_dy, k.terrain_slope, k.terrain_heights, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top,
+                 k.sph_c, k.sph_r, k.rad_c, k.rad_det, k.rad_w, k.peak_factor, k.threat_t, k.terrain_t,
+                 k.golden_iters, broad_phase())
 
 
 # -- the swarm's own per-iteration work: decoding spherical particles and the PSO update -------------------------
@@ -937,8 +1013,8 @@ def pso_step(x: np.ndarray, v: np.ndarray, pbest: np.ndarray, gbest: np.ndarray,
 
 # -- which lattice edges are hopeless (the ant colonies' segment_blocked) ------------------------------------------
 @_jit
-def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, golden_iters, grid,
-             ob_x, ob_y, ob_r, ob_start, ob_items):  # noqa: ANN001, ANN202
+def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, golden_iters, gox, goy, gcell,
+             gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r):  # noqa: ANN001, ANN202
     """For segments a→b (E, 3): within d_coll of a cylinder or sphere, or inside a radar's range (as
     PlanningProblem.segment_blocked), visiting only the obstacles the broad phase finds within d_coll."""
     n_e = a.shape[0]
@@ -946,7 +1022,6 @@ def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, ra
     n_cyl = cyl_x.shape[0]
     near = np.empty(ob_x.shape[0], dtype=np.int64)
     stamp = np.full(ob_x.shape[0], -1, dtype=np.int64)
-    gox, goy, gcell, gnx, gny = grid[0], grid[1], grid[2], int(grid[3]), int(grid[4])
     reach = d_coll * (1.0 + 1e-9) + 1e-6
     for e in range(n_e):
         ax, ay, az, bx, by, bz = a[e, 0], a[e, 1], a[e, 2], b[e, 0], b[e, 1], b[e, 2]
@@ -980,17 +1055,16 @@ def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, ra
     return out
 
 
-def segment_blocked(problem, a: np.ndarray, b: np.ndarray, threat_t: np.ndarray,  # noqa: ANN001
-                    terrain_t: np.ndarray) -> np.ndarray:
-    """Compiled :meth:`planner.problem.PlanningProblem.segment_blocked` for segments a→b (..., 3); the sample
-    parameters as for :func:`evaluate` (the problem's packed arrays are shared)."""
-    _, packed = _packed(problem, threat_t, terrain_t)
-    (_, _, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, _, _, _, _, _, _, golden, grid, *obs) = packed
+def segment_blocked(inputs: KernelInputs, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Compiled :meth:`planner.problem.PlanningProblem.segment_blocked` for segments a→b (..., 3)."""
+    k = inputs
+    g = k.grid if broad_phase() else k.one_cell
     shape = np.broadcast_shapes(np.shape(a), np.shape(b))
     flat_a = np.ascontiguousarray(np.broadcast_to(a, shape), dtype=np.float64).reshape(-1, 3)
     flat_b = np.ascontiguousarray(np.broadcast_to(b, shape), dtype=np.float64).reshape(-1, 3)
-    got = _blocked(flat_a, flat_b, float(problem.hazard.d_coll), cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c,
-                   rad_det, golden, grid, *obs)
+    got = _blocked(flat_a, flat_b, k.d_coll, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
+                   k.rad_det, k.golden_iters, g.x0, g.y0, g.cell, g.nx, g.ny, g.start, g.items, k.ob_x, k.ob_y,
+                   k.ob_r)
     return got.reshape(shape[:-1])
 
 

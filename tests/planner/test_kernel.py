@@ -162,8 +162,8 @@ def test_the_broad_phase_gives_the_same_costs_bit_for_bit(monkeypatch: pytest.Mo
     problem = PlanningProblem(field(np.random.default_rng(4)), np.array([50.0, 60.0, 120.0]),
                               np.array([2950.0, 1900.0, 200.0]), VehicleLimits(),
                               HazardConfig(d_safe=60.0, d_coll=15.0))
-    packed = kernel._arrays(problem, np.zeros(2), np.zeros(2), True)
-    assert packed[-5][3] * packed[-5][4] > 16  # the grid really has cells
+    grid = problem.kernel_inputs.grid
+    assert grid.nx * grid.ny > 16  # the grid really has cells
     rng = np.random.default_rng(9)
     for n_wp, spread in ((2, 0.3), (16, 0.002), (16, 0.02), (16, 0.1), (40, 0.05)):
         paths = swarm(problem, rng, n_pop=128, n_wp=n_wp, spread=spread)
