@@ -151,7 +151,7 @@ class PlanningProblem:
     # -- public -----------------------------------------------------------------------------------
     def evaluate(self, paths: np.ndarray) -> Evaluation:
         """Score paths (P, N, 3) → :class:`Evaluation` with arrays shaped (P,): the compiled kernel
-        (planner/kernel.py) unless FUSEPLAN_KERNEL=numpy picks this module's reference implementation."""
+        (planner/kernel/) unless FUSEPLAN_KERNEL=numpy picks this module's reference implementation."""
         paths = np.asarray(paths, dtype=float)
         if paths.ndim == 2:
             paths = paths[None]
