@@ -7,6 +7,7 @@ same costs bit for bit (docs/design.md, "Compiled kernels")."""
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -194,6 +195,17 @@ def _terrain_terms(pt, seg, q2, s, p, terrain_t, slope, z_min, z_max, tx0, ty0, 
             pen[p] += pen_c + per_m * depth
 
 
+@called
+def _terrain_band(pt, seg, q2, terrain_t, slope, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m, pen,
+                  viol):  # noqa: ANN001, ANN202
+    """Every particle's curve on every segment against the band above the terrain (_terrain_terms), segment by
+    segment as in _cost: one call from it, whose loop keeps few values live around each particle's call."""
+    for s in range(pt.shape[0] - 1):
+        for p in range(pt.shape[2]):
+            _terrain_terms(pt, seg, q2, s, p, terrain_t, slope, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c,
+                           per_m, pen, viol)
+
+
 @jit
 def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d_coll, pen_c, per_m, per_rad,
           w_length, w_hazard, w_altitude, w_smoothness, w_destination, z_min, z_max, size_x, size_y, direct,
@@ -351,10 +363,8 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
             for p in range(n_p):
                 j3[p] += abs(pt[w, 2, p] - mid) / half
     if has_terrain:
-        for s in range(n_s):
-            for p in range(n_p):
-                _terrain_terms(pt, seg, q2, s, p, terrain_t, slope, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h,
-                               pen_c, per_m, pen, viol)
+        _terrain_band(pt, seg, q2, terrain_t, slope, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m, pen,
+                      viol)
     else:  # the curve lies in its control points' range: only where that leaves the band is the exact range needed
         for s in range(n_s):
             for p in range(n_p):
@@ -459,18 +469,23 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
     return terms, pen, violations, total
 
 
+@functools.lru_cache(maxsize=2)
+def _arguments(k: KernelInputs) -> tuple:
+    """_cost's arguments after the paths, by name from ``k``: made once per problem (a search evaluates one problem
+    many times), which saves a third of a microsecond a call."""
+    return (k.acceptance_radius, k.turn_overshoot, k.max_turn, k.min_turn_radius, k.max_climb, k.cruise_speed,
+            k.d_safe, k.d_coll, k.penalty_constant, k.penalty_per_metre, k.penalty_per_radian, k.weight_length,
+            k.weight_hazard, k.weight_altitude, k.weight_smoothness, k.weight_destination, k.z_min, k.z_max,
+            k.size_x, k.size_y, k.direct_distance, k.has_heading, k.heading, k.timed, k.start_time,
+            k.threat_max_speed, k.threats, k.has_terrain, k.terrain_x0, k.terrain_y0, k.terrain_dx, k.terrain_dy,
+            k.terrain_slope, k.terrain_heights, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
+            k.rad_det, k.rad_w, k.peak_table, k.threat_t, k.terrain_t, k.golden_iters)
+
+
 def evaluate(inputs: KernelInputs, paths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Unweighted terms (P, 5) J1…J5, penalty (P,), violation counts (P, 5) in CATEGORIES order and the weighted
     total (P,) for paths (P, N, 3) metres, from the compiled kernel."""
     paths = np.asarray(paths, dtype=np.float64)
     if not (paths.flags.c_contiguous and paths.flags.writeable):  # one signature: C-ordered and writeable
         paths = np.array(paths, dtype=np.float64, order="C")
-    k = inputs
-    return _cost(paths, k.acceptance_radius, k.turn_overshoot, k.max_turn, k.min_turn_radius, k.max_climb,
-                 k.cruise_speed, k.d_safe, k.d_coll, k.penalty_constant, k.penalty_per_metre, k.penalty_per_radian,
-                 k.weight_length, k.weight_hazard, k.weight_altitude, k.weight_smoothness, k.weight_destination,
-                 k.z_min, k.z_max, k.size_x, k.size_y, k.direct_distance, k.has_heading, k.heading, k.timed,
-                 k.start_time, k.threat_max_speed, k.threats, k.has_terrain, k.terrain_x0, k.terrain_y0,
-                 k.terrain_dx, k.terrain_dy, k.terrain_slope, k.terrain_heights, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top,
-                 k.sph_c, k.sph_r, k.rad_c, k.rad_det, k.rad_w, k.peak_table, k.threat_t, k.terrain_t,
-                 k.golden_iters, broad_phase())
+    return _cost(paths, *_arguments(inputs), broad_phase())
