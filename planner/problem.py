@@ -7,6 +7,7 @@ Everything broadcasts over particles, segments and obstacles at once: no Python 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import cached_property
 
 import numpy as np
 
@@ -118,9 +119,6 @@ class PlanningProblem:
             if h is not None:
                 h.setflags(write=False)
             object.__setattr__(self, "start_heading", h)
-        object.__setattr__(self, "_cyl_fin", np.flatnonzero(np.isfinite(self.env.cylinders.top)))
-        terrain = self.env.terrain
-        object.__setattr__(self, "_terrain_slope", terrain.max_slope if terrain is not None else 0.0)
 
     @property
     def timed_threats(self) -> bool:
@@ -132,10 +130,28 @@ class PlanningProblem:
         """‖G − S‖ in metres."""
         return float(np.linalg.norm(self.goal - self.start))
 
+    # cached_property writes the instance's __dict__ itself, so it caches on this frozen dataclass too
+    @cached_property
+    def kernel_inputs(self) -> kernel.KernelInputs:
+        """What the compiled kernel reads of this problem, by name: built on the first compiled evaluation."""
+        return kernel.KernelInputs.build(self.env, self.vehicle, self.hazard, self.penalty, self.weights,
+                                         self.direct_distance, self.start_time if self.timed_threats else None,
+                                         self.start_heading, _THREAT_T, _TERRAIN_T)
+
+    @cached_property
+    def _cyl_fin(self) -> np.ndarray:
+        """Indices of the cylinders with a finite top."""
+        return np.flatnonzero(np.isfinite(self.env.cylinders.top))
+
+    @cached_property
+    def _terrain_slope(self) -> float:
+        """Terrain.max_slope, or 0 on flat ground."""
+        return self.env.terrain.max_slope if self.env.terrain is not None else 0.0
+
     # -- public -----------------------------------------------------------------------------------
     def evaluate(self, paths: np.ndarray) -> Evaluation:
         """Score paths (P, N, 3) → :class:`Evaluation` with arrays shaped (P,): the compiled kernel
-        (planner/kernel.py) unless FUSEPLAN_KERNEL=numpy picks this module's reference implementation."""
+        (planner/kernel/) unless FUSEPLAN_KERNEL=numpy picks this module's reference implementation."""
         paths = np.asarray(paths, dtype=float)
         if paths.ndim == 2:
             paths = paths[None]
@@ -144,7 +160,7 @@ class PlanningProblem:
         return self.evaluate_reference(paths)
 
     def _evaluate_compiled(self, paths: np.ndarray) -> Evaluation:
-        j, pen, viol, total = kernel.evaluate(self, paths, _THREAT_T, _TERRAIN_T)  # total: the reference's order
+        j, pen, viol, total = kernel.evaluate(self.kernel_inputs, paths)  # total: the reference's order
         terms = {name: j[:, i] for i, name in enumerate(TERMS)}
         return Evaluation(total=total, terms=terms, penalty=pen,
                           violations={c: viol[:, i] for i, c in enumerate(CATEGORIES)})
@@ -245,7 +261,7 @@ class PlanningProblem:
         """True where segment a→b (..., 3) passes within d_coll of a static obstacle or inside a radar's
         detection range (used to steer ant colonies away from hopeless edges)."""
         if kernel.chosen() == "compiled":
-            return kernel.segment_blocked(self, a, b, _THREAT_T, _TERRAIN_T)
+            return kernel.segment_blocked(self.kernel_inputs, a, b)
         return self.segment_blocked_reference(a, b)
 
     def segment_blocked_reference(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:

@@ -45,7 +45,7 @@ def pso_step(
     leaves [lo, hi] is put on the bound; with ``reflection`` its velocity is negated, else kept (V4).
     Shapes: x, v, pbest, r1, r2 (P, n, 3); gbest, lo, hi, vmax (n, 3); w scalar or (P, 1, 1).
     """
-    if kernel.chosen() == "compiled":  # the same arithmetic in one compiled pass (planner/kernel.py)
+    if kernel.chosen() == "compiled":  # the same arithmetic in one compiled pass (planner/kernel/swarm.py)
         return kernel.pso_step(x, v, pbest, gbest, w, c1, c2, lo, hi, vmax, reflection, r1, r2)
     v = pso_velocity(x, v, pbest, gbest, w, c1, c2, vmax, r1, r2)
     x = x + v

@@ -94,7 +94,7 @@ def _peak_factor_table() -> np.ndarray:
     return (2 * (3 * _T_FINE - 1) / np.maximum(norm2, 1e-12) ** 1.5).max(axis=1)
 
 
-_PEAK_FACTOR = _peak_factor_table()
+PEAK_FACTOR = _peak_factor_table()  # G on the uniform grid of cos θ in [−1, 1]; the compiled kernel reads it too
 
 
 def peak_factor(cos_turn: np.ndarray) -> np.ndarray:
@@ -102,7 +102,7 @@ def peak_factor(cos_turn: np.ndarray) -> np.ndarray:
     f = (np.clip(cos_turn, -1.0, 1.0) + 1.0) * ((len(_COS_GRID) - 1) / 2.0)
     i = np.minimum(f.astype(np.intp), len(_COS_GRID) - 2)
     w = f - i
-    return _PEAK_FACTOR[i] * (1.0 - w) + _PEAK_FACTOR[i + 1] * w
+    return PEAK_FACTOR[i] * (1.0 - w) + PEAK_FACTOR[i + 1] * w
 
 
 def peak_curvature(seg_len: np.ndarray, cos_turn: np.ndarray) -> np.ndarray:

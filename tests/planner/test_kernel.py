@@ -1,4 +1,4 @@
-"""The compiled cost kernel (planner/kernel.py) against the numpy reference (PlanningProblem.evaluate_reference):
+"""The compiled cost kernel (planner/kernel/) against the numpy reference (PlanningProblem.evaluate_reference):
 the same terms, penalties and totals to 1e-9 relative and the same violation counts, on random swarms over every
 shipped scenario and over a map with every obstacle family, threat law, terrain and a start heading."""
 
@@ -11,6 +11,7 @@ import numpy as np
 import pytest
 
 from planner import kernel
+from planner.kernel import fastmath
 from planner.plan import problem_from_scenario
 from planner.problem import CATEGORIES, TERMS, PlanningProblem
 from planner.search import spso
@@ -162,8 +163,8 @@ def test_the_broad_phase_gives_the_same_costs_bit_for_bit(monkeypatch: pytest.Mo
     problem = PlanningProblem(field(np.random.default_rng(4)), np.array([50.0, 60.0, 120.0]),
                               np.array([2950.0, 1900.0, 200.0]), VehicleLimits(),
                               HazardConfig(d_safe=60.0, d_coll=15.0))
-    packed = kernel._arrays(problem, np.zeros(2), np.zeros(2), True)
-    assert packed[-5][3] * packed[-5][4] > 16  # the grid really has cells
+    grid = problem.kernel_inputs.grid
+    assert grid.nx * grid.ny > 16  # the grid really has cells
     rng = np.random.default_rng(9)
     for n_wp, spread in ((2, 0.3), (16, 0.002), (16, 0.02), (16, 0.1), (40, 0.05)):
         paths = swarm(problem, rng, n_pop=128, n_wp=n_wp, spread=spread)
@@ -199,7 +200,7 @@ def test_the_compiled_swarm_step_equals_numpys_bit_for_bit_and_decoding_to_a_rou
     ref = spso.pso_step(x, v, pbest, pbest[3], w, 1.5, 1.5, lo, hi, vmax, reflection, r1, r2)
     assert np.array_equal(got[0], ref[0]) and np.array_equal(got[1], ref[1])
     start, goal = np.array([200.0, 200.0, 50.0]), np.array([800.0, 800.0, 50.0])
-    paths = kernel.decode_spherical(x, start, goal)  # its sines and cosines are kernel._sincos's, not libm's
+    paths = kernel.decode_spherical(x, start, goal)  # its sines and cosines are fastmath.fast_sincos's, not libm's
     ref_paths = spherical_to_cartesian(start, x[..., 0], x[..., 1], x[..., 2])
     assert np.allclose(paths[:, 1:-1], ref_paths, rtol=1e-14, atol=1e-12)
     assert not np.allclose(paths[:, 1:-1], ref_paths + 1e-9, rtol=1e-14, atol=1e-12)  # the check can fail
@@ -256,16 +257,23 @@ def test_warm_up_readies_every_compiled_function() -> None:
     """After warm_up a replan finds every kernel compiled (or loaded from the disk cache): no JIT pause mid-flight."""
     problem = problem_from_scenario(load_scenario(SCENARIOS_BY_NAME["rescue_static"]))
     kernel.warm_up(problem)
-    for fn in (kernel._cost, kernel._blocked, kernel._decode_spherical, kernel._pso_step):
+    for fn in (kernel.cost._cost, kernel.segments._blocked, kernel.swarm._decode_spherical, kernel.swarm._pso_step):
         assert fn.signatures, fn.__name__
 
 
+def test_the_disk_caches_go_stale_with_any_file_of_the_kernel() -> None:
+    """The compiled functions inline helpers from the kernel's other files, so each one's disk cache is stamped
+    with every file of planner/kernel/ (planner.kernel.jit), not only its own: an edit anywhere recompiles them."""
+    assert kernel.jit.PACKAGE_STAMPED
+    for fn in (kernel.cost._cost, kernel.segments._blocked, kernel.swarm._pso_step):
+        assert fn._cache._impl.locator.get_source_stamp()[1] == kernel.jit.package_stamp(), fn.__name__
+
+
 def test_the_branch_free_arctangent_and_sine_cosine_match_libm_to_a_rounding_or_two() -> None:
-    """The kernel's SIMD-friendly _atan2 and _sincos (polynomials, not libm calls) against math's, over every
+    """The kernel's SIMD-friendly fast_atan2 and fast_sincos (polynomials, not libm calls) against math's, over every
     octant and quadrant, the reduction thresholds, axes, zeros and huge ratios."""
     rng = np.random.default_rng(11)
-    atan2 = kernel._atan2.py_func if hasattr(kernel._atan2, "py_func") else kernel._atan2
-    sincos = kernel._sincos.py_func if hasattr(kernel._sincos, "py_func") else kernel._sincos
+    atan2, sincos = (getattr(fn, "py_func", fn) for fn in (fastmath.fast_atan2, fastmath.fast_sincos))
     t8 = math.tan(math.pi / 8)
     pts = [*rng.normal(0.0, 1.0, (20000, 2)), *(rng.normal(0.0, 1.0, (2000, 2)) * [1e-200, 1.0]),
            (0.0, 0.0), (0.0, 1.0), (0.0, -1.0), (1.0, 0.0), (-1.0, 0.0), (1.0, 1.0), (-1.0, -1.0), (1e300, 1.0),

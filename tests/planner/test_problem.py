@@ -24,7 +24,7 @@ MID = 0.5 * (Z_LO + Z_HI)
 
 @pytest.fixture(autouse=True, params=kernel.KERNELS)
 def cost_kernel(request: pytest.FixtureRequest, monkeypatch: pytest.MonkeyPatch) -> str:
-    """Every test here runs on the compiled kernel and on the numpy reference (planner/kernel.py)."""
+    """Every test here runs on the compiled kernel and on the numpy reference (planner/kernel/)."""
     if request.param == "compiled" and kernel.njit is None:
         pytest.skip("numba is not installed")
     monkeypatch.setenv(kernel.ENV_VAR, request.param)

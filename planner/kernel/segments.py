@@ -1,0 +1,190 @@
+"""Segment tests: a segment's distance to a point, a cylinder and a sphere (planner.world.geometry's, compiled),
+the broad phase's lookup of the obstacles near a segment in the grid, and the ant colonies' segment_blocked."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from planner.kernel.inputs import KernelInputs, broad_phase
+from planner.kernel.jit import called, inline, jit
+
+_GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
+
+
+@inline
+def seg_point(ax, ay, az, bx, by, bz, px, py, pz):  # noqa: ANN001, ANN202
+    """Distance from point p to segment a→b (geometry.segment_point_distance)."""
+    return math.sqrt(seg_point_sq(ax, ay, az, bx, by, bz, px, py, pz))
+
+
+@inline
+def seg_point_sq(ax, ay, az, bx, by, bz, px, py, pz):  # noqa: ANN001, ANN202
+    """Squared distance from point p to segment a→b."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    wx, wy, wz = px - ax, py - ay, pz - az
+    dd = dx * dx + dy * dy + dz * dz
+    t = (wx * dx + wy * dy + wz * dz) / (dd if dd > 0.0 else 1.0)
+    t = min(max(t, 0.0), 1.0)
+    ex, ey, ez = wx - t * dx, wy - t * dy, wz - t * dz
+    return ex * ex + ey * ey + ez * ez
+
+
+@inline
+def seg_point_2d(ax, ay, bx, by, px, py):  # noqa: ANN001, ANN202
+    return math.sqrt(seg_point_2d_sq(ax, ay, bx, by, px, py))
+
+
+@inline
+def seg_point_2d_sq(ax, ay, bx, by, px, py):  # noqa: ANN001, ANN202
+    """Squared plan-view distance from p to segment a→b (its square root is geometry.segment_point_distance_2d)."""
+    dx, dy = bx - ax, by - ay
+    dd = dx * dx + dy * dy
+    wx, wy = px - ax, py - ay
+    t = (wx * dx + wy * dy) / (dd if dd > 0.0 else 1.0)
+    t = min(max(t, 0.0), 1.0)
+    ex, ey = wx - t * dx, wy - t * dy
+    return ex * ex + ey * ey
+
+
+@inline
+def _cyl_signed(ax, ay, az, dx, dy, dz, t, cx, cy, r, top):  # noqa: ANN001, ANN202
+    """Signed distance of a + t·d from a cylinder with a finite top (geometry.cylinder_signed_distance)."""
+    px, py, pz = ax + t * dx, ay + t * dy, az + t * dz
+    u = math.hypot(px - cx, py - cy) - r
+    w = pz - top
+    uo, wo = max(u, 0.0), max(w, 0.0)
+    return math.sqrt(uo * uo + wo * wo) + min(max(u, w), 0.0)
+
+
+@called
+def seg_cyl_finite(ax, ay, az, bx, by, bz, cx, cy, r, top, iters):  # noqa: ANN001, ANN202
+    """Golden-section minimum over the segment, step for step as geometry.segment_cylinder_clearance."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    lo, hi = 0.0, 1.0
+    x1 = hi - _GOLDEN * (hi - lo)
+    x2 = lo + _GOLDEN * (hi - lo)
+    f1 = _cyl_signed(ax, ay, az, dx, dy, dz, x1, cx, cy, r, top)
+    f2 = _cyl_signed(ax, ay, az, dx, dy, dz, x2, cx, cy, r, top)
+    for _ in range(iters):
+        if f1 <= f2:
+            hi = x2
+            xn = hi - _GOLDEN * (hi - lo)
+            fn = _cyl_signed(ax, ay, az, dx, dy, dz, xn, cx, cy, r, top)
+            x2, x1 = x1, xn
+            f2, f1 = f1, fn
+        else:
+            lo = x1
+            xn = lo + _GOLDEN * (hi - lo)
+            fn = _cyl_signed(ax, ay, az, dx, dy, dz, xn, cx, cy, r, top)
+            x1, x2 = x2, xn
+            f1, f2 = f2, fn
+    f0 = _cyl_signed(ax, ay, az, dx, dy, dz, 0.0, cx, cy, r, top)
+    f_1 = _cyl_signed(ax, ay, az, dx, dy, dz, 1.0, cx, cy, r, top)
+    return min(min(f1, f2), min(f0, f_1))
+
+
+@inline
+def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad, stamp, token, out):  # noqa: ANN001, ANN202
+    """Indices (ascending, into ``out``; returns how many) of the obstacles whose plan-view discs come within
+    ``reach`` (per axis) of the segment a→b. Visits the cells under the segment swept by a ±reach square, row by
+    row (a diagonal segment's bounding box would be mostly empty cells); ``stamp`` marks obstacles seen for
+    ``token``. A disc within reach has a point of its box within reach of the segment, in a cell visited here."""
+    if nx == 1 and ny == 1:  # one cell (broad phase off, or few obstacles): every obstacle, in order
+        for k in range(start[1]):
+            out[k] = items[k]
+        return start[1]
+    x_lo, x_hi = min(ax, bx) - reach, max(ax, bx) + reach
+    y_lo, y_hi = min(ay, by) - reach, max(ay, by) + reach
+    j0 = min(max(int(math.floor((y_lo - oy) / cell)), 0), ny - 1)
+    j1 = min(max(int(math.floor((y_hi - oy) / cell)), 0), ny - 1)
+    dy = by - ay
+    n = 0
+    for j in range(j0, j1 + 1):
+        # the part of the segment whose y is within reach of row j (edge rows reach to infinity, as clamped)
+        r_lo = oy + j * cell - reach if j > 0 else -math.inf
+        r_hi = oy + (j + 1) * cell + reach if j < ny - 1 else math.inf
+        if dy != 0.0:
+            t0, t1 = (r_lo - ay) / dy, (r_hi - ay) / dy
+            t0, t1 = max(min(t0, t1), 0.0), min(max(t0, t1), 1.0)
+            if t0 > t1:
+                continue
+        else:
+            t0, t1 = 0.0, 1.0
+        xa, xb = ax + t0 * (bx - ax), ax + t1 * (bx - ax)
+        i0 = min(max(int(math.floor((min(xa, xb) - reach - ox) / cell)), 0), nx - 1)
+        i1 = min(max(int(math.floor((max(xa, xb) + reach - ox) / cell)), 0), nx - 1)
+        for i in range(i0, i1 + 1):
+            c = j * nx + i
+            for q in range(start[c], start[c + 1]):
+                k = items[q]
+                if stamp[k] == token:
+                    continue
+                stamp[k] = token
+                r = rad[k]
+                if cx[k] + r < x_lo or cx[k] - r > x_hi or cy[k] + r < y_lo or cy[k] - r > y_hi:
+                    continue
+                m = n  # insertion sort: the obstacles are summed in index order, as without the broad phase
+                while m > 0 and out[m - 1] > k:
+                    out[m] = out[m - 1]
+                    m -= 1
+                out[m] = k
+                n += 1
+    return n
+
+
+@jit
+def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, golden_iters, gox, goy, gcell,
+             gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r):  # noqa: ANN001, ANN202
+    """For segments a→b (E, 3): within d_coll of a cylinder or sphere, or inside a radar's range (as
+    PlanningProblem.segment_blocked), visiting only the obstacles the broad phase finds within d_coll."""
+    n_e = a.shape[0]
+    out = np.zeros(n_e, dtype=np.bool_)
+    n_cyl = cyl_x.shape[0]
+    near = np.empty(ob_x.shape[0], dtype=np.int64)
+    stamp = np.full(ob_x.shape[0], -1, dtype=np.int64)
+    reach = d_coll * (1.0 + 1e-9) + 1e-6
+    for e in range(n_e):
+        ax, ay, az, bx, by, bz = a[e, 0], a[e, 1], a[e, 2], b[e, 0], b[e, 1], b[e, 2]
+        hit = False
+        n_near = _near(ax, ay, bx, by, reach, gox, goy, gcell, gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r, stamp,
+                       e, near)
+        for q in range(n_near):
+            k = near[q]
+            if k >= n_cyl:
+                break
+            c = seg_point_2d(ax, ay, bx, by, cyl_x[k], cyl_y[k]) - cyl_r[k]
+            if math.isfinite(cyl_top[k]) and c < d_coll:
+                c = seg_cyl_finite(ax, ay, az, bx, by, bz, cyl_x[k], cyl_y[k], cyl_r[k], cyl_top[k], golden_iters)
+            if c < d_coll:
+                hit = True
+                break
+        if not hit:
+            for q in range(n_near):
+                k = near[q] - n_cyl
+                if k < 0:
+                    continue
+                if seg_point(ax, ay, az, bx, by, bz, sph_c[k, 0], sph_c[k, 1], sph_c[k, 2]) - sph_r[k] < d_coll:
+                    hit = True
+                    break
+        if not hit:
+            for k in range(rad_det.shape[0]):
+                if seg_point(ax, ay, az, bx, by, bz, rad_c[k, 0], rad_c[k, 1], rad_c[k, 2]) < rad_det[k]:
+                    hit = True
+                    break
+        out[e] = hit
+    return out
+
+
+def segment_blocked(inputs: KernelInputs, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Compiled :meth:`planner.problem.PlanningProblem.segment_blocked` for segments a→b (..., 3)."""
+    k = inputs
+    g = k.grid if broad_phase() else k.one_cell
+    shape = np.broadcast_shapes(np.shape(a), np.shape(b))
+    flat_a = np.ascontiguousarray(np.broadcast_to(a, shape), dtype=np.float64).reshape(-1, 3)
+    flat_b = np.ascontiguousarray(np.broadcast_to(b, shape), dtype=np.float64).reshape(-1, 3)
+    got = _blocked(flat_a, flat_b, k.d_coll, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
+                   k.rad_det, k.golden_iters, g.x0, g.y0, g.cell, g.nx, g.ny, g.start, g.items, k.ob_x, k.ob_y,
+                   k.ob_r)
+    return got.reshape(shape[:-1])
