@@ -33,7 +33,7 @@ from planner.world.geometry import (
 )
 
 _EPS = 1e-9
-_TERRAIN_T = np.linspace(0.0, 1.0, 17)  # samples per segment for terrain clearance
+_TERRAIN_T = np.linspace(0.0, 1.0, 17)  # samples per segment: the band is tested on the 16 chords between them
 _THREAT_T = np.linspace(0.0, 1.0, 11)  # samples per segment (ends included) for time-aware threats
 THREAT_SAMPLES = len(_THREAT_T)
 
@@ -142,11 +142,6 @@ class PlanningProblem:
     def _cyl_fin(self) -> np.ndarray:
         """Indices of the cylinders with a finite top."""
         return np.flatnonzero(np.isfinite(self.env.cylinders.top))
-
-    @cached_property
-    def _terrain_slope(self) -> float:
-        """Terrain.max_slope, or 0 on flat ground."""
-        return self.env.terrain.max_slope if self.env.terrain is not None else 0.0
 
     # -- public -----------------------------------------------------------------------------------
     def evaluate(self, paths: np.ndarray) -> Evaluation:
@@ -328,14 +323,12 @@ class PlanningProblem:
         j3 = (np.abs(h - mid) / half).sum(axis=1)
         if env.terrain is None:  # exact height range of each Bézier segment
             depth = np.maximum(z_lo - curve_lo, curve_hi - z_hi)
-        else:  # height above the ground under samples of the curve, less what the ground can rise
+        else:  # the chords between samples of the curve, each exactly over the ground (docs/method.md §15.1)
             q1 = a + (b - a) / 3.0
-            t = _TERRAIN_T[:, None]  # between two samples (max slope × half the sample gap)
+            t = _TERRAIN_T[:, None]
             pts = bezier_point(a[:, :, None], q1[:, :, None], q2[:, :, None], b[:, :, None], t)  # (P, S, m, 3)
-            z = pts[..., 2] - env.ground(pts[..., 0], pts[..., 1])
-            gap = np.sqrt(_dot3(q1 - a, q1 - a)) * (3.0 / (len(_TERRAIN_T) - 1))  # ≥ chord/(m−1)
-            margin = (0.5 * self._terrain_slope * gap)[..., None]
-            depth = np.maximum(z_lo + margin - z, z - z_hi)
+            depth = env.band_depth(pts[:, :, :-1].reshape(-1, 3), pts[:, :, 1:].reshape(-1, 3)).reshape(
+                pts.shape[0], pts.shape[1], pts.shape[2] - 1)
         add("altitude", depth, self.penalty.per_metre)
         return j3
 

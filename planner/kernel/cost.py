@@ -13,7 +13,7 @@ import math
 import numpy as np
 
 from planner.kernel.fastmath import bezier, cubic_range, fast_atan2, peak_factor
-from planner.kernel.inputs import KernelInputs, broad_phase
+from planner.kernel.inputs import SLOPE_BLOCK, KernelInputs, broad_phase
 from planner.kernel.jit import called, inline, jit
 from planner.kernel.segments import seg_cyl_finite, seg_point_2d_sq, seg_point_sq
 from planner.world.environment import LOITER, PATROL
@@ -173,43 +173,127 @@ def _threat_terms(pt, s, p, seg_len, s0, dev, thr, threat_t, start_time, cruise,
             soft[p] += g * g
 
 
+@inline
+def _above(ax, ay, az, dx, dy, dz, t, tx0, ty0, tdx, tdy, h):  # noqa: ANN001, ANN202
+    """Height above the ground of a + t (b − a)."""
+    return az + t * dz - _ground(ax + t * dx, ay + t * dy, True, tx0, ty0, tdx, tdy, h)
+
+
+@inline
+def _lines(a, b, origin, step, n):  # noqa: ANN001, ANN202
+    """The first and last grid line (grid units) that a span a..b meets along one axis, the grid clamped."""
+    fa = min(max((a - origin) / step, 0.0), n - 1.0)
+    fb = min(max((b - origin) / step, 0.0), n - 1.0)
+    return math.ceil(min(fa, fb)), math.floor(max(fa, fb))
+
+
 @called
-def _terrain_terms(pt, seg, q2, s, p, terrain_t, slope, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m,
+def _chord_range(ax, ay, az, bx, by, bz, tx0, ty0, tdx, tdy, h):  # noqa: ANN001, ANN202
+    """Least and greatest height above the bilinear ground along the segment a→b, exactly: Terrain.clearance_range
+    (docs/method.md §15.1), piece by piece between the grid lines in the order the segment meets them."""
+    ny, nx = h.shape
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    x_first, x_last = _lines(ax, bx, tx0, tdx, nx)
+    y_first, y_last = _lines(ay, by, ty0, tdy, ny)
+    nxc = x_last - x_first + 1 if dx != 0.0 else 0
+    nyc = y_last - y_first + 1 if dy != 0.0 else 0
+    ix = 0
+    iy = 0
+    t0 = 0.0
+    f0 = _above(ax, ay, az, dx, dy, dz, 0.0, tx0, ty0, tdx, tdy, h)
+    lo = f0
+    hi = f0
+    while True:
+        tx = 2.0
+        if ix < nxc:
+            k = x_first + ix if dx > 0.0 else x_last - ix
+            tx = min(max((tx0 + k * tdx - ax) / dx, 0.0), 1.0)
+        ty = 2.0
+        if iy < nyc:
+            k = y_first + iy if dy > 0.0 else y_last - iy
+            ty = min(max((ty0 + k * tdy - ay) / dy, 0.0), 1.0)
+        if tx <= ty and tx <= 1.0:
+            t1 = tx
+            ix += 1
+        elif ty <= 1.0:
+            t1 = ty
+            iy += 1
+        else:
+            t1 = 1.0
+        f1 = _above(ax, ay, az, dx, dy, dz, t1, tx0, ty0, tdx, tdy, h)
+        fm = _above(ax, ay, az, dx, dy, dz, 0.5 * (t0 + t1), tx0, ty0, tdx, tdy, h)
+        qa = 2.0 * f0 - 4.0 * fm + 2.0 * f1  # the quadratic through the piece's ends and middle, and its vertex
+        qb = -3.0 * f0 + 4.0 * fm - f1
+        w = min(max(-qb / (2.0 * qa), 0.0), 1.0) if abs(qa) > 1e-12 else 0.0
+        v = f0 + qb * w + qa * w * w
+        lo = min(lo, min(f1, v))
+        hi = max(hi, max(f1, v))
+        if t1 >= 1.0 and ix >= nxc and iy >= nyc:
+            break
+        t0 = t1
+        f0 = f1
+    return lo, hi
+
+
+@inline
+def _local_slope(ax, ay, bx, by, tx0, ty0, tdx, tdy, nx, ny, slopes):  # noqa: ANN001, ANN202
+    """The largest bound of |∇h| over the slope blocks under the box of a chord a→b (Terrain.slope_blocks)."""
+    i0 = min(int(min(max((min(ax, bx) - tx0) / tdx, 0.0), nx - 2.0)), nx - 2) // SLOPE_BLOCK
+    i1 = min(int(min(max((max(ax, bx) - tx0) / tdx, 0.0), nx - 2.0)), nx - 2) // SLOPE_BLOCK
+    j0 = min(int(min(max((min(ay, by) - ty0) / tdy, 0.0), ny - 2.0)), ny - 2) // SLOPE_BLOCK
+    j1 = min(int(min(max((max(ay, by) - ty0) / tdy, 0.0), ny - 2.0)), ny - 2) // SLOPE_BLOCK
+    out = 0.0
+    for j in range(j0, j1 + 1):
+        for i in range(i0, i1 + 1):
+            out = max(out, slopes[j, i])
+    return out
+
+
+@called
+def _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m,
                    pen, viol):  # noqa: ANN001, ANN202
-    """Particle p's curve on segment s against the band above the terrain, at its samples (§4.7)."""
+    """Particle p's curve on segment s against the band above the terrain: each chord between two of its samples,
+    exactly over the ground (_chord_range: the roadmap's and the checker's test, §4.7, §15.1). A chord whose ends
+    are inside the band by more than the local slope bound × its horizontal length cannot leave it (the ground
+    departs from the line between its ends by at most that) and is not worked out: same result, less time."""
+    ny, nx = terrain_h.shape
     q1x = pt[s, 0, p] + seg[s, 0, p] / 3.0
     q1y = pt[s, 1, p] + seg[s, 1, p] / 3.0
     q1z = pt[s, 2, p] + seg[s, 2, p] / 3.0
-    ddx, ddy, ddz = q1x - pt[s, 0, p], q1y - pt[s, 1, p], q1z - pt[s, 2, p]
-    gap = math.sqrt(ddx * ddx + ddy * ddy + ddz * ddz) * (3.0 / (terrain_t.shape[0] - 1))
-    margin = 0.5 * slope * gap
+    px, py, pz, ph = 0.0, 0.0, 0.0, 0.0
     for m in range(terrain_t.shape[0]):
         tt = terrain_t[m]
         x = bezier(pt[s, 0, p], q1x, q2[s, 0, p], pt[s + 1, 0, p], tt)
         y = bezier(pt[s, 1, p], q1y, q2[s, 1, p], pt[s + 1, 1, p], tt)
         z = bezier(pt[s, 2, p], q1z, q2[s, 2, p], pt[s + 1, 2, p], tt)
-        z = z - _ground(x, y, True, tx0, ty0, tdx, tdy, terrain_h)
-        depth = max(z_min + margin - z, z - z_max)
-        if depth > 0.0:
-            viol[1, p] += 1
-            pen[p] += pen_c + per_m * depth
+        h = z - _ground(x, y, True, tx0, ty0, tdx, tdy, terrain_h)
+        if m > 0:
+            slope = _local_slope(px, py, x, y, tx0, ty0, tdx, tdy, nx, ny, slopes)
+            room = slope * math.sqrt((x - px) * (x - px) + (y - py) * (y - py))
+            if min(ph, h) - z_min <= room or z_max - max(ph, h) <= room:
+                lo, hi = _chord_range(px, py, pz, x, y, z, tx0, ty0, tdx, tdy, terrain_h)
+                depth = max(z_min - lo, hi - z_max)
+                if depth > 0.0:
+                    viol[1, p] += 1
+                    pen[p] += pen_c + per_m * depth
+        px, py, pz, ph = x, y, z, h
 
 
 @called
-def _terrain_band(pt, seg, q2, terrain_t, slope, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m, pen,
+def _terrain_band(pt, seg, q2, terrain_t, slopes, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m, pen,
                   viol):  # noqa: ANN001, ANN202
     """Every particle's curve on every segment against the band above the terrain (_terrain_terms), segment by
     segment as in _cost: one call from it, whose loop keeps few values live around each particle's call."""
     for s in range(pt.shape[0] - 1):
         for p in range(pt.shape[2]):
-            _terrain_terms(pt, seg, q2, s, p, terrain_t, slope, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c,
+            _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c,
                            per_m, pen, viol)
 
 
 @jit
 def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d_coll, pen_c, per_m, per_rad,
           w_length, w_hazard, w_altitude, w_smoothness, w_destination, z_min, z_max, size_x, size_y, direct,
-          has_heading, heading, timed, start_time, max_speed, thr, has_terrain, tx0, ty0, tdx, tdy, slope, terrain_h,
+          has_heading, heading, timed, start_time, max_speed, thr, has_terrain, tx0, ty0, tdx, tdy, slopes, terrain_h,
           cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w, peak_table, threat_t, terrain_t,
           golden_iters, broad):  # noqa: ANN001, ANN202
     """terms (P, 5), penalty (P,), violations (P, 5) and the weighted total (P,) for paths (P, N, 3), from the
@@ -363,7 +447,7 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
             for p in range(n_p):
                 j3[p] += abs(pt[w, 2, p] - mid) / half
     if has_terrain:
-        _terrain_band(pt, seg, q2, terrain_t, slope, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m, pen,
+        _terrain_band(pt, seg, q2, terrain_t, slopes, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m, pen,
                       viol)
     else:  # the curve lies in its control points' range: only where that leaves the band is the exact range needed
         for s in range(n_s):
@@ -478,7 +562,7 @@ def _arguments(k: KernelInputs) -> tuple:
             k.weight_hazard, k.weight_altitude, k.weight_smoothness, k.weight_destination, k.z_min, k.z_max,
             k.size_x, k.size_y, k.direct_distance, k.has_heading, k.heading, k.timed, k.start_time,
             k.threat_max_speed, k.threats, k.has_terrain, k.terrain_x0, k.terrain_y0, k.terrain_dx, k.terrain_dy,
-            k.terrain_slope, k.terrain_heights, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
+            k.terrain_slopes, k.terrain_heights, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
             k.rad_det, k.rad_w, k.peak_table, k.threat_t, k.terrain_t, k.golden_iters)
 
 

@@ -21,6 +21,7 @@ ENV_VAR = "FUSEPLAN_KERNEL"
 BROAD_ENV_VAR = "FUSEPLAN_BROAD_PHASE"
 GRID_MIN_OBSTACLES = 16  # fewer obstacles: one cell (visiting a few obstacles costs less than finding them)
 GRID_CELLS = 64  # broad-phase grid: at most this many cells along the map's longer side
+SLOPE_BLOCK = 4  # terrain cells per side of a block of the local slope bounds (Terrain.slope_blocks)
 KERNELS = ("compiled", "numpy")
 
 
@@ -150,7 +151,8 @@ class KernelInputs:
     terrain_y0: float
     terrain_dx: float
     terrain_dy: float
-    terrain_slope: float  # Terrain.max_slope
+    # Terrain.slope_blocks(SLOPE_BLOCK): local bounds of how far the ground departs from a chord between its ends
+    terrain_slopes: np.ndarray  # (nby, nbx); zeros (1, 1) without terrain
     terrain_heights: np.ndarray  # (ny, nx); zeros (2, 2) without terrain
     # static obstacles
     cyl_x: np.ndarray
@@ -180,6 +182,7 @@ class KernelInputs:
               start_heading: np.ndarray | None, threat_t: np.ndarray, terrain_t: np.ndarray) -> KernelInputs:
         """The inputs of a problem; ``start_time`` None when moving threats do not count (none, or no time)."""
         ter, cyl, sph, rad = env.terrain, env.cylinders, env.spheres, env.radars
+        slopes = ter.slope_blocks(SLOPE_BLOCK) if ter is not None else np.zeros((1, 1))
         ob_x = _f64(np.concatenate([cyl.x, sph.center[:, 0]]))  # cylinders then spheres: one grid for both
         ob_y = _f64(np.concatenate([cyl.y, sph.center[:, 1]]))
         ob_r = _f64(np.concatenate([cyl.radius, sph.radius]))
@@ -201,7 +204,7 @@ class KernelInputs:
             has_terrain=ter is not None,
             terrain_x0=float(ter.x0) if ter is not None else 0.0, terrain_y0=float(ter.y0) if ter is not None else 0.0,
             terrain_dx=float(ter.dx) if ter is not None else 1.0, terrain_dy=float(ter.dy) if ter is not None else 1.0,
-            terrain_slope=float(ter.max_slope) if ter is not None else 0.0,
+            terrain_slopes=_f64(slopes, slopes.shape),
             terrain_heights=_f64(ter.heights, ter.heights.shape) if ter is not None else np.zeros((2, 2)),
             cyl_x=_f64(cyl.x), cyl_y=_f64(cyl.y), cyl_r=_f64(cyl.radius), cyl_top=_f64(cyl.top),
             sph_c=_f64(sph.center, (-1, 3)), sph_r=_f64(sph.radius),

@@ -40,6 +40,21 @@ class Terrain:
         gy = np.abs(np.diff(self.heights, axis=0)).max() / self.dy
         return float(np.hypot(gx, gy))
 
+    def slope_blocks(self, block: int) -> np.ndarray:
+        """Upper bounds of |∇h| (nby, nbx) over blocks of ``block`` × ``block`` cells (block (J, I) holds cells
+        j // block = J, i // block = I): per cell, the larger of its two x edge slopes and of its two y edge slopes,
+        combined as :attr:`max_slope` is. A chord's ground departs from the line between its ends by at most the
+        largest bound over the blocks under it times its horizontal length."""
+        h = self.heights
+        gx = np.abs(np.diff(h, axis=1)) / self.dx  # (ny, nx − 1): x edges
+        gy = np.abs(np.diff(h, axis=0)) / self.dy  # (ny − 1, nx): y edges
+        cell = np.hypot(np.maximum(gx[:-1], gx[1:]), np.maximum(gy[:, :-1], gy[:, 1:]))  # (ny − 1, nx − 1)
+        ny, nx = cell.shape
+        nby, nbx = -(-ny // block), -(-nx // block)
+        padded = np.zeros((nby * block, nbx * block))
+        padded[:ny, :nx] = cell
+        return padded.reshape(nby, block, nbx, block).max(axis=(1, 3))
+
     @property
     def max_height(self) -> float:
         return float(self.heights.max())
