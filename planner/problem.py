@@ -14,6 +14,7 @@ import numpy as np
 from planner import kernel
 from planner.trajectory.smoothing import (
     bezier_point,
+    chord_sag,
     climb_angle,
     corner_cut_bound,
     cubic_range,
@@ -34,6 +35,7 @@ from planner.world.geometry import (
 
 _EPS = 1e-9
 _TERRAIN_T = np.linspace(0.0, 1.0, 17)  # samples per segment: the band is tested on the 16 chords between them
+_TERRAIN_SAG = chord_sag(_TERRAIN_T)
 _THREAT_T = np.linspace(0.0, 1.0, 11)  # samples per segment (ends included) for time-aware threats
 THREAT_SAMPLES = len(_THREAT_T)
 
@@ -323,12 +325,17 @@ class PlanningProblem:
         j3 = (np.abs(h - mid) / half).sum(axis=1)
         if env.terrain is None:  # exact height range of each Bézier segment
             depth = np.maximum(z_lo - curve_lo, curve_hi - z_hi)
-        else:  # the chords between samples of the curve, each exactly over the ground (docs/method.md §15.1)
+        else:  # the chords between samples of the curve, each exactly over the ground (docs/method.md §15.1),
+            # the band narrowed by how far the curve may stray from them (chord_sag)
             q1 = a + (b - a) / 3.0
             t = _TERRAIN_T[:, None]
             pts = bezier_point(a[:, :, None], q1[:, :, None], q2[:, :, None], b[:, :, None], t)  # (P, S, m, 3)
-            depth = env.band_depth(pts[:, :, :-1].reshape(-1, 3), pts[:, :, 1:].reshape(-1, 3)).reshape(
-                pts.shape[0], pts.shape[1], pts.shape[2] - 1)
+            lo, hi = env.height_range(pts[:, :, :-1].reshape(-1, 3), pts[:, :, 1:].reshape(-1, 3))
+            shape = (pts.shape[0], pts.shape[1], pts.shape[2] - 1)
+            d1, d2 = q2 - 2.0 * q1 + a, b - 2.0 * q2 + q1
+            second = np.maximum(np.sqrt(_dot3(d1, d1)), np.sqrt(_dot3(d2, d2)))
+            margin = (_TERRAIN_SAG * (1.0 + env.terrain.max_slope) * second)[..., None]
+            depth = np.maximum(z_lo + margin - lo.reshape(shape), hi.reshape(shape) - (z_hi - margin))
         add("altitude", depth, self.penalty.per_metre)
         return j3
 

@@ -250,8 +250,8 @@ def _local_slope(ax, ay, bx, by, tx0, ty0, tdx, tdy, nx, ny, slopes):  # noqa: A
 
 
 @called
-def _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m,
-                   pen, viol):  # noqa: ANN001, ANN202
+def _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, max_slope, sag, z_min, z_max, tx0, ty0, tdx, tdy,
+                   terrain_h, pen_c, per_m, pen, viol):  # noqa: ANN001, ANN202
     """Particle p's curve on segment s against the band above the terrain: each chord between two of its samples,
     exactly over the ground (_chord_range: the roadmap's and the checker's test, §4.7, §15.1). A chord whose ends
     are inside the band by more than the local slope bound × its horizontal length cannot leave it (the ground
@@ -260,6 +260,15 @@ def _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, z_min, z_max, tx0, ty0,
     q1x = pt[s, 0, p] + seg[s, 0, p] / 3.0
     q1y = pt[s, 1, p] + seg[s, 1, p] / 3.0
     q1z = pt[s, 2, p] + seg[s, 2, p] / 3.0
+    # the curve strays from a chord by at most sag × its largest second difference (the band is narrowed by that,
+    # and by what the ground can differ under it: × (1 + the steepest slope))
+    ax, ay, az = q2[s, 0, p] - 2.0 * q1x + pt[s, 0, p], q2[s, 1, p] - 2.0 * q1y + pt[s, 1, p], \
+        q2[s, 2, p] - 2.0 * q1z + pt[s, 2, p]
+    bx, by, bz = pt[s + 1, 0, p] - 2.0 * q2[s, 0, p] + q1x, pt[s + 1, 1, p] - 2.0 * q2[s, 1, p] + q1y, \
+        pt[s + 1, 2, p] - 2.0 * q2[s, 2, p] + q1z
+    second = max(math.sqrt(ax * ax + ay * ay + az * az), math.sqrt(bx * bx + by * by + bz * bz))
+    margin = sag * (1.0 + max_slope) * second
+    lo_z, hi_z = z_min + margin, z_max - margin
     px, py, pz, ph = 0.0, 0.0, 0.0, 0.0
     for m in range(terrain_t.shape[0]):
         tt = terrain_t[m]
@@ -270,9 +279,9 @@ def _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, z_min, z_max, tx0, ty0,
         if m > 0:
             slope = _local_slope(px, py, x, y, tx0, ty0, tdx, tdy, nx, ny, slopes)
             room = slope * math.sqrt((x - px) * (x - px) + (y - py) * (y - py))
-            if min(ph, h) - z_min <= room or z_max - max(ph, h) <= room:
+            if min(ph, h) - lo_z <= room or hi_z - max(ph, h) <= room:
                 lo, hi = _chord_range(px, py, pz, x, y, z, tx0, ty0, tdx, tdy, terrain_h)
-                depth = max(z_min - lo, hi - z_max)
+                depth = max(lo_z - lo, hi - hi_z)
                 if depth > 0.0:
                     viol[1, p] += 1
                     pen[p] += pen_c + per_m * depth
@@ -280,20 +289,21 @@ def _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, z_min, z_max, tx0, ty0,
 
 
 @called
-def _terrain_band(pt, seg, q2, terrain_t, slopes, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m, pen,
-                  viol):  # noqa: ANN001, ANN202
+def _terrain_band(pt, seg, q2, terrain_t, slopes, max_slope, sag, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h,
+                  pen_c, per_m, pen, viol):  # noqa: ANN001, ANN202
     """Every particle's curve on every segment against the band above the terrain (_terrain_terms), segment by
     segment as in _cost: one call from it, whose loop keeps few values live around each particle's call."""
     for s in range(pt.shape[0] - 1):
         for p in range(pt.shape[2]):
-            _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c,
-                           per_m, pen, viol)
+            _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, max_slope, sag, z_min, z_max, tx0, ty0, tdx, tdy,
+                           terrain_h, pen_c, per_m, pen, viol)
 
 
 @jit
 def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d_coll, pen_c, per_m, per_rad,
           w_length, w_hazard, w_altitude, w_smoothness, w_destination, z_min, z_max, size_x, size_y, direct,
-          has_heading, heading, timed, start_time, max_speed, thr, has_terrain, tx0, ty0, tdx, tdy, slopes, terrain_h,
+          has_heading, heading, timed, start_time, max_speed, thr, has_terrain, tx0, ty0, tdx, tdy, slopes, max_slope,
+          sag, terrain_h,
           cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w, peak_table, threat_t, terrain_t,
           golden_iters, broad):  # noqa: ANN001, ANN202
     """terms (P, 5), penalty (P,), violations (P, 5) and the weighted total (P,) for paths (P, N, 3), from the
@@ -447,8 +457,8 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
             for p in range(n_p):
                 j3[p] += abs(pt[w, 2, p] - mid) / half
     if has_terrain:
-        _terrain_band(pt, seg, q2, terrain_t, slopes, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h, pen_c, per_m, pen,
-                      viol)
+        _terrain_band(pt, seg, q2, terrain_t, slopes, max_slope, sag, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h,
+                      pen_c, per_m, pen, viol)
     else:  # the curve lies in its control points' range: only where that leaves the band is the exact range needed
         for s in range(n_s):
             for p in range(n_p):
@@ -562,7 +572,8 @@ def _arguments(k: KernelInputs) -> tuple:
             k.weight_hazard, k.weight_altitude, k.weight_smoothness, k.weight_destination, k.z_min, k.z_max,
             k.size_x, k.size_y, k.direct_distance, k.has_heading, k.heading, k.timed, k.start_time,
             k.threat_max_speed, k.threats, k.has_terrain, k.terrain_x0, k.terrain_y0, k.terrain_dx, k.terrain_dy,
-            k.terrain_slopes, k.terrain_heights, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
+            k.terrain_slopes, k.terrain_slope, k.terrain_sag, k.terrain_heights,
+            k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
             k.rad_det, k.rad_w, k.peak_table, k.threat_t, k.terrain_t, k.golden_iters)
 
 

@@ -12,7 +12,7 @@ import numpy as np
 
 from planner.kernel.jit import njit
 from planner.kernel.swarm import decode_spherical, pso_step
-from planner.trajectory.smoothing import PEAK_FACTOR
+from planner.trajectory.smoothing import PEAK_FACTOR, chord_sag
 from planner.world.config import CostWeights, HazardConfig, PenaltyConfig, VehicleLimits
 from planner.world.environment import LOITER, PATROL, Environment, Threats
 from planner.world.geometry import GOLDEN_ITERS
@@ -153,6 +153,8 @@ class KernelInputs:
     terrain_dy: float
     # Terrain.slope_blocks(SLOPE_BLOCK): local bounds of how far the ground departs from a chord between its ends
     terrain_slopes: np.ndarray  # (nby, nbx); zeros (1, 1) without terrain
+    terrain_slope: float  # Terrain.max_slope (0 without terrain)
+    terrain_sag: float  # smoothing.chord_sag(terrain_t): how far a chord strays from its curve per second difference
     terrain_heights: np.ndarray  # (ny, nx); zeros (2, 2) without terrain
     # static obstacles
     cyl_x: np.ndarray
@@ -205,6 +207,7 @@ class KernelInputs:
             terrain_x0=float(ter.x0) if ter is not None else 0.0, terrain_y0=float(ter.y0) if ter is not None else 0.0,
             terrain_dx=float(ter.dx) if ter is not None else 1.0, terrain_dy=float(ter.dy) if ter is not None else 1.0,
             terrain_slopes=_f64(slopes, slopes.shape),
+            terrain_slope=float(ter.max_slope) if ter is not None else 0.0, terrain_sag=chord_sag(terrain_t),
             terrain_heights=_f64(ter.heights, ter.heights.shape) if ter is not None else np.zeros((2, 2)),
             cyl_x=_f64(cyl.x), cyl_y=_f64(cyl.y), cyl_r=_f64(cyl.radius), cyl_top=_f64(cyl.top),
             sph_c=_f64(sph.center, (-1, 3)), sph_r=_f64(sph.radius),

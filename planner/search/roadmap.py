@@ -321,8 +321,9 @@ class Query:
 
 def attach(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, reach: float = 3.0) -> Query:
     """Join the start and the goal to the roadmap nodes within ``reach`` spacings whose edges keep d_coll
-    (the start may sit closer to an obstacle than the roadmap's margin: the vehicle is there already) and the
-    climb limit; the straight start→goal edge too, when it is clear. With a start heading, the start's edges
+    (the start may sit closer to an obstacle than the roadmap's margin: the vehicle is there already), the
+    climb limit and the band over the terrain; the straight start→goal edge too, when it is clear. With a start
+    heading, the start's edges
     turn at most the vehicle's max turn from it."""
     pts = np.concatenate([rm.nodes, problem.start[None], problem.goal[None]])
     n = rm.n_nodes
@@ -334,7 +335,10 @@ def attach(rm: Roadmap, problem: PlanningProblem, cfg: RoadmapConfig, reach: flo
     e = np.concatenate(extra)
     a, b = pts[e[:, 0]], pts[e[:, 1]]
     relax = rm.need - problem.hazard.d_coll  # attachments need only d_coll
-    ok = (segment_slack(problem, a, b, cfg.margin) >= -relax) & climb_ok(problem, a, b, 1.0)
+    # and the band over the terrain, left no further than an end already is (a start may sit at its edge)
+    ends_out = np.maximum(problem.env.band_depth(a, a), problem.env.band_depth(b, b)).clip(0.0)
+    ok = ((segment_slack(problem, a, b, cfg.margin) >= -relax) & climb_ok(problem, a, b, 1.0)
+          & (problem.env.band_depth(a, b) <= ends_out + 1e-9))
     if problem.start_heading is not None:  # leave the start within the turn limit of the way the vehicle flies
         out = e[:, 0] == n
         turn = horizontal_turn(np.stack([np.broadcast_to(problem.start_heading, b.shape), b - a], axis=1))[:, 0]
@@ -433,7 +437,8 @@ def round_corners(route: np.ndarray, problem: PlanningProblem, cfg: RoadmapConfi
     """Cut each corner that turns more than ``min_turn_deg`` into two half turns, as a pilot would: the vertex V
     becomes A = V − d u_in and B = V + d u_out. d is what the chord AB needs to stay under 1/R_min on its
     Bézier (docs/method.md §11.2: κ = G(cos θ/2) sin(θ/2) / (2 d cos(θ/2))), at most 0.45 of either leg; a cut
-    whose chord comes closer to an obstacle than the roadmap's clearance keeps the corner."""
+    whose chord comes closer to an obstacle than the roadmap's clearance, or leaves the band over the terrain, keeps
+    the corner."""
     veh = problem.vehicle
     pts = [route[0]]
     for k in range(1, len(route) - 1):  # the guide's corners, once per plan: not a hot path
@@ -450,7 +455,8 @@ def round_corners(route: np.ndarray, problem: PlanningProblem, cfg: RoadmapConfi
         g = float(peak_factor(np.array(math.cos(theta / 2))))
         d = min(0.55 * veh.min_turn_radius * g * math.tan(theta / 2), 0.45 * min(l_in, l_out))
         a, b = v - d * u_in, v + d * u_out
-        if segment_slack(problem, a[None], b[None], cfg.margin)[0] >= -relax_ends * (k in (1, len(route) - 2)):
+        if (segment_slack(problem, a[None], b[None], cfg.margin)[0] >= -relax_ends * (k in (1, len(route) - 2))
+                and band_ok(problem, a[None], b[None], 0.5 * veh.acceptance_radius)[0]):
             pts += [a, b]
         else:
             pts.append(v)
@@ -461,7 +467,8 @@ def round_corners(route: np.ndarray, problem: PlanningProblem, cfg: RoadmapConfi
 def _drop_tight_vertices(route: np.ndarray, problem: PlanningProblem, cfg: RoadmapConfig,
                          passes: int = 3) -> np.ndarray:
     """Remove a vertex whose incoming leg is too short for the turn at it (its Bézier would curve tighter than
-    R_min, docs/method.md §11.2) when the leg that skips it keeps the roadmap's clearance and room to swing."""
+    R_min, docs/method.md §11.2) when the leg that skips it keeps the roadmap's clearance and room to swing, the band
+    over the terrain and the climb limit."""
     veh = problem.vehicle
     for _ in range(passes):  # a few sweeps over one guide's vertices
         seg = np.diff(route, axis=0)
@@ -477,7 +484,9 @@ def _drop_tight_vertices(route: np.ndarray, problem: PlanningProblem, cfg: Roadm
                 continue
             a, b = route[k - 1], route[k + 1]
             swing = _swing_room(float(np.linalg.norm(b - a)), problem, cfg.margin)
-            if segment_slack(problem, a[None], b[None], cfg.margin)[0] >= max(swing, 0.0):
+            if (segment_slack(problem, a[None], b[None], cfg.margin)[0] >= max(swing, 0.0)
+                    and band_ok(problem, a[None], b[None], 0.5 * veh.acceptance_radius)[0]
+                    and climb_ok(problem, a[None], b[None], cfg.climb_share)[0]):
                 keep[k] = False
         if keep.all():
             break

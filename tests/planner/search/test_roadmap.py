@@ -320,3 +320,27 @@ def test_an_infeasible_pipeline_route_gives_way_to_the_papers_feasible_one(monke
 
     late = plan(pb, sc.planner, np.random.default_rng(0), deadline=Deadline.after(1e-6))
     assert "paper" not in late.optimiser.phases and not late.feasible
+
+
+def test_no_attachment_or_guide_leg_crosses_a_ridge_above_the_band() -> None:
+    """The straight start→goal edge over a ridge that rises above the band (with a pass at one side) is no
+    attachment: the guide goes through the pass, and every leg of it stays in the band over the ground, exactly
+    (issue 34: on the saddle maps the guide was the straight line over the crest)."""
+    from planner.world.terrain import Terrain
+
+    xs = np.arange(0.0, 1201.0, 20.0)
+    ys = np.arange(0.0, 1001.0, 20.0)
+    gx, gy = np.meshgrid(xs, ys)
+    ridge = 600.0 * np.exp(-((gx - 600.0) / 60.0) ** 2)  # a ridge across the map at x = 600, 600 m high
+    ridge *= 1.0 - np.exp(-((gy - 850.0) / 70.0) ** 2)  # with a pass at y = 850
+    env = Environment(1200.0, 1000.0, 30.0, 200.0, terrain=Terrain(0.0, 0.0, 20.0, 20.0, ridge))
+    pb = PlanningProblem(env, np.array([100.0, 300.0, 80.0]), np.array([1100.0, 300.0, 80.0]), VEHICLE, HAZARD)
+    assert env.band_depth(pb.start[None], pb.goal[None])[0] > 100.0  # the straight line is far below the crest
+    q = rmap.attach(rmap.build(pb, CFG), pb, CFG)
+    n = q.roadmap.n_nodes
+    assert not np.any((q.edges[:, 0] == n) & (q.edges[:, 1] == n + 1))
+    _, _, _, routes, _ = rmap.routes(pb, CFG)
+    assert routes
+    guide = routes[0]
+    assert np.all(env.band_depth(guide[:-1], guide[1:]) <= 1e-6)
+    assert guide[:, 1].max() > 700.0  # through the pass
