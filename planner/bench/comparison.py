@@ -36,7 +36,7 @@ from planner.bench.runner import (
 
 ALGORITHMS = ("fusion", "spso", "qpso", "psogsa", "bpso", "pso", "roadmap")
 LABELS = {"fusion": "fusion (SPSO+GKDM+ACO)", "spso": "SPSO", "qpso": "QPSO", "psogsa": "PSOGSA",
-          "bpso": "BPSO", "pso": "PSO (traditional)", "roadmap": "fusion, roadmap pipeline (fuseplan's, opt-in)"}
+          "bpso": "BPSO", "pso": "PSO (traditional)", "roadmap": "fusion, roadmap pipeline (fuseplan's default)"}
 PAPER_FOUR = ("fusion", "qpso", "psogsa", "bpso")  # the four algorithms of Figures 13–26
 CATEGORIES = ("collision", "altitude", "turn", "climb", "bounds")
 COLUMNS = ("cost", "length_m", "smoothness", "time_s", "robustness", "violations", "convergence_iteration",
