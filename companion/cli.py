@@ -13,6 +13,7 @@ import logging
 import math
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
@@ -29,7 +30,10 @@ from planner.cli import (
     write_text,
 )
 from planner.errors import FuseplanError, PlanRefused
-from planner.world.config import ALGORITHM_NAMES
+from planner.world.config import ALGORITHM_NAMES, PAPER_MODE
+
+if TYPE_CHECKING:
+    from companion.replanning.replan import ReplanConfig
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "sitl_scenarios"
 
@@ -104,8 +108,8 @@ def _parser() -> argparse.ArgumentParser:
     bn.add_argument("--whole", action="store_true",
                     help="bench replan only: fly every flight to its end and count replans per conflict")
     bn.add_argument("--replan-paper", action="store_true",
-                    help="bench replan only: replans run the scenario's own planner (the paper's fusion) instead of "
-                         "the roadmap pipeline, for comparison")
+                    help="bench replan only: the first routes and the replans by the paper's fusion (paper mode) "
+                         "instead of the roadmap pipeline, for comparison")
     bn.add_argument("--cpu-hog", type=int, default=0, metavar="N",
                     help="bench replan and bench flights: N busy processes beside the flights (deadlines under "
                          "load, issue 16; default 0)")
@@ -205,14 +209,16 @@ def cmd_bench_replan(args: argparse.Namespace) -> int:
     hog = getattr(args, "cpu_hog", 0)
     if runs < 1 or not (math.isfinite(args.speedup) and args.speedup > 0) or hog < 0:
         raise FuseplanError("--runs must be >= 1, --speedup a finite number > 0 and --cpu-hog >= 0")
-    plans = [_plan_doc_for(SCENARIOS / name, None, list(args.overrides), None, for_flight=True)
+    paper = getattr(args, "replan_paper", False)  # the first routes and the replans by the paper's planners
+    plans = [_plan_doc_for(SCENARIOS / name, None, list(args.overrides) + ([PAPER_MODE] if paper else []), None,
+                           for_flight=True)
              for name in REPLAN_BENCH_SCENARIOS]
     say = (lambda _t: None) if args.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
     whole = getattr(args, "whole", False)
     say(f"bench replan: {len(plans)} scenarios × {runs} flights at {args.speedup:g}× "
         + ("to the end" if whole else "until the first replan") + (f", {hog} busy processes beside" if hog else ""))
     try:
-        cfg = ReplanConfig(roadmap=not getattr(args, "replan_paper", False))
+        cfg = ReplanConfig(roadmap=not paper)
         if whole:
             run_flight_bench(plans, runs, args.speedup, args.output, cfg, progress=say, hog=hog)
         else:
@@ -387,6 +393,16 @@ def _check_report_dir(report: Path) -> None:
         raise FuseplanError(f"{report}: cannot create the report directory under {parent}")
 
 
+def _replan_config(budget: float | None, paper: bool) -> ReplanConfig | None:
+    """The live replanner's settings for ``fly``: its defaults (None) unless ``--replan-budget``
+    or ``--paper`` (then the replans too are the paper's planners, the scenario's settings in paper mode)."""
+    from companion.replanning.replan import ReplanConfig
+
+    if budget is None and not paper:
+        return None
+    return ReplanConfig(**({} if budget is None else {"budget_s": budget}), roadmap=not paper)
+
+
 def cmd_fly(args: argparse.Namespace) -> int:
     import asyncio
 
@@ -394,7 +410,6 @@ def cmd_fly(args: argparse.Namespace) -> int:
     from companion.mavlink.errors import CompanionError
     from companion.mavlink.signing import key_from_files
     from companion.mission.events import EventLog
-    from companion.replanning.replan import ReplanConfig
 
     if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.sim_loss < 1:
         raise FuseplanError("--speedup must be a finite number > 0 and --sim-loss in [0, 1)")
@@ -447,7 +462,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
                       arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report,
                       replan=not getattr(args, "no_replan", False),
-                      replan_config=None if budget is None else ReplanConfig(budget_s=budget),
+                      replan_config=_replan_config(budget, getattr(args, "paper", False)),
                       signing_key=key, traffic=getattr(args, "traffic", None), backend=backend,
                       heartbeat_timeout=HEARTBEAT_WAIT_S if heartbeat is None else heartbeat, target_system=target,
                       plan_again=None if args.scenario.suffix.lower() == ".json" else (

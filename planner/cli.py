@@ -35,7 +35,8 @@ def add_paper_option(parser: argparse.ArgumentParser) -> None:
     """``--paper``: plan in paper mode, the paper's planners as published (no roadmap pipeline)."""
     parser.add_argument("--paper", action="store_true",
                         help="paper mode: the paper's planners as published, without the roadmap pipeline "
-                             f"(--set {PAPER_MODE}); the default is the roadmap pipeline")
+                             f"(--set {PAPER_MODE}; fly: the live replans too; export: when it plans); the default "
+                             "is the roadmap pipeline")
 
 
 def mode_overrides(args: argparse.Namespace) -> list[str]:

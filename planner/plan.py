@@ -34,7 +34,7 @@ from planner.world.config import PlannerSettings
 from planner.world.scenario import Scenario
 
 MERGE_TOLERANCE_M = 1.0
-PAPER_MIN_S = 0.05  # the least search time the paper's fusion is run on after an infeasible pipeline route
+PAPER_MIN_S = 0.05  # the least search time the paper's fusion is run on after an infeasible pipeline route (§15.6)
 
 
 class PlanStatus(str, enum.Enum):
@@ -148,7 +148,7 @@ def plan(
     opt = make_optimiser(settings).run(problem, rng, initial_paths=initial_paths, deadline=deadline.minus(reserve),
                                        progress=progress)
     waypoints, evaluation, traj, check, feasible = _verdict(problem, settings, opt)
-    if not feasible and _paper_may_follow(settings, opt) and deadline.affords(2.0 * reserve + PAPER_MIN_S):
+    if not feasible and _paper_may_follow(settings, opt) and deadline.affords(reserve + PAPER_MIN_S):
         # the pipeline's best still fails: the paper's fusion in what is left, and the better route is kept, so on a
         # map the paper's planner solves the pipeline does not lose (docs/method.md §15.6)
         paper_settings = replace(settings, roadmap=replace(settings.roadmap, enabled=False))
@@ -190,7 +190,11 @@ def _with_paper(pipeline: Any, paper: Any, paper_wins: bool) -> Any:
     phases.update({f"paper/{k}": v for k, v in paper.phases.items()})
     phases["paper"] = PhaseRecord(paper.cost, paper.iterations, paper.time_s, paper.evaluations, paper.stop_reason)
     win = paper if paper_wins else pipeline
-    history = list(pipeline.history) + [min(pipeline.history[-1], h) for h in paper.history]
+    # each of the paper's iterations after its initial best; the best so far, unless the paper's route won on
+    # feasibility at a higher cost (then its own, so that the history ends at the plan's cost)
+    tail = paper.history[len(paper.history) - paper.iterations:]
+    history = list(pipeline.history) + ([float(h) for h in tail] if paper_wins and paper.cost > pipeline.cost
+                                        else [min(pipeline.history[-1], h) for h in tail])
     stop = "timeout" if "timeout" in (pipeline.stop_reason, paper.stop_reason) else win.stop_reason
     return FusionResult(win.path, win.cost, win.evaluation, history, pipeline.iterations + paper.iterations, stop,
                         pipeline.time_s + paper.time_s, pipeline.evaluations + paper.evaluations, pipeline.state,

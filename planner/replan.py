@@ -1,5 +1,6 @@
 """A live replan's problem and settings (docs/design.md, "Live replanning"), defined once for the companion's
-replanner and for the benches that time it: the planner may not import the companion, so the facts live here."""
+replanner; the benches that time plans at its budget (speed's latency part, robustness's 0.15 s variants) take its
+budget, swarm size and threat picture from here. The planner may not import the companion, so the facts live here."""
 
 from __future__ import annotations
 

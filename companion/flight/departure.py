@@ -148,25 +148,29 @@ def departure_paths(fix: VehicleFix, start: np.ndarray, takeoff_alt: float,
     return paths
 
 
-def join_paths(paths: list[np.ndarray], onto: np.ndarray, limits: AutopilotLimits) -> list[np.ndarray]:
+def join_paths(paths: list[np.ndarray], onto: np.ndarray, limits: AutopilotLimits) -> list[tuple[int, np.ndarray]]:
     """The turns (M, 3) from each departure path's arrival at the route's start onto its first leg, towards
-    ``onto`` (the route's next waypoint): a plane's path-follower turns from the heading it arrives on, at its
-    tightest and at its wide (L1) radius, and may swing well past the start when the leg turns back; a copter
-    turns on the spot (none)."""
-    if limits.vehicle_type != "plane" and not limits.vertical_takeoff:
+    ``onto`` (the route's next waypoint), with the index of the path each follows: a plane's path-follower turns
+    from the heading it arrives on, at its tightest and at its wide (L1) radius, and may swing well past the start
+    when the leg turns back. Only the turn: once it points at ``onto`` it flies the planned leg, which the plan
+    checked. A copter turns on the spot (none)."""
+    if limits.vehicle_type != "plane":
         return []
     out = []
-    for path in paths:
+    for k, path in enumerate(paths):
         start = path[-1]
         arrive = start[:2] - path[-2][:2]
         norm = float(np.linalg.norm(arrive))
         if norm < 1e-6:
             continue
         for radius in sorted({limits.turn_radius, limits.wide_turn_radius()}):
-            flat = turn_then_straight(start[:2], arrive / norm, np.asarray(onto[:2], dtype=float), radius)
+            flat = turn_then_straight(start[:2], arrive / norm, np.asarray(onto[:2], dtype=float), radius)[:-1]
+            if len(flat) < 2:
+                continue
             run = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(flat, axis=0), axis=1))])
-            z = start[2] + (float(onto[2]) - start[2]) * run / max(float(run[-1]), 1e-9)
-            out.append(_densify(np.column_stack([flat, z])))
+            leg = max(float(np.linalg.norm(np.asarray(onto[:2]) - start[:2])), 1e-9)
+            z = start[2] + (float(onto[2]) - start[2]) * np.minimum(run / leg, 1.0)
+            out.append((k, _densify(np.column_stack([flat, z]))))
     return out
 
 
@@ -192,15 +196,20 @@ def check_departure(fix: VehicleFix, start: np.ndarray, takeoff_alt: float, limi
     clearance, nearest = nearest_obstacle(np.vstack(paths), env)
     need = d_coll + DEPARTURE_MARGIN_M
     if joins:
-        join_clearance, join_nearest = nearest_obstacle(np.vstack(joins), env)
+        per = [nearest_obstacle(j, env) for _, j in joins]
+        worst = int(np.argmin([c for c, _ in per]))
+        join_clearance, join_nearest = per[worst]
         if join_clearance < min(clearance, need):
-            return Departure(paths + joins, join_clearance, join_nearest, (
+            came = paths[joins[worst][0]]
+            return Departure(paths + [j for _, j in joins], join_clearance, join_nearest, (
                 f"the vehicle {where} would reach the route's start heading "
-                f"{_compass(paths[0][-1][:2] - paths[0][-2][:2]):.0f}° and its turn onto the first leg comes "
+                f"{_compass(came[-1][:2] - came[-2][:2]):.0f}° and its turn onto the first leg comes "
                 + (f"{-join_clearance:.0f} m inside {join_nearest}" if join_clearance < 0
                    else f"{join_clearance:.0f} m from {join_nearest}")
                 + f" (needs {need:g} m): nothing uploaded; turn or move the vehicle, or start the route elsewhere"))
-        paths = paths + joins
+        paths = paths + [j for _, j in joins]
+        if join_clearance < clearance:
+            clearance, nearest = join_clearance, join_nearest
     if clearance < need:
         how = (f"take off on heading {fix.heading_deg or 0.0:.0f}° and climb out" if on_ground and
                limits.vehicle_type == "plane" else "climb out" if on_ground else "fly")

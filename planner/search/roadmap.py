@@ -437,8 +437,8 @@ def round_corners(route: np.ndarray, problem: PlanningProblem, cfg: RoadmapConfi
     """Cut each corner that turns more than ``min_turn_deg`` into two half turns, as a pilot would: the vertex V
     becomes A = V − d u_in and B = V + d u_out. d is what the chord AB needs to stay under 1/R_min on its
     Bézier (docs/method.md §11.2: κ = G(cos θ/2) sin(θ/2) / (2 d cos(θ/2))), at most 0.45 of either leg; a cut
-    whose chord comes closer to an obstacle than the roadmap's clearance, or leaves the band over the terrain, keeps
-    the corner."""
+    whose chord comes closer to an obstacle than the roadmap's clearance, leaves the band over the terrain or climbs
+    steeper than the roadmap's edges, keeps the corner."""
     veh = problem.vehicle
     pts = [route[0]]
     for k in range(1, len(route) - 1):  # the guide's corners, once per plan: not a hot path
@@ -456,7 +456,8 @@ def round_corners(route: np.ndarray, problem: PlanningProblem, cfg: RoadmapConfi
         d = min(0.55 * veh.min_turn_radius * g * math.tan(theta / 2), 0.45 * min(l_in, l_out))
         a, b = v - d * u_in, v + d * u_out
         if (segment_slack(problem, a[None], b[None], cfg.margin)[0] >= -relax_ends * (k in (1, len(route) - 2))
-                and band_ok(problem, a[None], b[None], 0.5 * veh.acceptance_radius)[0]):
+                and band_ok(problem, a[None], b[None], 0.5 * veh.acceptance_radius)[0]
+                and climb_ok(problem, a[None], b[None], cfg.climb_share)[0]):
             pts += [a, b]
         else:
             pts.append(v)

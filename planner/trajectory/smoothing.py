@@ -206,7 +206,7 @@ def cubic_range(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, q3: np.ndarray) 
 
 
 def chord_sag(t: np.ndarray) -> float:
-    """The most a cubic Bézier strays from the chords between its samples at parameters ``t``, per metre of its
-    largest second difference of control points: (1/8) Δt² max|B''| and |B''| ≤ 6 max |P_{i+2} − 2P_{i+1} + P_i|.
+    """A bound on how far a cubic Bézier strays from the chords between its samples at parameters ``t``, per metre
+    of its largest second difference of control points: (1/8) Δt² max|B''| and |B''| ≤ 6 max |P_{i+2} − 2P_{i+1} + P_i|.
     The cost narrows the band over terrain by this × (1 + the steepest slope) (docs/method.md §5.2)."""
     return 0.75 * float(np.max(np.diff(np.asarray(t, dtype=float)))) ** 2
