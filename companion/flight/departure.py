@@ -58,10 +58,15 @@ class Departure:
     clearance_m: float
     nearest_obstacle: str | None
     refusal: str | None  # one line, or None when the vehicle can fly it
+    # the turn onto the route's first leg (join_paths) comes closer than the departure's margin: one line. Advisory:
+    # the model is not yet calibrated against SITL (on ArduPlane SITL at a 30° roll limit it foresaw cylinders[3]
+    # 67 m in, the real track breached cylinders[0] elsewhere); the flown track's verdict stands
+    join_warning: str | None = None
 
     def summary(self) -> dict[str, object]:
         return {"paths": len(self.paths), "clearance_m": round(self.clearance_m, 1) if math.isfinite(
-            self.clearance_m) else None, "nearest_obstacle": self.nearest_obstacle, "refusal": self.refusal}
+            self.clearance_m) else None, "nearest_obstacle": self.nearest_obstacle, "refusal": self.refusal,
+            "join_warning": self.join_warning}
 
 
 def _compass(v: np.ndarray) -> float:
@@ -181,7 +186,7 @@ def check_departure(fix: VehicleFix, start: np.ndarray, takeoff_alt: float, limi
     is not the scenario's, or any path of the envelope comes within d_coll + :data:`DEPARTURE_MARGIN_M` of a
     static obstacle. An airborne vehicle flies straight to the start from where it is (checked the same way).
     ``onto``: the route's next waypoint; the turns from the envelope's arrival onto the first leg
-    (:func:`join_paths`) are checked too."""
+    (:func:`join_paths`) are checked too, and one closer than the margin is a ``join_warning`` (not a refusal)."""
     p = np.asarray(fix.position, dtype=float)
     where = f"at ({p[0]:.0f}, {p[1]:.0f}) m"
     if fix.home is not None and abs(float(fix.home[2])) > HOME_ALT_TOLERANCE_M:
@@ -195,26 +200,25 @@ def check_departure(fix: VehicleFix, start: np.ndarray, takeoff_alt: float, limi
     joins = [] if onto is None else join_paths(paths, onto, limits)
     clearance, nearest = nearest_obstacle(np.vstack(paths), env)
     need = d_coll + DEPARTURE_MARGIN_M
+    warning = None
     if joins:
         per = [nearest_obstacle(j, env) for _, j in joins]
         worst = int(np.argmin([c for c, _ in per]))
         join_clearance, join_nearest = per[worst]
-        if join_clearance < min(clearance, need):
+        if join_clearance < need:
             came = paths[joins[worst][0]]
-            return Departure(paths + [j for _, j in joins], join_clearance, join_nearest, (
-                f"the vehicle {where} would reach the route's start heading "
-                f"{_compass(came[-1][:2] - came[-2][:2]):.0f}° and its turn onto the first leg comes "
-                + (f"{-join_clearance:.0f} m inside {join_nearest}" if join_clearance < 0
-                   else f"{join_clearance:.0f} m from {join_nearest}")
-                + f" (needs {need:g} m): nothing uploaded; turn or move the vehicle, or start the route elsewhere"))
+            warning = (f"the vehicle {where} may reach the route's start heading "
+                       f"{_compass(came[-1][:2] - came[-2][:2]):.0f}° and its turn onto the first leg come "
+                       + (f"{-join_clearance:.0f} m inside {join_nearest}" if join_clearance < 0
+                          else f"{join_clearance:.0f} m from {join_nearest}")
+                       + f" (the departure keeps {need:g} m)")
         paths = paths + [j for _, j in joins]
-        if join_clearance < clearance:
-            clearance, nearest = join_clearance, join_nearest
     if clearance < need:
         how = (f"take off on heading {fix.heading_deg or 0.0:.0f}° and climb out" if on_ground and
                limits.vehicle_type == "plane" else "climb out" if on_ground else "fly")
         return Departure(paths, clearance, nearest, (
             f"the vehicle {where} would {how} to the route's start "
             + (f"{-clearance:.0f} m inside {nearest}" if clearance < 0 else f"{clearance:.0f} m from {nearest}")
-            + f" (needs {need:g} m): nothing uploaded; move the vehicle (or turn it) or start the route elsewhere"))
-    return Departure(paths, clearance, nearest, None)
+            + f" (needs {need:g} m): nothing uploaded; move the vehicle (or turn it) or start the route elsewhere"),
+            warning)
+    return Departure(paths, clearance, nearest, None, warning)

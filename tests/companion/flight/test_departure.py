@@ -133,20 +133,22 @@ def test_the_turn_from_the_climb_out_onto_a_first_leg_that_doubles_back_is_check
     """A plane reaches the route's start on the heading its climb-out gives it and then turns onto the first leg;
     a first leg that doubles back swings it wide, past the start. On rescue_static with d_coll 60 m (simulator run:
     a roadmap route whose first leg turned back north-west was flown 14 m from cylinders[3]) the departure itself
-    keeps its margin, its join does not: refused in one line, naming the heading and the obstacle."""
+    keeps its margin, its join does not: a one-line warning naming the heading and the obstacle (advisory: the model
+    is not calibrated against SITL yet), never a refusal. At the scenario's own d_coll, or for a copter, none."""
     static = load_scenario(ROOT / "sitl_scenarios" / "rescue_static.toml", ["hazard.d_coll=60", "hazard.d_safe=80"])
     lim = limits_from(SITL_PLANE, "ardupilot", static.vehicle, 60.0)
     fix = VehicleFix(np.zeros(3), 0.0, np.zeros(3))
     start = np.asarray(static.start)  # (200, 200, 50), 80 m west of cylinders[3]'s surface
     back = start + np.array([-25.0, 41.0, 6.0])  # the first leg heads north-west, back across the arrival
     bare = check_departure(fix, start, static.vehicle.takeoff_alt, lim, static.environment, 60.0)
-    assert bare.refusal is None
+    assert bare.refusal is None and bare.join_warning is None
     joined = check_departure(fix, start, static.vehicle.takeoff_alt, lim, static.environment, 60.0, onto=back)
-    assert joined.refusal is not None and "turn onto the first leg" in joined.refusal
-    assert "cylinders[3]" in joined.refusal and joined.clearance_m < 65.0 and "\n" not in joined.refusal
+    assert joined.refusal is None and joined.join_warning is not None
+    assert "turn onto the first leg" in joined.join_warning and "cylinders[3]" in joined.join_warning
+    assert "\n" not in joined.join_warning and joined.summary()["join_warning"] == joined.join_warning
     # at the scenario's own d_coll (10 m) the same join keeps its margin; a copter turns on the spot
     assert check_departure(fix, start, static.vehicle.takeoff_alt, lim, static.environment, 10.0,
-                           onto=back).refusal is None
+                           onto=back).join_warning is None
     copter = limits_from({}, "ardupilot", VehicleLimits(type="copter"), 60.0)
     assert check_departure(fix, start, static.vehicle.takeoff_alt, copter, static.environment, 60.0,
-                           onto=back).refusal is None
+                           onto=back).join_warning is None

@@ -24,6 +24,7 @@ from companion.mission.builder import mission_from_plan_json
 from companion.replanning.replan import ReplanConfig
 from companion.replanning.replanner import LiveReplanner
 from companion.sim import SimAutopilot
+from planner.world.config import PAPER_MODE
 from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -364,7 +365,7 @@ def test_no_safe_plan_holds_then_resumes_when_the_threat_has_passed(dynamic_plan
     rather than fly into the conflict, keep retrying, and resume the (verified, unchanged) mission once the
     prediction is clear."""
     doc = json.loads(dynamic_plan.read_text())
-    sc = load_scenario(DYNAMIC)
+    sc = load_scenario(DYNAMIC, [PAPER_MODE])  # the replans by the scenario's planner in paper mode
     # no roadmap (it finds a clear route within any budget), no doubling of the budget after a failed plan (under
     # CI's load the later plans found one, nothing held)
     cfg = ReplanConfig(budget_s=0.002, max_budget_s=0.002, detour_offsets_m=(), roadmap=False)
