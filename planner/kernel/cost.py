@@ -107,6 +107,18 @@ def _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, dist):  # noqa: ANN001, ANN202
 
 
 @inline
+def _hazard(c, p, d_safe, gap_cap, pen_c, per_m, soft, pen, viol):  # noqa: ANN001, ANN202
+    """Particle p's hazard term for one clearance c (§4.3): a collision past the soft cap, the clipped gap squared."""
+    g = d_safe - c
+    depth = g - gap_cap
+    if depth > 0.0:
+        viol[0, p] += 1
+        pen[p] += pen_c + per_m * depth
+    g = min(max(g, 0.0), gap_cap)
+    soft[p] += g * g
+
+
+@inline
 def _roofed_cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev, gap_cap, pen_c, per_m, iters, soft, pen, viol):  # noqa: ANN001, ANN202
     """Particle p's segment s against one cylinder with a finite ``top``, one particle at a time: J2's soft term
     into ``soft[p]``, a collision into ``pen[p]``/``viol[0, p]``; near the wall, the roof by golden section."""
@@ -119,14 +131,7 @@ def _roofed_cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev, gap_cap, pen_c,
     c = math.sqrt(d2) - r
     if c < d_safe + dev:
         c = seg_cyl_finite(ax, ay, az, bx, by, bz, cx, cy, r, top, iters)
-    c -= dev
-    g = d_safe - c
-    depth = g - gap_cap
-    if depth > 0.0:
-        viol[0, p] += 1
-        pen[p] += pen_c + per_m * depth
-    g = min(max(g, 0.0), gap_cap)
-    soft[p] += g * g
+    _hazard(c - dev, p, d_safe, gap_cap, pen_c, per_m, soft, pen, viol)
 
 
 @called
@@ -163,14 +168,8 @@ def _threat_terms(pt, s, p, seg_len, s0, dev, thr, threat_t, start_time, cruise,
                 cz = thr[k, 6] + thr[k, 9] * dt
                 rad = rad + thr[k, 2] * max(dt, 0.0)
             ex, ey, ez = px - cx, py - cy, pz - cz
-            c = math.sqrt(ex * ex + ey * ey + ez * ez) - rad - margin
-            g = d_safe - c
-            depth = g - gap_cap
-            if depth > 0.0:
-                viol[0, p] += 1
-                pen[p] += pen_c + per_m * depth
-            g = min(max(g, 0.0), gap_cap)
-            soft[p] += g * g
+            _hazard(math.sqrt(ex * ex + ey * ey + ez * ez) - rad - margin, p, d_safe, gap_cap, pen_c, per_m,
+                    soft, pen, viol)
 
 
 @inline
