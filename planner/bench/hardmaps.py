@@ -662,6 +662,16 @@ def _contour_length(xy: np.ndarray, offsets: Iterable[float], size_x: float) -> 
     return longest
 
 
+def _route_over(xy: np.ndarray, env: Environment, rng: np.random.Generator, ends: tuple[float, float],
+                above: tuple[float, float], vehicle: VehicleLimits) -> np.ndarray | None:
+    """The planted route (N, 3) over plan-view points ``xy``: its ends ``ends`` m above the ground (drawn), the rest
+    :func:`_ground_heights` at a drawn height ``above`` within half the climb limit; None when none fits."""
+    z_ends = rng.uniform(*ends, 2) + env.ground(xy[[0, -1], 0], xy[[0, -1], 1])
+    z = _ground_heights(xy, env, rng.uniform(*above), 0.5 * math.tan(vehicle.max_climb),
+                        fixed={0: float(z_ends[0]), len(xy) - 1: float(z_ends[1])})
+    return None if z is None else np.round(np.column_stack([xy, z]), 2)
+
+
 def _ground_heights(xy: np.ndarray, env: Environment, above: float, slope: float, margin: float = 15.0,
                     reach: float = 30.0, fixed: dict[int, float] | None = None) -> np.ndarray | None:
     """Heights (N,) of horizontal waypoints xy (N, 2) over the terrain of ``env``: ``above`` m over the highest
@@ -834,12 +844,9 @@ def _saddle(seed: int, rng: np.random.Generator, radars: bool = False, size_x: f
                                  np.linspace(a, b, int(np.ceil(2.0 * reach / step)) + 1)[:-1],
                                  _s_curve(b, np.array([x1, y1]), step)]), step)
         env = _terrain_env(size_x, size_y, terrain)
-        z_ends = rng.uniform(70.0, 110.0, 2) + env.ground(xy[[0, -1], 0], xy[[0, -1], 1])
-        z = _ground_heights(xy, env, rng.uniform(*above), 0.5 * math.tan(vehicle.max_climb),
-                            fixed={0: float(z_ends[0]), len(xy) - 1: float(z_ends[1])})
-        if z is None:
+        route = _route_over(xy, env, rng, (70.0, 110.0), above, vehicle)
+        if route is None:
             continue
-        route = np.round(np.column_stack([xy, z]), 2)
         body, n_obstacles = "", 0
         if radars:
             in_pass = np.abs(route[:, 0] - xr) <= top + run
@@ -947,12 +954,9 @@ def _mixed(seed: int, rng: np.random.Generator, size: float = 2400.0, hills: tup
         pk = np.array(peaks)
         dem, terrain = _dem(base + _gaussians(gx, gy, pk[:, :2], pk[:, 2], pk[:, 3]), cell)
         env = _terrain_env(size, size, terrain)
-        ends = rng.uniform(60.0, 100.0, 2) + env.ground(xy[[0, -1], 0], xy[[0, -1], 1])
-        z = _ground_heights(xy, env, rng.uniform(*above), 0.5 * math.tan(vehicle.max_climb),
-                            fixed={0: float(ends[0]), len(xy) - 1: float(ends[1])})
-        if z is None:
+        route = _route_over(xy, env, rng, (60.0, 100.0), above, vehicle)
+        if route is None:
             continue
-        route = np.round(np.column_stack([xy, z]), 2)
         points, need = corridor(route, hazard)
         n_c = int(rng.integers(cylinders[0], cylinders[1] + 1))
         cand = np.where((rng.random(20 * n_c) < 0.5)[:, None],
