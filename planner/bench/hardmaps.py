@@ -34,6 +34,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from planner.problem import PlanningProblem
+from planner.search.roadmap import densify
 from planner.trajectory.checks import check_trajectory, obstacle_clearance, radar_clearance, smooth
 from planner.trajectory.smoothing import flown_deviation, segment_samples
 from planner.world.config import HazardConfig, PlannerSettings, VehicleLimits
@@ -840,7 +841,7 @@ def _saddle(seed: int, rng: np.random.Generator, radars: bool = False, size_x: f
         x0, x1 = 150.0, size_x - 150.0
         reach = top + run + 100.0  # the pass straight runs 100 m past the flanks' feet
         a, b = np.array([xr - reach, ys]), np.array([xr + reach, ys])
-        xy = _densify(np.vstack([_s_curve(np.array([x0, y0]), a, step)[:-1],
+        xy = densify(np.vstack([_s_curve(np.array([x0, y0]), a, step)[:-1],
                                  np.linspace(a, b, int(np.ceil(2.0 * reach / step)) + 1)[:-1],
                                  _s_curve(b, np.array([x1, y1]), step)]), step)
         env = _terrain_env(size_x, size_y, terrain)
@@ -877,14 +878,6 @@ def _saddle(seed: int, rng: np.random.Generator, radars: bool = False, size_x: f
 def _saddle_radar(seed: int, rng: np.random.Generator, **options: Any) -> HardMap:
     """``_saddle`` with radars on the summits flanking the saddle."""
     return _saddle(seed, rng, radars=True, **options)
-
-
-def _densify(xy: np.ndarray, step: float) -> np.ndarray:
-    """The polyline xy (N, 2) with points inserted so no leg is longer than ``step`` m (the turns stay where they
-    were; the cost's terrain margin grows with a leg's length, docs/method.md §5.2)."""
-    seg = np.diff(xy, axis=0)
-    idx, t = segment_samples(np.maximum(np.ceil(np.linalg.norm(seg, axis=1) / step).astype(int), 1))
-    return np.vstack([xy[idx] + t[:, None] * seg[idx], xy[-1:]])
 
 
 def _gaussians(gx: np.ndarray, gy: np.ndarray, centre: np.ndarray, sigma: np.ndarray, peak: np.ndarray
@@ -933,7 +926,7 @@ def _mixed(seed: int, rng: np.random.Generator, size: float = 2400.0, hills: tup
                                  max_turn_deg, divisors)
         if wiggle is None or (wiggle[:, :2] < 100.0).any() or (wiggle[:, :2] > size - 100.0).any():
             continue
-        xy = _densify(wiggle[:, :2], step)
+        xy = densify(wiggle[:, :2], step)
         k = int(rng.integers(hills[0], hills[1] + 1))
         base = _gaussians(gx, gy, rng.uniform(0.0, size, (k, 2)), rng.uniform(*hill_sigma, k),
                           rng.uniform(0.3, 1.0, k))
