@@ -35,7 +35,7 @@ from companion.mission.vehicle_state import VehicleState
 from companion.replanning.context import ReplanContext
 from companion.replanning.guard import first_breach, predict_own_path
 from companion.replanning.holds import arc_to
-from companion.replanning.modes import RESUME_ROLL_OUT_S, ModeControl
+from companion.replanning.modes import RESUME_ROLL_OUT_S, Leaving, ModeControl
 from companion.replanning.motion import VehicleMotion
 from companion.replanning.planning import ReplanPlanning
 from companion.replanning.prediction import Prediction
@@ -55,10 +55,10 @@ GUARD_SHARE_OF_D_COLL = 0.5
 # vehicle seconds before the exit point of its hold circle that a plane is resumed onto the route planned from there
 # (ArduPlane rolls out of its bank over about a second; docs/design.md, "Leaving a hold")
 EXIT_LEAD_S = 1.0
-# vehicle seconds after the exit was due that a plane still short of it has missed it (the plan's time is gone), as
-# has one that passed it between two looks; one that comes to it late is resumed only when the join, checked from
-# where and when it is, is clear (on the simulator a held plane flew its circle at 16 m/s against the 18 m/s assumed,
-# and came to an exit 418 m round it 3 s after it was due)
+# vehicle seconds after the exit was due that a plane still short of it, or seen past it only now, has missed it (the
+# plan's time is gone); one that comes to it late, or passed it between two looks before then, is resumed only when
+# the join, checked from where and when it is, is clear (on the simulator a held plane flew its circle at 16 m/s
+# against the 18 m/s assumed, and came to an exit 418 m round it 3 s after it was due)
 EXIT_LATE_S = 3.0
 # m beyond d_coll the resume at a circle's exit is checked with (leg_blocked): its route was planned from there with
 # RESUME_MARGIN_M more than d_coll and its turns' swing, and, aligned with its first leg, the plane flies it with
@@ -381,13 +381,16 @@ class LiveReplanner:
         step = speed * self.ctx.cfg.check_interval_wall_s * state.clock.rate
         lead = EXIT_LEAD_S * speed + step
         lap = 2.0 * math.pi * r
-        prev, leaving.left_m = leaving.left_m, left
-        if lead < left < lap - 2.0 * step:  # not there yet, or passed between two looks (a loaded machine)
-            crossed = prev is not None and left > prev + 0.5 * lap
-            if crossed or now > leaving.due + EXIT_LATE_S:  # the route's timing is gone: plan again from the circle
-                self.ctx.events.log("hold_exit_missed", seq=seq, due=round(leaving.due, 1), left_m=round(left, 1))
-                modes.exit = None
-                self._last_replan = -math.inf
+        # the arc left at the last look, or as planned: an exit planned most of a lap ahead is not one just passed
+        prev = leaving.exit.arc_m if leaving.left_m is None else leaving.left_m
+        leaving.left_m = left
+        passed = left > prev + 0.5 * lap  # what is left jumped up by most of a lap: passed between two looks
+        if left > lead and not passed:  # not there yet
+            if now > leaving.due + EXIT_LATE_S:  # slower round its circle than planned: the route's timing is gone
+                self._exit_missed(seq, leaving, left)
+            return
+        if passed and now > leaving.due + EXIT_LATE_S:  # looked at too late (a starved loop): not flown late
+            self._exit_missed(seq, leaving, left)
             return
         modes.exit = None
         blocked = self.rejoin.leg_blocked(seq, EXIT_CHECK_MARGIN_M)
@@ -401,6 +404,12 @@ class LiveReplanner:
             await self.swap.set_current(seq, then=modes.resume)
         else:
             await modes.resume()
+
+    def _exit_missed(self, seq: int, leaving: Leaving, left: float) -> None:
+        """The exit's time is gone: plan again from the circle at once."""
+        self.ctx.events.log("hold_exit_missed", seq=seq, due=round(leaving.due, 1), left_m=round(left, 1))
+        self.modes.exit = None
+        self._last_replan = -math.inf
 
     async def _retry_from_hold(self, now: float, threats: Threats) -> None:
         """While holding: resume if the old route is clear again, else plan from here."""

@@ -25,7 +25,6 @@ from companion.replanning.holds import arc_to
 from companion.replanning.replan import ReplanConfig
 from companion.replanning.replanner import EXIT_CHECK_MARGIN_M, EXIT_LATE_S, LiveReplanner
 from companion.sim import SimAutopilot
-from planner.world.config import PAPER_MODE
 from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -37,10 +36,9 @@ SPEEDUP = 10.0
 def dynamic_doc(tmp_path_factory: pytest.TempPathFactory) -> dict:
     from companion.cli import _plan_doc_for
 
-    # the paper's first route, the geometry these holds were built and timed on: with the roadmap's route (the
-    # default since issue 34) the first test failed twice in three runs on a loaded machine (resumed towards the
-    # item after the one planned, or the exit refused), which is not yet understood
-    doc, _ = _plan_doc_for(DYNAMIC, None, [PAPER_MODE], None, feasible_only=True, for_flight=True)
+    # the default first route (the roadmap's). Pinned to the paper's route until an exit planned most of a lap ahead
+    # was taken for one just passed (_leave_hold): it was refused at once, or missed, on a loaded machine
+    doc, _ = _plan_doc_for(DYNAMIC, None, [], None, feasible_only=True, for_flight=True)
     return doc
 
 
