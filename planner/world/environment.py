@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from planner.world.polygons import counter_clockwise, enclosing_circle
 from planner.world.terrain import Terrain
 
 BOLTZMANN = 1.380649e-23  # J/K
@@ -61,6 +62,65 @@ class Spheres:
     @classmethod
     def empty(cls) -> "Spheres":
         return cls(np.zeros((0, 3)), [])
+
+
+@dataclass(frozen=True, eq=False)
+class Prisms:
+    """Vertical polygon prisms (docs/method.md §2.7): no-fly where the plan-view point is inside polygon k and
+    ``floor[k] ≤ z ≤ ceiling[k]`` (heights above home; ``-inf`` from the ground, ``inf`` unlimited).
+
+    The polygons' vertices are packed, counter-clockwise, into ``vertices`` (V, 2): polygon k is
+    ``vertices[start[k]:start[k + 1]]``, closed implicitly. ``cx``, ``cy``, ``r`` are a disc around each polygon
+    (the broad phase's, as a cylinder's own disc is). Build with :meth:`from_polygons`.
+    """
+
+    vertices: np.ndarray  # (V, 2)
+    start: np.ndarray  # (k + 1,) int
+    floor: np.ndarray  # (k,)
+    ceiling: np.ndarray  # (k,)
+    cx: np.ndarray = field(init=False)
+    cy: np.ndarray = field(init=False)
+    r: np.ndarray = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "vertices", _frozen(self.vertices, (2,)))
+        start = np.array(self.start, dtype=np.int64).reshape(-1)
+        start.setflags(write=False)
+        object.__setattr__(self, "start", start)
+        object.__setattr__(self, "floor", _frozen(self.floor))
+        object.__setattr__(self, "ceiling", _frozen(self.ceiling))
+        discs = [enclosing_circle(self.polygon(k)) for k in range(len(self))]
+        for i, name in enumerate(("cx", "cy", "r")):
+            object.__setattr__(self, name, _frozen([d[i] for d in discs]))
+
+    def __len__(self) -> int:
+        return len(self.start) - 1
+
+    def polygon(self, k: int) -> np.ndarray:
+        """Polygon k's vertices (V_k, 2), counter-clockwise."""
+        return self.vertices[self.start[k]:self.start[k + 1]]
+
+    def edges(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Every polygon's edges: their start points (E, 2), end points (E, 2) and the prism each belongs to (E,)."""
+        ends = np.empty_like(self.vertices)
+        for k in range(len(self)):
+            i, j = self.start[k], self.start[k + 1]
+            ends[i:j] = np.roll(self.vertices[i:j], -1, axis=0)
+        owner = np.repeat(np.arange(len(self)), np.diff(self.start))
+        return self.vertices, ends, owner
+
+    @classmethod
+    def from_polygons(cls, polygons: list[np.ndarray], floor: list[float] | np.ndarray,
+                      ceiling: list[float] | np.ndarray) -> "Prisms":
+        """Prisms from simple polygons (each (V_k, 2), either orientation; a closing duplicate vertex is dropped)."""
+        rings = [counter_clockwise(p) for p in polygons]
+        start = np.concatenate([[0], np.cumsum([len(p) for p in rings], dtype=np.int64)])
+        vertices = np.concatenate(rings) if rings else np.zeros((0, 2))
+        return cls(vertices, start, floor, ceiling)
+
+    @classmethod
+    def empty(cls) -> "Prisms":
+        return cls(np.zeros((0, 2)), [0], [], [])
 
 
 def radar_detection_range(
@@ -224,6 +284,7 @@ class Environment:
     cylinders: Cylinders = field(default_factory=Cylinders.empty)
     spheres: Spheres = field(default_factory=Spheres.empty)
     radars: Radars = field(default_factory=Radars.empty)
+    prisms: Prisms = field(default_factory=Prisms.empty)
     terrain: Terrain | None = None
     threats: Threats = field(default_factory=Threats)
 
