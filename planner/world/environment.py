@@ -67,7 +67,9 @@ class Spheres:
 @dataclass(frozen=True, eq=False)
 class Prisms:
     """Vertical polygon prisms (docs/method.md §2.7): no-fly where the plan-view point is inside polygon k and
-    ``floor[k] ≤ z ≤ ceiling[k]`` (heights above home; ``-inf`` from the ground, ``inf`` unlimited).
+    ``floor[k] ≤ z ≤ ceiling[k]`` (heights above home; ``-inf`` from the ground, ``inf`` unlimited). A
+    ``keep_in`` polygon (an inclusion fence) is the other way round: no-fly *outside* it, at every height (its
+    floor and ceiling are ``-inf`` and ``inf``), so its plan-view signed distance changes sign.
 
     The polygons' vertices are packed, counter-clockwise, into ``vertices`` (V, 2): polygon k is
     ``vertices[start[k]:start[k + 1]]``, closed implicitly. ``cx``, ``cy``, ``r`` are a disc around each polygon
@@ -78,6 +80,7 @@ class Prisms:
     start: np.ndarray  # (k + 1,) int
     floor: np.ndarray  # (k,)
     ceiling: np.ndarray  # (k,)
+    keep_in: np.ndarray | None = None  # (k,) bool; None: none is
     cx: np.ndarray = field(init=False)
     cy: np.ndarray = field(init=False)
     r: np.ndarray = field(init=False)
@@ -89,6 +92,12 @@ class Prisms:
         object.__setattr__(self, "start", start)
         object.__setattr__(self, "floor", _frozen(self.floor))
         object.__setattr__(self, "ceiling", _frozen(self.ceiling))
+        keep_in = np.zeros(len(self), dtype=bool) if self.keep_in is None else np.array(self.keep_in, dtype=bool)
+        keep_in = keep_in.reshape(-1)
+        keep_in.setflags(write=False)
+        object.__setattr__(self, "keep_in", keep_in)
+        if not (np.all(np.isneginf(self.floor[keep_in])) and np.all(np.isposinf(self.ceiling[keep_in]))):
+            raise ValueError("a keep-in polygon has no floor or ceiling (-inf, inf)")
         discs = [enclosing_circle(self.polygon(k)) for k in range(len(self))]
         for i, name in enumerate(("cx", "cy", "r")):
             object.__setattr__(self, name, _frozen([d[i] for d in discs]))
@@ -111,12 +120,12 @@ class Prisms:
 
     @classmethod
     def from_polygons(cls, polygons: list[np.ndarray], floor: list[float] | np.ndarray,
-                      ceiling: list[float] | np.ndarray) -> "Prisms":
+                      ceiling: list[float] | np.ndarray, keep_in: list[bool] | np.ndarray | None = None) -> "Prisms":
         """Prisms from simple polygons (each (V_k, 2), either orientation; a closing duplicate vertex is dropped)."""
         rings = [counter_clockwise(p) for p in polygons]
         start = np.concatenate([[0], np.cumsum([len(p) for p in rings], dtype=np.int64)])
         vertices = np.concatenate(rings) if rings else np.zeros((0, 2))
-        return cls(vertices, start, floor, ceiling)
+        return cls(vertices, start, floor, ceiling, keep_in)
 
     @classmethod
     def empty(cls) -> "Prisms":

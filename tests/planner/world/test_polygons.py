@@ -59,3 +59,11 @@ def test_prisms_pack_polygons_counter_clockwise_with_a_disc_around_each() -> Non
     assert len(a) == len(b) == 9 and list(owner) == [0] * 4 + [1] * 5
     assert np.array_equal(b[3], a[0]) and np.array_equal(b[8], a[4])  # each ring closes on its first vertex
     assert len(Prisms.empty()) == 0
+
+
+def test_a_keep_in_polygon_has_no_floor_or_ceiling() -> None:
+    prisms = Prisms.from_polygons([SQUARE, CONCAVE], [-np.inf, 0.0], [np.inf, 50.0], keep_in=[True, False])
+    assert list(prisms.keep_in) == [True, False]
+    assert list(Prisms.from_polygons([SQUARE], [0.0], [9.0]).keep_in) == [False]
+    with pytest.raises(ValueError, match="keep-in"):
+        Prisms.from_polygons([SQUARE], [0.0], [np.inf], keep_in=[True])
