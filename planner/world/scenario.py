@@ -34,8 +34,19 @@ from planner.world.config import (
     RelationError,
     VehicleLimits,
 )
-from planner.world.environment import Cylinders, Environment, Radars, Spheres, Threat, Threats, radar_detection_range
+from planner.world.environment import (
+    Cylinders,
+    Environment,
+    Prisms,
+    Radars,
+    Spheres,
+    Threat,
+    Threats,
+    radar_detection_range,
+)
+from planner.world.geographic import LocalFrame, localise
 from planner.world.home import Home
+from planner.world.polygons import contains, simplicity_problem
 from planner.world.terrain import Terrain
 
 
@@ -65,6 +76,9 @@ class Scenario:
     planner: PlannerSettings
     intruders: tuple[Intruder, ...] = field(default=())
     description: str = ""
+    # where the vehicle's home is, m east and north in the frame: the origin, unless the scenario is geographic
+    # with a region (its frame's origin is then the region's south-west corner, ``home`` that corner)
+    launch: tuple[float, float] = (0.0, 0.0)
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -83,6 +97,7 @@ _STRICT_FILE = ConfigDict(extra="forbid", allow_inf_nan=False, strict=True, froz
 MAX_SCENARIO_BYTES = 16 * 2**20
 MAX_DEPTH = 16  # tables and arrays nested in each other: the format needs 4 (intruders[0].waypoints[1][2])
 MAX_OBSTACLES = 100_000  # cylinders, spheres, hemispheres, radars and random ones: 400 times the largest map's 257
+MAX_POLYGON_VERTICES = 10_000  # per prism: an airspace boundary digitised at 10 m around a 30 km zone
 MAX_MOVERS = 1000  # threats, and intruders: more aircraft than an ADS-B receiver tracks at once
 MAX_INTRUDER_WAYPOINTS = 10_000
 MAX_HILLS = 1000  # Gaussian hills of synthetic terrain (the shipped mountain map has 12)
@@ -165,6 +180,23 @@ class _Cylinder(_Table):
     radius: _Positive
     top: Annotated[float, Field(gt=0, le=MAX_COORD)] | None = None  # None → unlimited
     z_ref: _Coord = 0.0  # drawing only
+
+
+class _Prism(_Table):
+    xy: Annotated[list[Annotated[list[_Coord], Field(min_length=2, max_length=2)]],
+                  Field(min_length=3, max_length=MAX_POLYGON_VERTICES)]
+    floor: _Coord | None = None  # m above home; None → from the ground
+    ceiling: _Coord | None = None  # None → unlimited
+    keep_in: bool = False  # the region to stay inside (an inclusion fence), at every height
+    name: _Ident | None = None
+
+    @model_validator(mode="after")
+    def _slab(self) -> "_Prism":
+        if self.keep_in and (self.floor is not None or self.ceiling is not None):
+            raise ValueError("a keep-in polygon has no floor or ceiling (it holds at every height)")
+        if self.floor is not None and self.ceiling is not None and self.floor >= self.ceiling:
+            raise ValueError(f"floor ({self.floor:g} m) must be below ceiling ({self.ceiling:g} m)")
+        return self
 
 
 class _Sphere(_Table):
@@ -320,6 +352,7 @@ class _ScenarioFile(_Table):
     hazard: _HazardTable = Field(default_factory=dict)  # type: ignore[valid-type]
     planner: _PlannerTable = Field(default_factory=dict)  # type: ignore[valid-type]
     cylinders: list[_Cylinder] = []
+    prisms: list[_Prism] = []
     spheres: list[_Sphere] = []
     hemispheres: list[_Hemisphere] = []
     radars: list[_Radar] = []
@@ -546,7 +579,7 @@ MIN_ROUTE_LENGTH = 10.0  # m between start and goal
 
 
 def _check_point(file: str, name: str, p: np.ndarray, env: Environment, obstacles: _Obstacles,
-                 radar_labels: list[str]) -> None:
+                 radar_labels: list[str], prism_labels: list[str]) -> None:
     """A route end must lie inside the bounds, inside the altitude band over terrain and outside every obstacle."""
     field_name = f"route.{name}"
     x, y, z = (float(v) for v in p)
@@ -566,6 +599,13 @@ def _check_point(file: str, name: str, p: np.ndarray, env: Environment, obstacle
     for inside, labels in hits:
         if np.any(inside):
             raise ScenarioError(file, field_name, f"inside {labels[int(np.flatnonzero(inside)[0])]}")
+    prisms = env.prisms
+    for k in range(len(prisms)):
+        within = bool(contains(prisms.polygon(k), p[:2]))
+        if prisms.keep_in[k] and not within:
+            raise ScenarioError(file, field_name, f"outside {prism_labels[k]}")
+        if not prisms.keep_in[k] and within and prisms.floor[k] <= z <= prisms.ceiling[k]:
+            raise ScenarioError(file, field_name, f"inside {prism_labels[k]}")
 
 
 MEET_TOLERANCE_M = 1.0  # an intruder's meet point must lie this close to its path
@@ -588,13 +628,14 @@ def _check_meet_points(file: str, spec: _ScenarioFile) -> None:
 
 def _check_obstacle_count(file: str, spec: _ScenarioFile) -> None:
     """At most MAX_OBSTACLES obstacles in all, blaming the key that holds most of them."""
-    counts = {"cylinders": len(spec.cylinders), "spheres": len(spec.spheres), "hemispheres": len(spec.hemispheres),
+    counts = {"cylinders": len(spec.cylinders), "prisms": len(spec.prisms), "spheres": len(spec.spheres),
+              "hemispheres": len(spec.hemispheres),
               "radars": len(spec.radars),
               "random_obstacles.count": spec.random_obstacles.count if spec.random_obstacles is not None else 0}
     total = sum(counts.values())
     if total > MAX_OBSTACLES:
         raise ScenarioError(file, max(counts, key=counts.__getitem__), f"{total} obstacles in all (cylinders, "
-                            f"spheres, hemispheres, radars and random ones) is more than the {MAX_OBSTACLES} a "
+                            f"prisms, spheres, hemispheres, radars and random ones) is more than the {MAX_OBSTACLES} a "
                             "scenario may hold")
 
 
@@ -658,6 +699,43 @@ def named_files(path: str | Path, overrides: Sequence[str] = ()) -> dict[str, Pa
     return {"terrain.path": dem if dem.is_absolute() else path.parent / dem}
 
 
+def _in_local_metres(raw: dict[str, Any], path: Path, file: str) -> tuple[dict[str, Any], LocalFrame | None]:
+    """The raw scenario with its geographic values in local metres (:func:`planner.world.geographic.localise`),
+    and its frame with the terrain built on it; the raw scenario as it is when its home or terrain is malformed
+    (the full check names them)."""
+    try:
+        home_spec = _Home.model_validate(raw.get("home"))
+        terrain_spec = TypeAdapter(_TerrainTable | None).validate_python(raw.get("terrain"))
+    except ValidationError:
+        return raw, None
+    home = Home(home_spec.lat, home_spec.lon, home_spec.alt)
+
+    def ground(origin: Home, size_x: float, size_y: float) -> Terrain | None:
+        try:
+            bounds = _Bounds(x=size_x, y=size_y)
+        except ValidationError as exc:
+            raise _from_validation_error(file, exc, ("bounds",)) from exc
+        return _build_terrain(terrain_spec, bounds, origin, path, file)
+
+    return localise(raw, file, home, ground)
+
+
+def _prisms(file: str, spec: _ScenarioFile) -> tuple[Prisms, list[str]]:
+    """The scenario's prisms, each polygon checked to be simple, with a label per prism for messages."""
+    labels = []
+    for i, p in enumerate(spec.prisms):
+        problem = simplicity_problem(np.asarray(p.xy, dtype=float))
+        if problem is not None:
+            raise ScenarioError(file, f"prisms[{i}].xy", f"not a simple polygon: {problem}")
+        what = "keep-in polygon" if p.keep_in else "polygon"
+        labels.append(f"prisms[{i}] ({what}{f' {p.name}' if p.name else ''}, {len(p.xy)} vertices)")
+    prisms = Prisms.from_polygons([np.asarray(p.xy, dtype=float) for p in spec.prisms],
+                                  [-math.inf if p.floor is None else p.floor for p in spec.prisms],
+                                  [math.inf if p.ceiling is None else p.ceiling for p in spec.prisms],
+                                  [p.keep_in for p in spec.prisms])
+    return prisms, labels
+
+
 def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
     """Read, validate and build a scenario; ``overrides`` are ``section.key=value`` strings applied before checks.
 
@@ -666,6 +744,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
     path = Path(path)
     file = str(path)
     raw = _raw_with_overrides(path, overrides)
+    raw, frame = _in_local_metres(raw, path, file)
     try:
         spec = _ScenarioFile.model_validate(raw)
     except ValidationError as exc:
@@ -702,6 +781,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
     if spec.random_obstacles is not None:
         _random_obstacles(spec.random_obstacles, (spec.bounds.x, spec.bounds.y), np.stack([start, goal]),
                           obstacles, file)
+    prisms, prism_labels = _prisms(file, spec)
     r_det = [r.detection_range() for r in spec.radars]
     radar_labels = [f"radars[{i}] detection range (x={r.x:g}, y={r.y:g}, z={r.z:g}, r_det={d:.0f})"
                     for i, (r, d) in enumerate(zip(spec.radars, r_det))]
@@ -713,11 +793,12 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
         cylinders=Cylinders(cyl[:, 0], cyl[:, 1], cyl[:, 2], cyl[:, 3], cyl[:, 4]),
         spheres=Spheres(sph[:, :3], sph[:, 3]),
         radars=Radars([(r.x, r.y, r.z) for r in spec.radars], r_det, [r.soft_weight for r in spec.radars]),
-        terrain=_build_terrain(spec.terrain, spec.bounds, home, path, file),
+        prisms=prisms,
+        terrain=frame.terrain if frame is not None else _build_terrain(spec.terrain, spec.bounds, home, path, file),
         threats=Threats(tuple(t.to_threat() for t in spec.threats)),
     )
     for name, point in (("start", start), ("goal", goal)):
-        _check_point(file, name, point, environment, obstacles, radar_labels)
+        _check_point(file, name, point, environment, obstacles, radar_labels, prism_labels)
     start.setflags(write=False)
     goal.setflags(write=False)
     optional = {"description": spec.description} if spec.description is not None else {}
@@ -725,8 +806,9 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
         name=spec.name or path.stem, source=path, home=home, environment=environment, start=start, goal=goal,
         vehicle=vehicle, hazard=hazard, planner=planner,
         intruders=tuple(i.to_intruder() for i in spec.intruders), **optional,
+        launch=(0.0, 0.0) if frame is None else frame.home_xy,
     )
-    logger.info("loaded scenario %s from %s: %d cylinders, %d spheres, %d radars, %d threats, %d intruders",
-                scenario.name, file, len(environment.cylinders), len(environment.spheres), len(environment.radars),
-                len(environment.threats), len(scenario.intruders))
+    logger.info("loaded scenario %s from %s: %d cylinders, %d prisms, %d spheres, %d radars, %d threats, "
+                "%d intruders", scenario.name, file, len(environment.cylinders), len(environment.prisms),
+                len(environment.spheres), len(environment.radars), len(environment.threats), len(scenario.intruders))
     return scenario
