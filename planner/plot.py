@@ -14,7 +14,8 @@ from planner.world.environment import Environment  # noqa: E402
 
 
 def draw_environment(ax, env: Environment, z_top: float) -> None:  # noqa: ANN001
-    """Cylinders (to their top, or to the ceiling when unlimited), spheres and terrain on a 3-D axis."""
+    """Cylinders (to their top, or to the ceiling when unlimited), prisms' walls, spheres and terrain on a 3-D
+    axis."""
     th = np.linspace(0, 2 * np.pi, 40)
     cyl = env.cylinders
     for x, y, r, top in zip(cyl.x, cyl.y, cyl.radius, cyl.top):
@@ -23,6 +24,14 @@ def draw_environment(ax, env: Environment, z_top: float) -> None:  # noqa: ANN00
         tt, hh = np.meshgrid(th, zz)
         ax.plot_surface(x + r * np.cos(tt), y + r * np.sin(tt), hh, color="tab:red", alpha=0.25,
                         linewidth=0)
+    prisms = env.prisms
+    for k in range(len(prisms)):  # walls between floor and ceiling (ground and the plot's top when unlimited)
+        ring = np.vstack([prisms.polygon(k), prisms.polygon(k)[:1]])
+        lo, hi = max(float(prisms.floor[k]), 0.0), min(float(prisms.ceiling[k]), z_top)
+        keep_in = bool(prisms.keep_in[k])
+        ax.plot_surface(np.tile(ring[:, 0], (2, 1)), np.tile(ring[:, 1], (2, 1)),
+                        np.array([[lo] * len(ring), [hi] * len(ring)]), color="tab:green" if keep_in else "tab:red",
+                        alpha=0.08 if keep_in else 0.25, linewidth=0)
     u, v = np.meshgrid(np.linspace(0, 2 * np.pi, 24), np.linspace(0, np.pi, 12))
     for c, r in zip(env.spheres.center, env.spheres.radius):
         ax.plot_surface(c[0] + r * np.cos(u) * np.sin(v), c[1] + r * np.sin(u) * np.sin(v),
@@ -39,8 +48,8 @@ def draw_environment(ax, env: Environment, z_top: float) -> None:  # noqa: ANN00
 
 
 def draw_plan_view(ax, env: Environment) -> None:  # noqa: ANN001
-    """Top-down view: cylinders, spheres (full radius), radar detection ranges, threat tracks, terrain."""
-    from matplotlib.patches import Circle
+    """Top-down view: cylinders, prisms, spheres (full radius), radar detection ranges, threat tracks, terrain."""
+    from matplotlib.patches import Circle, Polygon
 
     if env.terrain is not None:
         xs = np.linspace(0, env.size_x, 120)
@@ -51,6 +60,14 @@ def draw_plan_view(ax, env: Environment) -> None:  # noqa: ANN001
     cyl = env.cylinders
     for x, y, r in zip(cyl.x, cyl.y, cyl.radius):
         ax.add_patch(Circle((x, y), r, color="tab:red", alpha=0.35, lw=0))
+    prisms = env.prisms
+    for k in range(len(prisms)):  # no-fly polygons filled (hatched when they have a floor or ceiling); keep-in outlined
+        if prisms.keep_in[k]:
+            ax.add_patch(Polygon(prisms.polygon(k), closed=True, fill=False, color="tab:green", lw=1.5, ls="-."))
+            continue
+        slab = np.isfinite(prisms.floor[k]) or np.isfinite(prisms.ceiling[k])
+        ax.add_patch(Polygon(prisms.polygon(k), closed=True, facecolor="tab:red", edgecolor="tab:red", alpha=0.35,
+                             lw=0.5 if slab else 0.0, hatch="//" if slab else None))
     for c, r in zip(env.spheres.center, env.spheres.radius):
         ax.add_patch(Circle((c[0], c[1]), r, color="tab:orange", alpha=0.35, lw=0))
     for c, r in zip(env.radars.center, env.radars.r_det):
