@@ -51,6 +51,10 @@ def scene(scenario: Scenario, plan_doc: dict[str, Any]) -> dict[str, Any]:
         "cylinders": _round(np.column_stack([cyl.x, cyl.y, cyl.radius])) if len(cyl) else [],
         "spheres": _round(np.column_stack([sph.center, sph.radius])) if len(sph) else [],
         "radars": _round(np.column_stack([rad.center, rad.r_det])) if len(rad) else [],
+        "prisms": [{"xy": _round(env.prisms.polygon(k)), "keep_in": bool(env.prisms.keep_in[k]),
+                    "slab": bool(np.isfinite(env.prisms.floor[k]) or np.isfinite(env.prisms.ceiling[k]))}
+                   for k in range(len(env.prisms))],
+        "launch": _round(np.asarray(scenario.launch, dtype=float)),
         "threat_paths": {t.id: _round(p) for t, p in zip(threats.items, paths)},
         "route": _round(thinned(np.asarray(plan_doc["trajectory"]["points"]))),
         "waypoints": _round(np.asarray(plan_doc["waypoints"])),

@@ -67,6 +67,10 @@ function drawScene(sc) {
   for (let y = step; y < sc.bounds.y; y += step) el("line", { class: "grid", x1: 0, x2: sc.bounds.x, y1: -y, y2: -y }, g);
   label(g, 0, -sc.bounds.y - 0.012 * S.size, `grid ${step} m`, "start");
   for (const [x, y, r] of sc.cylinders) el("circle", { class: "cylinder", cx: x, cy: -y, r }, g);
+  for (const p of sc.prisms || []) {
+    const cls = p.keep_in ? "keep-in" : p.slab ? "prism slab" : "prism";
+    el("polygon", { class: cls, points: pts(p.xy) }, g);
+  }
   for (const [x, y, _z, r] of sc.spheres) el("circle", { class: "sphere", cx: x, cy: -y, r }, g);
   for (const [x, y, _z, r] of sc.radars) el("circle", { class: "radar", cx: x, cy: -y, r }, g);
   const tp = $("threat-paths");
@@ -76,8 +80,9 @@ function drawScene(sc) {
   }
   $("route").setAttribute("points", pts(sc.route));
   const [s, e] = [sc.route[0], sc.route[sc.route.length - 1]];
-  el("circle", { class: "home", cx: 0, cy: 0, r: 0.006 * S.size }, g);
-  label(g, 0.01 * S.size, -0.015 * S.size, "home", "start");
+  const [hx, hy] = sc.launch || [0, 0];
+  el("circle", { class: "home", cx: hx, cy: -hy, r: 0.006 * S.size }, g);
+  label(g, hx + 0.01 * S.size, -hy - 0.015 * S.size, "home", "start");
   label(g, s[0], -s[1] - 0.02 * S.size, "start");
   label(g, e[0], -e[1] - 0.02 * S.size, "goal");
   const v = $("vehicle");
