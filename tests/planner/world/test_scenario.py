@@ -129,7 +129,7 @@ def test_minimal_scenario_takes_dataclass_defaults(tmp_path: Path) -> None:
 
 
 def test_documented_example_loads(tmp_path: Path) -> None:
-    text = (REPO / "docs" / "scenario_format.md").read_text()
+    text = (REPO / "docs" / "scenario_format.md").read_text().partition("## Full example")[2]
     block = re.search(r"```toml\n(.*?)```", text, re.S)
     assert block is not None
     path = tmp_path / "example.toml"
