@@ -44,7 +44,8 @@ def _parser() -> argparse.ArgumentParser:
     sub = p.add_subparsers(dest="command", required=True)
     planner_parsers = planner_cli.add_commands(sub)
     ex = sub.add_parser("export", help="write a mission file (.waypoints, QGroundControl .plan, GeoJSON)")
-    ex.add_argument("source", type=Path, help="a scenario TOML (planned first) or a PLAN.json")
+    ex.add_argument("source", type=Path, help="a scenario TOML or a ground station's mission (planned first), "
+                    "or a PLAN.json")
     ex.add_argument("--format", required=True, choices=("waypoints", "plan", "geojson"))
     ex.add_argument("-o", "--output", type=Path, required=True)
     ex.add_argument("--autopilot", choices=("ardupilot", "px4", "px4-vtol"), default="ardupilot",
@@ -58,8 +59,10 @@ def _parser() -> argparse.ArgumentParser:
     ex.add_argument("--force", action="store_true",
                     help="write a PLAN.json that fails its check against the scenario anyway, marked UNCHECKED in "
                          "the file (never for flying)")
+    planner_cli.add_source_options(ex)
     fl = sub.add_parser("fly", help="plan, upload, start and monitor a mission over MAVLink")
-    fl.add_argument("scenario", type=Path, help="scenario TOML (planned now) or a PLAN.json")
+    fl.add_argument("scenario", type=Path, help="scenario TOML or a ground station's mission (planned now), or a "
+                    "PLAN.json")
     where = fl.add_mutually_exclusive_group(required=True)
     where.add_argument("--connect", metavar="URL", help="autopilot link, e.g. tcp:127.0.0.1:5760 (ArduPilot SITL), "
                        "udpin:0.0.0.0:14550, /dev/ttyACM0")
@@ -93,6 +96,7 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None)
     add_paper_option(fl)
     fl.add_argument("-q", "--quiet", action="store_true")
+    planner_cli.add_source_options(fl)
     _status_options(fl)
     sm = sub.add_parser("sim", help="run the built-in simulated autopilot alone")
     sm.add_argument("scenario", type=Path)
@@ -346,6 +350,55 @@ def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
                             f"({sc.source}): home, start or goal differ; plan again for this scenario")
 
 
+def cmd_plan(args: argparse.Namespace) -> int:
+    """``fuseplan plan``: a scenario or a ground station's mission (with any zones) planned, written as PLAN.json
+    or, with ``-o SAFE.plan``, as a QGroundControl plan of the safe route that keeps the mission's own fence,
+    rally points and settings (written whole or not at all)."""
+    import os
+    import tempfile
+
+    from planner.world.sources import is_mission, read_mission
+
+    out, source = args.output, args.scenario
+    as_qgc = out is not None and out.suffix.lower() == ".plan"
+    if as_qgc:
+        check_writable(out)
+        if not is_mission(source):
+            raise FuseplanError(f"{out}: -o *.plan keeps a ground station's mission: plan a .plan or .waypoints "
+                                "mission (for a scenario, `fuseplan export --format plan`)")
+    args.scenario = planner_cli.source_scenario(args, source, out)
+    args.overrides = with_flight_margins(args.scenario, args.overrides)
+    if not as_qgc:
+        return planner_cli.cmd_plan(args)
+    from companion.mission.builder import mission_from_plan_json, spec_from_plan_json
+    from companion.mission.exports import write_operator_plan
+    from planner.world.scenario import load_scenario
+
+    mission = read_mission(source, args.fence, args.rally)
+    autopilot = "px4" if mission.extras.get("firmware_type") == PX4_FIRMWARE else "ardupilot"
+    with tempfile.TemporaryDirectory(prefix="fuseplan-") as tmp:
+        args.output = Path(tmp) / "PLAN.json"
+        code = planner_cli.cmd_plan(args)
+        if code != EXIT_OK:
+            print(f"fuseplan: {out} not written: the route is not safe", file=sys.stderr)
+            return code
+        doc = json.loads(args.output.read_text())
+    sc = load_scenario(args.scenario, args.overrides)
+    part = out.with_name(out.name + ".part")
+    try:
+        write_operator_plan(part, mission_from_plan_json(doc, sc, autopilot), spec_from_plan_json(doc, sc, autopilot),
+                            mission)
+        os.replace(part, out)
+    except ValueError as e:
+        raise FuseplanError(f"{out}: cannot write: {e}") from e
+    except OSError as e:
+        raise FuseplanError(f"{out}: cannot write: {e.strerror or e}") from e
+    finally:
+        part.unlink(missing_ok=True)
+    print(f"  wrote {out} ({autopilot}; its scenario: {args.scenario})")
+    return EXIT_OK
+
+
 def cmd_export(args: argparse.Namespace) -> int:
     """Write a mission file from a scenario (planned now) or a PLAN.json (checked again first; ``--force`` writes
     one that fails, marked unchecked in the file). Written to a temporary name and renamed: never half a file."""
@@ -354,6 +407,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     from companion.mission.exports import export_from_plan_json
 
     check_writable(args.output)
+    args.source = planner_cli.source_scenario(args, args.source, args.output)
     doc, sc = _plan_doc_for(args.source, args.scenario, list(args.overrides) + mode_overrides(args), args.seed,
                             force=args.force)
     part = args.output.with_name(args.output.name + ".part")
@@ -374,6 +428,7 @@ def cmd_export(args: argparse.Namespace) -> int:
 
 
 EXIT_LINK, EXIT_ABORTED, EXIT_UNSAFE = 4, 5, 6
+PX4_FIRMWARE = 12  # MAV_AUTOPILOT_PX4, a .plan's firmwareType
 
 
 def _seconds(args: argparse.Namespace, name: str) -> float | None:
@@ -436,6 +491,11 @@ def cmd_fly(args: argparse.Namespace) -> int:
         if url is not None:
             check_url(url, option)
     _check_report_dir(args.report)
+    from planner.world.sources import is_mission
+
+    if planner_cli.has_source_options(args) or is_mission(args.scenario):
+        args.report.mkdir(parents=True, exist_ok=True)
+        args.scenario = planner_cli.source_scenario(args, args.scenario, args.report / args.scenario.name)
     target = getattr(args, "target_system", None)
     if target is not None and not 1 <= target <= 255:
         raise FuseplanError(f"--target-system {target}: a MAVLink system id is 1-255")
@@ -628,8 +688,7 @@ def main(argv: list[str] | None = None) -> int:
                         format="%(levelname)s %(name)s: %(message)s")
     try:
         if args.command == "plan":
-            args.overrides = with_flight_margins(args.scenario, args.overrides)
-            return planner_cli.cmd_plan(args)
+            return cmd_plan(args)
         if args.command == "compare":
             return planner_cli.cmd_compare(args)
         if args.command == "export":

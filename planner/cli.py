@@ -44,10 +44,45 @@ def mode_overrides(args: argparse.Namespace) -> list[str]:
     return [PAPER_MODE] if getattr(args, "paper", False) else []
 
 
+def add_source_options(parser: argparse.ArgumentParser) -> None:
+    """``--zones``, ``--base``, ``--fence``, ``--rally``: what a mission or a scenario is planned with besides
+    itself (docs/scenario_format.md, "Missions and zones from ground stations")."""
+    parser.add_argument("--zones", action="append", default=[], type=Path, metavar="FILE.geojson",
+                        help="add the no-fly zones of a GeoJSON file (Polygon, MultiPolygon, or Point with "
+                             "radius_m; floor and ceiling with their reference; docs/imports.md); repeatable")
+    parser.add_argument("--base", type=Path, metavar="SCENARIO.toml",
+                        help="a mission's vehicle, altitude band, clearances and planner settings from this "
+                             "scenario (default: the band around the mission's heights)")
+    parser.add_argument("--fence", type=Path, metavar="FILE",
+                        help="a Mission Planner fence file for a .waypoints mission")
+    parser.add_argument("--rally", type=Path, metavar="FILE",
+                        help="a Mission Planner rally file for a .waypoints mission")
+
+
+def has_source_options(args: argparse.Namespace) -> bool:
+    return bool(getattr(args, "zones", ())) or any(getattr(args, k, None) is not None for k in ("base", "fence",
+                                                                                                   "rally"))
+
+
+def source_scenario(args: argparse.Namespace, source: Path, beside: Path | None) -> Path:
+    """The scenario file to load for ``source`` with the source options (planner.world.sources); a PLAN.json
+    is its own source and takes none."""
+    from planner.world.sources import derived_scenario
+
+    if source.suffix.lower() == ".json":
+        if has_source_options(args):
+            raise FuseplanError(f"{source}: a PLAN.json was planned with its zones: --zones, --base, --fence and "
+                                "--rally are for scenarios and missions")
+        return source
+    return derived_scenario(source, getattr(args, "zones", ()), getattr(args, "base", None),
+                            getattr(args, "fence", None), getattr(args, "rally", None), beside)
+
+
 def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.ArgumentParser]:
     """Register plan, compare and bench on ``sub``; returns their parsers by name (the companion adds options)."""
     pl = sub.add_parser("plan", help="plan a route for a scenario and write PLAN.json")
-    pl.add_argument("scenario", type=Path, help="scenario TOML file (see docs/scenario_format.md)")
+    pl.add_argument("scenario", type=Path, help="scenario TOML file (see docs/scenario_format.md), or a ground "
+                    "station's mission: QGroundControl .plan, Mission Planner .waypoints")
     pl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None,
                     help="optimiser (default: the scenario's planner.algorithm, else fusion)")
     add_paper_option(pl)
@@ -56,7 +91,9 @@ def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.Argument
     pl.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
     pl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
                     help="override a scenario value, e.g. --set planner.pso.n_pop=100 (repeatable)")
-    pl.add_argument("-o", "--output", type=Path, help="write the plan as JSON here")
+    pl.add_argument("-o", "--output", type=Path, help="write the plan here: PLAN.json, or, named *.plan, a "
+                    "QGroundControl plan of the safe route keeping a mission's fence and rally points")
+    add_source_options(pl)
     pl.add_argument("--plot", type=Path, help="write a PNG of the route and the convergence curve")
     pl.add_argument("-q", "--quiet", action="store_true", help="no progress output")
     cp = sub.add_parser("compare", help="run every algorithm N times on a scenario and tabulate the results")

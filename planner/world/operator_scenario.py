@@ -58,7 +58,7 @@ def _circle(zone: Zone, sides: int, outside: bool) -> list[list[float]]:
     return [[float(la), float(lo)] for la, lo in zip(lat, lon, strict=True)]
 
 
-def _zone_tables(zones: Sequence[Zone], source: str) -> tuple[list[dict], list[dict], list[list[float]] | None]:
+def zone_tables(zones: Sequence[Zone], source: str) -> tuple[list[dict], list[dict], list[list[float]] | None]:
     """(prisms, cylinders, region polygon) for the zones: exclusion polygons are prisms; exclusion circles are
     cylinders, or prisms when they have a floor or ceiling; the one inclusion zone is the region."""
     prisms: list[dict] = []
@@ -106,7 +106,7 @@ def operator_raw(mission: OperatorMission, base: Mapping[str, Any] | None = None
     first = next((p for p in (*mission.vias, mission.goal) if p.alt is not None), None)
     raw: dict[str, Any] = {"name": mission.source.stem, "description": f"imported from {mission.source.name}"}
     raw["home"] = {"lat": home.lat, "lon": home.lon, "alt": float(home.alt.value)}
-    prisms, cylinders, region = _zone_tables([*mission.zones, *zones], source)
+    prisms, cylinders, region = zone_tables([*mission.zones, *zones], source)
     raw["region"] = {"polygon": region} if region is not None else {}
     base = dict(base or {})
     for key in ("vehicle", "hazard", "planner", "altitude", "terrain"):
