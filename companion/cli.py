@@ -97,6 +97,11 @@ def _parser() -> argparse.ArgumentParser:
     add_paper_option(fl)
     fl.add_argument("-q", "--quiet", action="store_true")
     planner_cli.add_source_options(fl)
+    fl.add_argument("--fence-from-vehicle", action="store_true",
+                    help="download the fence (and rally points) the operator uploaded with a ground station and plan "
+                         "around it; it stays on the vehicle as it is (with --connect)")
+    fl.add_argument("--goal-from-vehicle", action="store_true",
+                    help="the goal is the last navigation item of the mission on the vehicle (with --connect)")
     _status_options(fl)
     sm = sub.add_parser("sim", help="run the built-in simulated autopilot alone")
     sm.add_argument("scenario", type=Path)
@@ -448,6 +453,43 @@ def _check_report_dir(report: Path) -> None:
         raise FuseplanError(f"{report}: cannot create the report directory under {parent}")
 
 
+def _vehicle_world(args: argparse.Namespace, key: object) -> object:
+    """``--fence-from-vehicle`` / ``--goal-from-vehicle``: the fence, rally points and mission the operator left on
+    the vehicle, downloaded over a link of its own before planning (read back by each autopilot's rules), written
+    to the report as ``vehicle_world.json``; ``args.scenario`` becomes the scenario with them."""
+    import asyncio
+    import dataclasses
+
+    from companion.mavlink.errors import CompanionError
+    from companion.mavlink.link import Link
+    from companion.mavlink.protocol import MissionClient
+    from companion.mission.vehicle_world import download_world
+    from planner.world.sources import vehicle_scenario
+
+    if args.sim or args.connect is None:
+        raise FuseplanError("--fence-from-vehicle and --goal-from-vehicle read a real autopilot (--connect)")
+    if args.scenario.suffix.lower() != ".toml":
+        raise FuseplanError(f"{args.scenario}: --fence-from-vehicle and --goal-from-vehicle plan a scenario TOML (its "
+                            "vehicle, band and start) with what the vehicle holds")
+    wait = _seconds(args, "heartbeat_timeout") or HEARTBEAT_WAIT_S
+
+    async def read() -> object:
+        async with Link(args.connect, open_timeout=10.0, signing_key=key,
+                        target_system=getattr(args, "target_system", None)) as link:
+            await link.wait_heartbeat(wait)
+            return await download_world(MissionClient(link), args.connect)
+
+    try:
+        world = asyncio.run(read())
+    except (CompanionError, TimeoutError, OSError) as e:
+        raise FuseplanError(f"{args.connect}: cannot read the vehicle's fence and mission: {e}") from e
+    args.report.mkdir(parents=True, exist_ok=True)
+    write_text(args.report / "vehicle_world.json", json.dumps(dataclasses.asdict(world), indent=1, default=str) + "\n")
+    args.scenario = vehicle_scenario(args.scenario, world, args.fence_from_vehicle, args.goal_from_vehicle,
+                                     args.report / args.scenario.name)
+    return world
+
+
 def _replan_config(budget: float | None, paper: bool) -> ReplanConfig | None:
     """The live replanner's settings for ``fly``: its defaults (None) unless ``--replan-budget``
     or ``--paper`` (then the replans too are the paper's planners, the scenario's settings in paper mode)."""
@@ -496,6 +538,9 @@ def cmd_fly(args: argparse.Namespace) -> int:
     if planner_cli.has_source_options(args) or is_mission(args.scenario):
         args.report.mkdir(parents=True, exist_ok=True)
         args.scenario = planner_cli.source_scenario(args, args.scenario, args.report / args.scenario.name)
+    world = None
+    if getattr(args, "fence_from_vehicle", False) or getattr(args, "goal_from_vehicle", False):
+        world = _vehicle_world(args, key)
     target = getattr(args, "target_system", None)
     if target is not None and not 1 <= target <= 255:
         raise FuseplanError(f"--target-system {target}: a MAVLink system id is 1-255")
@@ -520,7 +565,8 @@ def cmd_fly(args: argparse.Namespace) -> int:
               file=sys.stderr)
         return EXIT_INFEASIBLE
     opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
-                      arm=args.arm, fence=not args.no_fence, densify=args.densify, report=args.report,
+                      arm=args.arm, fence=not (args.no_fence or getattr(args, "fence_from_vehicle", False)),
+                      densify=args.densify, report=args.report,
                       replan=not getattr(args, "no_replan", False),
                       replan_config=_replan_config(budget, getattr(args, "paper", False)),
                       signing_key=key, traffic=getattr(args, "traffic", None), backend=backend,
@@ -529,6 +575,10 @@ def cmd_fly(args: argparse.Namespace) -> int:
                           lambda extra: _plan_doc_for(args.scenario, args.scenario_file, overrides + extra, args.seed,
                                                       feasible_only=False, for_flight=True)))
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
+    if world is not None:
+        events.log("vehicle_world", source=str(world.source), zones=[z.name for z in world.zones],
+                   rally=len(world.rally), goal=None if world.goal is None else [world.goal.lat, world.goal.lon],
+                   scenario=str(args.scenario))
     try:
         if status is None:
             flight = asyncio.run(fly(doc, sc, opts, events))

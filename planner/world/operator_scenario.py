@@ -30,8 +30,9 @@ QGC_PLANE_TYPES = {1}  # MAV_TYPE_FIXED_WING (VTOLs fly their missions as planes
 QGC_COPTER_TYPES = {2, 3, 4, 13, 14, 15}  # quad, coaxial, heli, hexa, octo, tri
 
 
-def _point(p: GeoPoint, alt: Altitude | None = None) -> dict[str, Any]:
-    a = alt if alt is not None else p.alt
+def point_table(p: GeoPoint, alt: Altitude | float | None = None) -> dict[str, Any]:
+    """A scenario's point table for ``p``; ``alt`` (a number: above home) in place of its own altitude."""
+    a = Altitude(float(alt)) if isinstance(alt, (int, float)) else alt if alt is not None else p.alt
     out: dict[str, Any] = {"lat": p.lat, "lon": p.lon}
     if a is not None:
         out["alt"], out["ref"] = float(a.value), a.ref
@@ -126,10 +127,10 @@ def operator_raw(mission: OperatorMission, base: Mapping[str, Any] | None = None
             raw["vehicle"] = {"type": "copter"}
         elif vehicle_type in QGC_PLANE_TYPES:
             raw["vehicle"] = {"type": "plane"}
-    raw["route"] = {"start": _point(start, first.alt if first is not None else Altitude(60.0)),
-                    "goal": _point(mission.goal)}
+    raw["route"] = {"start": point_table(start, first.alt if first is not None else Altitude(60.0)),
+                    "goal": point_table(mission.goal)}
     if mission.goal.alt is None:
-        raw["route"]["goal"] = _point(mission.goal, first.alt if first is not None else Altitude(60.0))
+        raw["route"]["goal"] = point_table(mission.goal, first.alt if first is not None else Altitude(60.0))
     if prisms:
         raw["prisms"] = prisms
     if cylinders:

@@ -15,7 +15,7 @@ from typing import Any
 
 from planner.errors import ScenarioError
 from planner.world.geo_inputs import OperatorMission, Zone
-from planner.world.operator_scenario import operator_raw
+from planner.world.operator_scenario import operator_raw, point_table
 from planner.world.scenario import read_scenario_bytes
 from planner.world.toml_text import dumps
 
@@ -55,17 +55,15 @@ def _toml_of(path: Path) -> dict[str, Any]:
 
 
 def _with_zones(raw: dict[str, Any], zones: Sequence[Zone], source: Path) -> dict[str, Any]:
-    """A scenario's raw tables with ``zones`` added as prisms and cylinders (an inclusion zone as its region,
-    only when the scenario gives none), and a relative terrain path made absolute (the file moves)."""
+    """A scenario's raw tables with ``zones`` added as prisms and cylinders (an inclusion zone as a keep-in
+    prism inside the scenario's own region), and a relative terrain path made absolute (the file moves)."""
     from planner.world.operator_scenario import zone_tables
 
     raw = dict(raw)
     prisms, cylinders, region = zone_tables(zones, str(source))
     if region is not None:
-        if "region" in raw and "polygon" in raw.get("region", {}) or "bounds" in raw:
-            raise ScenarioError(str(source), "region", "an inclusion zone from --zones, and the scenario has its own "
-                                "region or bounds: give one")
-        raw["region"] = {"polygon": region}
+        name = next(z.name for z in zones if z.inclusion)
+        prisms.append({"polygon": region, "keep_in": True, "name": name})
     raw["prisms"] = [*raw.get("prisms", []), *prisms]
     raw["cylinders"] = [*raw.get("cylinders", []), *cylinders]
     terrain = raw.get("terrain")
@@ -95,16 +93,41 @@ def derived_scenario(source: Path, zone_files: Sequence[Path] = (), base: Path |
         header = f"{source} with the zones of {', '.join(str(p) for p in zone_files)}, made by fuseplan"
     if zone_files:
         header += f"\nzones: {', '.join(str(p) for p in zone_files)}"
-    name = f"{(beside or source).stem}.scenario.toml"
-    folder = beside.parent if beside is not None else Path(tempfile.mkdtemp(prefix="fuseplan-"))
-    target = folder / name
+    if beside is None:
+        beside = Path(tempfile.mkdtemp(prefix="fuseplan-")) / source.name
+    return _write(raw, header, beside)
+
+
+def vehicle_scenario(base: Path, world: OperatorMission, fence: bool, goal: bool, beside: Path) -> Path:
+    """``base`` with what the vehicle holds (docs/scenario_format.md, "The vehicle's own world"): its fence zones
+    (``fence``) and the last navigation item of its mission as the goal (``goal``), written as
+    ``<beside>.scenario.toml``."""
+    raw = _toml_of(base)
+    what = []
+    if fence:
+        raw = _with_zones(raw, world.zones, base)
+        what.append(f"{len(world.zones)} fence zones")
+    if goal:
+        if world.goal is None:
+            raise ScenarioError(str(world.source), "mission", "the vehicle's mission has no navigation item with a "
+                                "position: upload one (the goal) or plan without --goal-from-vehicle")
+        route = dict(raw.get("route", {}))
+        old = route.get("goal")
+        alt = old[2] if isinstance(old, list) and len(old) == 3 else None
+        route["goal"] = point_table(world.goal, None if world.goal.alt is not None or alt is None else alt)
+        raw["route"] = route
+        what.append("the goal")
+    return _write(raw, f"{base} with {' and '.join(what)} read from the vehicle at {world.source}", beside)
+
+
+def _write(raw: dict[str, Any], header: str, beside: Path) -> Path:
+    target = beside.parent / f"{beside.stem}.scenario.toml"
     part = target.with_name(target.name + ".part")
     try:
         part.write_text(dumps(raw, header + "\n(docs/scenario_format.md)"), encoding="utf-8")
         os.replace(part, target)
     except OSError as exc:
-        raise ScenarioError(str(target), "", f"cannot write the scenario made from {source}: "
-                            f"{exc.strerror or exc}") from exc
+        raise ScenarioError(str(target), "", f"cannot write the scenario: {exc.strerror or exc}") from exc
     finally:
         part.unlink(missing_ok=True)
     return target
