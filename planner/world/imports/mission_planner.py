@@ -207,7 +207,7 @@ def _polygon(file: str, items: list[WplItem], k: int, prefix: str, out: _Content
     first = items[k]
     where = f"line {first.line}"
     count = first.params[0]
-    if not (count >= 3 and count == int(count)):
+    if not (math.isfinite(count) and count >= 3 and count == int(count)):
         raise ScenarioError(file, where, f"a fence polygon's vertex count (param1) is {count:g}; it must be a whole "
                             "number of at least 3")
     n = int(count)

@@ -96,6 +96,7 @@ def test_fence_refusals(tmp_path: Path):
         (lines[:10], "line 8", "the file ends after 3"),
         (lines[:3] + [_replace_field(ln, 4, "2.00000000") for ln in lines[3:5]] + lines[7:], "line 4",
          "vertex count (param1) is 2"),
+        (lines[:3] + [_replace_field(lines[3], 4, "inf")] + lines[4:], "line 4", "vertex count (param1) is inf"),
         (lines[:3] + [lines[3], lines[5], lines[4], lines[6]] + lines[7:], "line 4", "intersects itself"),
         (lines[:11] + [_replace_field(lines[11], 4, "0")], "line 12", "radius (param1) is 0 m"),
         (lines + ["12\t0\t3\t16\t0\t0\t0\t0\t-35.36\t149.16\t50\t1"], "line 13", "not a fence item"),
