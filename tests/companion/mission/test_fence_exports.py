@@ -21,6 +21,7 @@ from companion.mission.exports import (
     write_mp_fence,
     write_operator_plan,
     write_qgc_plan,
+    write_waypoints,
     write_zones_geojson,
     zone_feature,
     zones_from_prisms,
@@ -204,3 +205,21 @@ async def test_operator_plan_and_mp_fence_load_in_mavsdk(tmp_path: Path, rescue_
         [(5001 if z.inclusion else 5002, len(z.polygon))] * len(z.polygon) if z.polygon is not None
         else [(5003 if z.inclusion else 5004, z.radius_m)])]
     assert mp_fence == [(c, pytest.approx(p)) for c, p in in_order]  # the file's order: zone by zone
+
+
+@pytest.mark.parametrize("fmt", ["waypoints", "plan"])
+def test_route_exports_read_back_as_the_route(tmp_path: Path, fmt: str):
+    """Our own route files read back: home is the start, the route's points the vias, its end the goal (the
+    loiter at the goal counts once), heights above home."""
+    items = build_mission(WPS, spec())
+    if fmt == "waypoints":
+        m = read_waypoints(write_waypoints(tmp_path / "r.waypoints", items))
+    else:
+        m = read_qgc_plan(write_qgc_plan(tmp_path / "r.plan", items, spec()))
+    assert m.start == m.home == GeoPoint(HOME.lat, HOME.lon, Altitude(HOME.alt, "amsl"))
+    got = [*m.vias, m.goal]
+    assert len(got) == len(WPS)
+    lat, lon = np.array([[p.lat, p.lon] for p in got]).T
+    np.testing.assert_allclose(geodetic_to_enu(lat, lon, HOME.alt, HOME)[:, :2], WPS[:, :2], atol=0.02)  # 1e-7 deg
+    assert [p.alt for p in got] == [Altitude(float(z), "home") for z in WPS[:, 2]]
+    assert m.extras["end_command"] == "LOITER_UNLIM"
