@@ -18,6 +18,7 @@ from companion.mission.exports import (
     fence_zones,
     mp_fence_text,
     operator_plan,
+    write_geojson,
     write_mp_fence,
     write_operator_plan,
     write_qgc_plan,
@@ -223,3 +224,11 @@ def test_route_exports_read_back_as_the_route(tmp_path: Path, fmt: str):
     np.testing.assert_allclose(geodetic_to_enu(lat, lon, HOME.alt, HOME)[:, :2], WPS[:, :2], atol=0.02)  # 1e-7 deg
     assert [p.alt for p in got] == [Altitude(float(z), "home") for z in WPS[:, 2]]
     assert m.extras["end_command"] == "LOITER_UNLIM"
+
+
+def test_route_geojson_draws_geographic_zones_as_read_zones_writes_them(tmp_path: Path):
+    zones = zones_from_prisms(PRISMS, HOME)
+    route = [(HOME.lon, HOME.lat, 634.0), (HOME.lon + 0.01, HOME.lat + 0.01, 634.0)]
+    doc = json.loads(write_geojson(tmp_path / "r.geojson", route, geo_zones=zones).read_text())
+    drawn = [f for f in doc["features"] if f["geometry"]["type"] == "Polygon"]
+    assert drawn == [zone_feature(z) for z in zones]
