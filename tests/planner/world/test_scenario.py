@@ -78,7 +78,7 @@ def expect_error(path: Path, field: str, word: str, overrides: tuple[str, ...] =
 
 def test_shipped_scenarios() -> None:
     assert {p.stem for p in SHIPPED} == {"rescue_static", "rescue_dynamic", "large_obstacle_field", "mountain_rescue",
-                                         "crossing_traffic", *(f"hardmap_{f}_0" for f in FAMILIES)}
+                                         "crossing_traffic", "cmac_geo", *(f"hardmap_{f}_0" for f in FAMILIES)}
 
 
 @pytest.mark.parametrize("path", SHIPPED, ids=lambda p: p.stem)
