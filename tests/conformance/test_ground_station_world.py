@@ -109,9 +109,8 @@ async def test_a_fence_arduPilot_cannot_store_is_refused_and_the_old_one_stays(v
             await vehicle.client.upload(numbered(bad, FENCE), FENCE)
         heard = [t.strip() for t in texts(sub.drain() + await collect(sub, 0.3))]
     seen = [t for t in heard if t in said]
-    # (the client cannot tell this MISSION_ERROR after the last item from ArduPilot's answer to a stray copy of it:
-    # it reads back, finds the old fence, and reports the error as a possible transfer fault)
-    assert refused.value.result == mavlink.MAV_MISSION_ERROR
+    # the answer to the last item, and the old fence read back: a refusal, not a transfer fault to retry
+    assert refused.value.result == mavlink.MAV_MISSION_ERROR and refused.value.refused
     assert seen == said, heard
     kept = await vehicle.client.download(FENCE)
     assert len(kept) == len(good) and all(compare_items(vehicle.stored(a), b) is None for a, b in zip(good, kept))
