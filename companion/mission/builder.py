@@ -249,7 +249,8 @@ def build_fence(zones: Cylinders | Sequence[Circle], home: Home, max_route_alt: 
 
     Fences are 2-D on ArduPilot and PX4: a fenced zone is no-fly at every height. So a zone the route may legally
     pass over or under is left out, and logged: a cylinder or prism whose top is below ``max_route_alt``, a prism
-    whose floor is above ``min_route_alt`` (m above home; None: not checked). The vehicle's fence is a backstop to
+    whose floor is above ``min_route_alt`` (m above home; None: not checked; the flight's lowest height, so 0 when
+    the climb-out from home counts, leaves out every prism with a floor). The vehicle's fence is a backstop to
     the planner's own clearance, never stricter than the plan. A keep-in polygon has no floor or ceiling and is always
     fenced. Radii are rounded up to whole metres (a slightly larger exclusion, and what every autopilot stores exactly).
     """
