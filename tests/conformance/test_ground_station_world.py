@@ -91,6 +91,9 @@ REFUSED = {
     "a second return point": (
         _triangle() + [item(mavlink.MAV_CMD_NAV_FENCE_RETURN_POINT, 10.0 * k, 0.0, frame=FRAME_GLOBAL_INT)
                        for k in range(2)], ["Multiple return points", "Fence validation failed"]),
+    "more than the fence storage holds": (  # 84 items are allowed, but 4 + 52 x 13 bytes are more than 672
+        [item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, 10.0 * k, 0.0, frame=FRAME_GLOBAL_INT, param1=5.0)
+         for k in range(52)], ["Fence exceeds storage size"]),
     "a two-vertex polygon": (
         _triangle(count=2.0) + [_circle(50.0)], ["Invalid vertex count (2)", "Fence validation failed"]),
     "a circle of radius 0": (_triangle() + [_circle(0.0)], ["Non-positive circle radius", "Fence validation failed"]),
