@@ -75,3 +75,12 @@ class CommandError(CompanionError):
 
 class VehicleHolding(CompanionError):
     """The companion stopped with the vehicle holding (loitering): no verified mission could be made live."""
+
+
+class VehicleContentError(CompanionError):
+    """What the vehicle holds cannot be read as the operator's world: item ``seq`` of its ``list_name`` list
+    ("fence", "rally", "mission") and why (``reason``), e.g. a polygon whose vertex count disagrees with its items."""
+
+    def __init__(self, list_name: str, seq: int, reason: str) -> None:
+        self.list_name, self.seq, self.reason = list_name, seq, reason
+        super().__init__(f"the vehicle's {list_name} item {seq}: {reason}")

@@ -151,7 +151,7 @@ class MissionClient:
         # The final MISSION_ACK went missing, and our resent last item met an autopilot that had already
         # finished (ArduPilot answers an item outside an upload with MAV_MISSION_ERROR) or nothing answered:
         # only a readback can tell whether the upload completed.
-        result, seq = ambiguous
+        result, seq, first_copy = ambiguous
         log.info("final MISSION_ACK of the upload not seen; checking by readback")
         try:
             got = await self._download(mission_type)
@@ -162,15 +162,21 @@ class MissionClient:
             if result is None:
                 raise MissionTimeout("upload", seq)
             # an answer after the last item is never a refusal of an item (ArduPilot's to a duplicate, PX4's
-            # for its own transfer trouble: seen at 20x while PX4 still floods the link): the upload is retried
-            raise MissionUploadError(result, seq, transfer_fault=True)
+            # for its own transfer trouble: seen at 20x while PX4 still floods the link): the upload is retried.
+            # Except ArduPilot's to the only copy of a fence's last item with another fence read back: it checks a
+            # fence as a whole once complete and refuses one it cannot store, keeping the old (docs/autopilots.md
+            # §5.6); sending it again would be refused again
+            refused = (first_copy and got is not None and mission_type == FENCE and self.firmware.ardupilot
+                       and result == mavlink.MAV_MISSION_ERROR)
+            raise MissionUploadError(result, seq, transfer_fault=not refused)
         log.info("uploaded %d items (mission type %d; confirmed by readback)", len(items), mission_type)
         return got
 
     async def _transfer(self, items: list[MissionItem], mission_type: int,
-                        first: int | None = None, last: int | None = None) -> tuple[int | None, int] | None:
-        """The upload exchange: None once the autopilot ACKs it; ``(result or None, seq)`` when the outcome is
-        ambiguous because the final ACK went missing. ``first`` (and ``last``, default the end): write only
+                        first: int | None = None, last: int | None = None) -> tuple[int | None, int, bool] | None:
+        """The upload exchange: None once the autopilot ACKs it; ``(result or None, seq, first_copy)`` when the
+        outcome is ambiguous because the final ACK went missing (``first_copy``: the result answered the last item
+        as first sent, not a copy we resent unasked). ``first`` (and ``last``, default the end): write only
         ``items[first:last + 1]`` over the stored list (MISSION_WRITE_PARTIAL_LIST, the same length) instead of
         the whole list (MISSION_COUNT)."""
         link = self.link
@@ -209,11 +215,11 @@ class MissionClient:
                         # the last item went out again and again with no answer at all (MAVSDK and PX4 do not
                         # answer an item after the transfer ended, ArduPilot would NACK it): the final ACK was
                         # probably lost, and a readback tells at once
-                        return None, top
+                        return None, top, False
                     if (last_sent is None and misses > self.retries and self._give_up(progress)) or (
                             last_sent is not None and silent > self.item_giveup_s):
                         if final_resent:
-                            return None, top
+                            return None, top, False
                         raise MissionTimeout("upload", requested) from None
                     if last_sent is None:
                         log.debug("no request for %s; resending (%d)", count_msg.get_type(), misses)
@@ -236,7 +242,7 @@ class MissionClient:
                         # after the last item, ArduPilot's MISSION_ERROR is its answer to a copy of that item
                         # (ours, or one the network duplicated) arriving once the upload had ended: the final
                         # ACK may have been lost; a readback tells
-                        return msg.type, top
+                        return msg.type, top, not final_resent
                     if msg.type == mavlink.MAV_MISSION_ERROR and stalled:
                         # we had been resending an item nobody asked for again: the autopilot abandoned the
                         # transfer on its own clock (its OPERATION_CANCELLED lost) and now answers our resend
@@ -325,7 +331,7 @@ class MissionClient:
         try:
             return await self._verify_range(items, first, last, mission_type)
         except (MissionTimeout, MissionUploadError, MissionVerifyError):
-            result, seq = ambiguous
+            result, seq, _ = ambiguous
             if result is None:
                 raise MissionTimeout("upload", seq) from None
             raise MissionUploadError(result, seq, transfer_fault=True) from None

@@ -27,6 +27,8 @@ from companion.mavlink.profiles import Firmware  # which of these rules an autop
 # ArduPilot commands kept without a position: read back in frame GLOBAL with x = y = z = 0
 _NO_POSITION = frozenset({mavlink.MAV_CMD_DO_CHANGE_SPEED, mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH})
 _BYTE_MAX = 255  # ArduPlane packs NAV_WAYPOINT's acceptance and pass-by radii in one byte each
+_POLYGON_VERTEX = frozenset({mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+                             mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION})
 
 
 def stored(item: MissionItem, firmware: Firmware) -> MissionItem:
@@ -62,9 +64,11 @@ def stored(item: MissionItem, firmware: Firmware) -> MissionItem:
 
 def _stored_point(item: MissionItem) -> MissionItem:
     """An ArduPilot fence or rally point: position (and param1: a circle's radius or a polygon's vertex
-    count) only; stored without a frame for fences, with autocontinue 0 for both (rally: whole-metre altitude)."""
+    count, a byte: 4.4 and 3.6 read back 4 and 3) only; stored without a frame for fences, with autocontinue 0 for
+    both (rally: whole-metre altitude)."""
     if item.mission_type == FENCE:
-        return replace(item, frame=mavlink.MAV_FRAME_GLOBAL, param2=0.0, param3=0.0, param4=0.0, z=0.0,
+        count = _byte(item.param1) if item.command in _POLYGON_VERTEX else item.param1  # vertex count: a uint8
+        return replace(item, frame=mavlink.MAV_FRAME_GLOBAL, param1=count, param2=0.0, param3=0.0, param4=0.0, z=0.0,
                        autocontinue=0)
     return replace(item, param1=0.0, param2=0.0, param3=0.0, param4=0.0, z=float(math.trunc(item.z)),
                    autocontinue=0)  # rally altitude in whole metres
@@ -73,9 +77,11 @@ def _stored_point(item: MissionItem) -> MissionItem:
 def _stored_px4(item: MissionItem) -> MissionItem:
     """PX4 (navigator's dataman records, measured on PX4 SITL main 2026-05): mission and rally items come back
     as sent (frames as their INT twins, normalised here); fence items in frame GLOBAL_INT whatever was sent,
-    with autocontinue 0, position, altitude and params kept."""
+    with autocontinue 0, position, altitude and params kept, a polygon's vertex count rounded to a whole number
+    (a uint16: 4.4 and 3.6 read back 4)."""
     if item.mission_type == FENCE:
-        return replace(item, frame=mavlink.MAV_FRAME_GLOBAL, autocontinue=0)
+        count = float(math.floor(item.param1 + 0.5)) if item.command in _POLYGON_VERTEX else item.param1
+        return replace(item, frame=mavlink.MAV_FRAME_GLOBAL, param1=count, autocontinue=0)
     return item
 
 

@@ -40,7 +40,7 @@ from companion.mavlink.profiles import MissionLayout, mission_layout
 from companion.mission.geo import Circle, as_circles, enu_to_geodetic, geodetic_to_enu, to_int_e7
 from planner.trajectory.smoothing import sample_trajectory
 from planner.world.config import VehicleLimits
-from planner.world.environment import Cylinders
+from planner.world.environment import Cylinders, Prisms
 from planner.world.home import Home
 from planner.world.scenario import Scenario
 
@@ -65,6 +65,8 @@ CMD_VTOL_LAND = mavlink.MAV_CMD_NAV_VTOL_LAND
 TAKEOFF_COMMANDS = frozenset({CMD_TAKEOFF, CMD_VTOL_TAKEOFF})
 CMD_CHANGE_SPEED = mavlink.MAV_CMD_DO_CHANGE_SPEED
 CMD_FENCE_CIRCLE_EXCLUSION = mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION
+CMD_FENCE_POLYGON_INCLUSION = mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION
+CMD_FENCE_POLYGON_EXCLUSION = mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION
 LOCATION_COMMANDS = TAKEOFF_COMMANDS | {CMD_WAYPOINT, CMD_LOITER_UNLIM, CMD_LAND, CMD_VTOL_LAND}
 
 
@@ -238,24 +240,54 @@ def _densify(anchors: np.ndarray, traj: np.ndarray, spacing: float, min_gap: flo
     return np.array(out)
 
 
-def build_fence(zones: Cylinders | Sequence[Circle], home: Home,
-                max_route_alt: float | None = None) -> list[MissionItem]:
-    """MAV_MISSION_TYPE_FENCE exclusion circles (MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION), one per no-fly zone.
+def build_fence(zones: Cylinders | Sequence[Circle], home: Home, max_route_alt: float | None = None, *,
+                prisms: Prisms | None = None, min_route_alt: float | None = None) -> list[MissionItem]:
+    """MAV_MISSION_TYPE_FENCE items for the no-fly zones: keep-in polygons first (one
+    MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION per vertex), then no-fly polygons (…_POLYGON_VERTEX_EXCLUSION), then
+    one MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION per cylinder. A polygon's items carry its vertex count in param1, in the
+    order of its vertices (counter-clockwise), frame GLOBAL_INT, altitude 0 (docs/autopilots.md §5.1).
 
-    Fence circles have no top, so a zone with a finite top below ``max_route_alt`` (m above home) is left
-    out: the route may legally pass over it and the fence would call that a breach. Radii are rounded up to
-    whole metres (a slightly larger exclusion, and what every autopilot stores exactly).
+    Fences are 2-D on ArduPilot and PX4: a fenced zone is no-fly at every height. So a zone the route may legally
+    pass over or under is left out, and logged: a cylinder or prism whose top is below ``max_route_alt``, a prism
+    whose floor is above ``min_route_alt`` (m above home; None: not checked; the flight's lowest height, so 0 when
+    the climb-out from home counts, leaves out every prism with a floor). The vehicle's fence is a backstop to
+    the planner's own clearance, never stricter than the plan. A keep-in polygon has no floor or ceiling and is always
+    fenced. Radii are rounded up to whole metres (a slightly larger exclusion, and what every autopilot stores exactly).
     """
-    items = []
+    items = _polygon_items(prisms, home, max_route_alt, min_route_alt) if prisms is not None else []
     for c in as_circles(zones, home):
         if max_route_alt is not None and c.top_m < max_route_alt:
             logger.info("fence: leaving out the zone at (%.6f, %.6f): top %.0f m is below the route's %.0f m",
                         c.lat, c.lon, c.top_m, max_route_alt)
             continue
-        items.append(MissionItem(len(items), FRAME_GLOBAL_INT, CMD_FENCE_CIRCLE_EXCLUSION,
+        items.append(MissionItem(0, FRAME_GLOBAL_INT, CMD_FENCE_CIRCLE_EXCLUSION,
                                  param1=float(math.ceil(c.radius_m)), param2=0.0, x=to_int_e7(c.lat),
                                  y=to_int_e7(c.lon), z=0.0, mission_type=FENCE))
-    return items
+    return [item.with_seq(seq) for seq, item in enumerate(items)]
+
+
+def _polygon_items(prisms: Prisms, home: Home, max_route_alt: float | None,
+                   min_route_alt: float | None) -> list[MissionItem]:
+    """Vertex items of the prisms to fence (:func:`build_fence`), keep-in polygons first."""
+    lat, lon, _ = enu_to_geodetic(np.column_stack([prisms.vertices, np.zeros(len(prisms.vertices))]), home)
+    keep_in, no_fly = [], []
+    for k in range(len(prisms)):
+        inclusion = bool(prisms.keep_in[k])
+        floor, ceiling = float(prisms.floor[k]), float(prisms.ceiling[k])
+        if not inclusion and max_route_alt is not None and ceiling < max_route_alt:
+            logger.info("fence: leaving out polygon %d: its ceiling %.0f m is below the route's highest %.0f m",
+                        k, ceiling, max_route_alt)
+            continue
+        if not inclusion and min_route_alt is not None and floor > min_route_alt:
+            logger.info("fence: leaving out polygon %d: its floor %.0f m is above the route's lowest %.0f m",
+                        k, floor, min_route_alt)
+            continue
+        first, end = int(prisms.start[k]), int(prisms.start[k + 1])
+        command = CMD_FENCE_POLYGON_INCLUSION if inclusion else CMD_FENCE_POLYGON_EXCLUSION
+        (keep_in if inclusion else no_fly).extend(
+            MissionItem(0, FRAME_GLOBAL_INT, command, param1=float(end - first), x=to_int_e7(lat[i]),
+                        y=to_int_e7(lon[i]), z=0.0, mission_type=FENCE) for i in range(first, end))
+    return keep_in + no_fly
 
 
 def mission_waypoint_index(items: Sequence[MissionItem], waypoints_enu: np.ndarray, home: Home,

@@ -22,7 +22,9 @@ Imitated:
 - HEARTBEAT as ArduPilot fills it (base_mode 81, + GUIDED in position-controlled modes, + ARMED; system_status
   ACTIVE only in the air), sent at once on a mode change.
 - The mission protocol (``mission_server``) for the mission, fence and rally lists, storing items as ArduPilot
-  does (:func:`companion.mavlink.storage.stored`), so a readback is the real one.
+  does (:func:`companion.mavlink.storage.stored`), so a readback is the real one; polygon and circle fences checked
+  as a whole when their upload completes, as ArduPilot's polyfence loader does (``mission_server.fence_problem``);
+  ArduPlane SITL's capacities (84 fence items in 672 bytes of fence storage, 50 rally points).
 - A few parameters (FENCE_ENABLE, FENCE_TYPE, FENCE_ACTION, RALLY_TOTAL, RALLY_LIMIT_KM, SITL's values):
   PARAM_SET echoed with PARAM_VALUE (other names ignored, as ArduPilot does), PARAM_REQUEST_READ / _LIST;
   SYS_STATUS says the geofence is enabled once FENCE_ENABLE is set and a fence is stored.
@@ -70,7 +72,7 @@ Left out (known differences from ArduPilot SITL):
   most 100 GLOBAL_POSITION_INT, 50 MISSION_CURRENT, 25 ADSB_VEHICLE, 10 HEARTBEAT and 5 of any other message per
   wall second: at high speed-ups the slower rates are not honoured (the simulator and the companion share one
   process).
-- Not measured: the ADS-B relay rate, the list of message ids SET_MESSAGE_INTERVAL accepts, the rally capacity.
+- Not measured: the ADS-B relay rate, the list of message ids SET_MESSAGE_INTERVAL accepts.
 - SITL's TCP banner text; by default time starts at :meth:`SimAutopilot.start` (``wait_for_client``).
 
 MAVLink 2 signing is supported (``signing_key``).

@@ -17,6 +17,11 @@ ArduPilot behaviour reproduced (docs/autopilots.md §1.3, §3–5, ``libraries/G
   leaves the new items 1..k followed by the old items k+1..count-1 (as far as the old mission reached).
   Fence uploads are staged and replace the fence only when complete (ArduPilot's polyfence loader does that);
   rally points are written in place as the mission is (AP_Rally).
+- A completed fence upload is checked as a whole before it replaces the fence (AC_PolyFence_loader's
+  ``validate_fence`` and ``write_fence``, :func:`fence_problem`): a polygon of fewer than 3 vertices, a vertex of
+  another polygon type or count before the polygon's count is reached, a polygon cut short by the end of the list,
+  a circle of radius ≤ 0, a second return point, or more than the fence storage holds → STATUSTEXT with the reason,
+  "Fence validation failed" (not for the storage), MISSION_ACK MAV_MISSION_ERROR, and the old fence stays.
 - Item 0 of the mission is home: an uploaded item 0 is acknowledged and ignored; a download of item 0 returns
   the live home in MAV_FRAME_GLOBAL with AMSL altitude; downloads answer with the non-INT frame numbers
   (5→0, 6→3, 11→10). MISSION_REQUEST_INT is answered with MISSION_ITEM_INT, the legacy MISSION_REQUEST with a
@@ -58,7 +63,9 @@ logger = logging.getLogger(__name__)
 REQUEST_RESEND_S = 1.0  # ArduPilot: 1000 ms (+ stream slow-down) without an item → request again
 UPLOAD_TIMEOUT_S = 8.0  # ArduPilot upload_timeout_ms
 LIST_NAME = {MISSION: "Mission", FENCE: "Fence", RALLY: "Rally"}  # in ArduPilot's STATUSTEXTs
-MAX_ITEMS = {MISSION: 724, FENCE: 84, RALLY: 20}  # what a 16 kB-storage board holds (rally: not measured)
+# what ArduPlane 4.7 SITL holds ("Only 84 items are supported" for a fence of 85, "Only 50 …" for 100 rally points)
+MAX_ITEMS = {MISSION: 724, FENCE: 84, RALLY: 50}
+FENCE_BYTES_PER_ITEM = 8  # AC_PolyFence_loader::max_items() is the fence storage's size / 8 (one lat/lon pair)
 
 GLOBAL_FRAMES = frozenset({
     mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT,
@@ -92,6 +99,63 @@ _FENCE_COMMANDS = frozenset({
     mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION,
     mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION,
 })
+
+
+# AC_PolyFenceType numbers, as ArduPilot's validation texts show them (a circle inside a polygon: "want=98 got=93" on
+# ArduPlane 4.7 SITL; 96 and 94 are the whole-metre circles' storage types)
+_POLYFENCE_TYPE = {
+    mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION: 98, mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION: 97,
+    mavlink.MAV_CMD_NAV_FENCE_RETURN_POINT: 95, mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION: 93,
+    mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION: 92,
+}
+_POLYGON_VERTEX = frozenset({mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION,
+                             mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION})
+_CIRCLES = frozenset({mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION, mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION})
+
+
+def _vertex_count(item: MissionItem) -> int:
+    """A polygon vertex's count (param1, which :func:`stored` has made the byte ArduPilot keeps)."""
+    return int(max(item.param1, 0.0))
+
+
+def fence_problem(items: list[MissionItem], storage_bytes: int) -> tuple[str, bool] | None:
+    """Why ArduPilot would refuse a completed fence upload, or None: its STATUSTEXT and whether "Fence validation
+    failed" follows. AC_PolyFence_loader's ``validate_fence`` item by item, then the storage the fence needs
+    (``fence_storage_space_required``: 4 bytes of header; a polygon 2 + 8 per vertex, a circle 13, a return point 9)."""
+    want_type = left = count = 0
+    needed = 4
+    seen_return = False
+    for item in items:
+        kind = _POLYFENCE_TYPE[item.command]
+        if item.command in _POLYGON_VERTEX:
+            n = _vertex_count(item)
+            if n < 3:
+                return f"Invalid vertex count ({n})", True
+            if left == 0:
+                want_type, left, count = kind, n, n
+                needed += 2 + 8 * n
+            elif kind != want_type:
+                return f"Received incorrect vertex type (want={want_type} got={kind})", True
+            elif n != count:
+                return f"Unexpected vertex count want={count} got={n}\n", True  # ArduPilot's text ends so
+            left -= 1
+            continue
+        if left:
+            return f"Received incorrect type (want={want_type} got={kind})", True
+        if item.command in _CIRCLES:
+            if not item.param1 > 0:
+                return "Non-positive circle radius", True
+            needed += 13
+        else:  # the return point
+            if seen_return:
+                return "Multiple return points", True
+            seen_return = True
+            needed += 9
+    if left:
+        return "Incorrect item count", True  # ArduPilot sends this one as MAV_SEVERITY_INFO
+    if needed > storage_bytes:
+        return "Fence exceeds storage size", False
+    return None
 
 
 def is_nav(command: int) -> bool:
@@ -242,6 +306,18 @@ class MissionServer:
 
     def _complete(self, msg: mavlink.MAVLink_message, mission_type: int) -> None:
         up = self._uploads.pop(mission_type, None)
+        if mission_type == FENCE and up is not None and up.staged is not None:
+            capacity = self._capacity(FENCE) or 0
+            problem = fence_problem(up.staged, capacity * FENCE_BYTES_PER_ITEM)
+            if problem is not None:
+                text, validation = problem
+                info = text == "Incorrect item count"
+                self._text(mavlink.MAV_SEVERITY_INFO if info else mavlink.MAV_SEVERITY_WARNING, text)
+                if validation:
+                    self._text(mavlink.MAV_SEVERITY_WARNING, "Fence validation failed")
+                self._ack(msg, mavlink.MAV_MISSION_ERROR, mission_type)
+                logger.info("simulator: fence refused: %s", text)
+                return
         if up is not None and up.staged is not None:
             self.lists[mission_type] = up.staged
         self.completed_uploads += 1

@@ -53,6 +53,12 @@ SEEN = {
         PLANE, _item(mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, frame=mavlink.MAV_FRAME_GLOBAL_INT, z=12.0,
                      mission_type=FENCE, param1=50.5, param2=3.0),
         dict(frame=GLOBAL, z=0.0, param1=50.5, param2=0.0, autocontinue=0)),
+    "fence polygon vertex: the count a whole number, cut (ArduPlane SITL: 4.4 → 4, 3.6 → 3)": (
+        PLANE, _item(mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, mission_type=FENCE, param1=3.6, z=12.5),
+        dict(frame=GLOBAL, param1=3.0, z=0.0, autocontinue=0)),
+    "PX4 fence polygon vertex: the count rounded, altitude kept (PX4 SITL: 4.4 → 4, 3.6 → 4)": (
+        Firmware.PX4, _item(mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION, mission_type=FENCE, param1=3.6,
+                            z=12.5), dict(frame=mavlink.MAV_FRAME_GLOBAL_INT, param1=4.0, autocontinue=0)),
     "rally point: whole-metre altitude, no autocontinue": (
         COPTER, _item(mavlink.MAV_CMD_NAV_RALLY_POINT, mission_type=RALLY, z=60.5), dict(z=60.0, autocontinue=0)),
 }

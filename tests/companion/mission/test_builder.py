@@ -23,7 +23,7 @@ from companion.mission.builder import (
 from companion.mission.geo import circle_ring, circles_from_cylinders, enu_to_geodetic, geodetic_to_enu, to_int_e7
 from planner.trajectory.smoothing import sample_trajectory
 from planner.world.config import VehicleLimits
-from planner.world.environment import Cylinders
+from planner.world.environment import Cylinders, Prisms
 from planner.world.home import Home
 
 HOME = Home(-35.363261, 149.165230, 584.0)  # ArduPilot SITL CMAC
@@ -254,6 +254,46 @@ def test_fence_items():
     # a zone the route may overfly (top below the route's highest point) is no fence
     assert len(build_fence(cyl, HOME, max_route_alt=150.0)) == 1
     assert build_fence(Cylinders.empty(), HOME) == []
+
+
+SQUARE = np.array([[-1000.0, -1000.0], [1000.0, -1000.0], [1000.0, 1000.0], [-1000.0, 1000.0]])
+NOTCH = np.array([[0.0, 0.0], [300.0, 0.0], [300.0, 300.0], [150.0, 100.0], [0.0, 300.0]])  # concave
+
+
+def _prisms() -> Prisms:
+    """A keep-in square, a concave no-fly from the ground to 150 m, a no-fly from 200 m up, one unlimited."""
+    tri = np.array([[-500.0, -500.0], [-400.0, -500.0], [-450.0, -400.0]])
+    return Prisms.from_polygons([NOTCH, SQUARE, NOTCH + 400.0, tri], [-math.inf, -math.inf, 200.0, -math.inf],
+                                [150.0, math.inf, math.inf, math.inf], keep_in=[False, True, False, False])
+
+
+def test_fence_polygons_keep_in_first_each_vertex_an_item():
+    prisms = _prisms()
+    cyl = Cylinders([400.0], [500.0], [80.0], [math.inf], [100.0])
+    fence = build_fence(cyl, HOME, prisms=prisms)
+    assert [it.seq for it in fence] == list(range(len(fence))) and {it.mission_type for it in fence} == {FENCE}
+    assert [it.command for it in fence] == [C.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION] * 4 + \
+        [C.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION] * (5 + 5 + 3) + [C.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION]
+    assert [it.param1 for it in fence[:-1]] == [4.0] * 4 + [5.0] * 10 + [3.0] * 3
+    assert {(it.frame, it.z, it.param2) for it in fence} == {(C.MAV_FRAME_GLOBAL_INT, 0.0, 0.0)}
+    # the vertices in the prisms' (counter-clockwise) order, encoded as the mission's positions are
+    order = [1, 0, 2, 3]
+    ring = np.concatenate([prisms.polygon(k) for k in order])
+    lat, lon, _ = enu_to_geodetic(np.column_stack([ring, np.zeros(len(ring))]), HOME)
+    assert [(it.x, it.y) for it in fence[:-1]] == [(to_int_e7(a), to_int_e7(o)) for a, o in zip(lat, lon)]
+
+
+def test_fence_leaves_out_polygons_the_route_may_pass_over_or_under(caplog):
+    prisms = _prisms()
+    # the route between 100 and 180 m: over the notch (ceiling 150), under the raised notch (floor 200)
+    with caplog.at_level("INFO", logger="companion.mission.builder"):
+        fence = build_fence(Cylinders.empty(), HOME, 180.0, prisms=prisms, min_route_alt=100.0)
+    assert [it.param1 for it in fence] == [4.0] * 4 + [3.0] * 3  # the keep-in square and the triangle
+    assert "polygon 0: its ceiling 150 m is below the route's highest 180 m" in caplog.text
+    assert "polygon 2: its floor 200 m is above the route's lowest 100 m" in caplog.text
+    # a route that stays under the notch's ceiling and reaches the raised one's floor keeps both
+    assert len(build_fence(Cylinders.empty(), HOME, 140.0, prisms=prisms, min_route_alt=200.0)) == 4 + 5 + 5 + 3
+    assert build_fence(Cylinders.empty(), HOME, prisms=Prisms.empty()) == []
 
 
 def test_mission_from_plan_json():
