@@ -45,9 +45,11 @@ from companion.mission.builder import (
 )
 from companion.mission.events import EventLog
 from companion.mission.exports import (
+    fence_zones,
     write_geojson,
     write_qgc_plan,
     write_waypoints,
+    zones_from_prisms,
     zones_of,
 )
 from companion.mission.geo import geodetic_to_enu, lonlatalt
@@ -138,8 +140,10 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             items = mission_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)
             spec = spec_from_plan_json(plan_doc, scenario, autopilot, densify=opts.densify)
             top = float(np.max(np.asarray(plan_doc["trajectory"]["points"])[:, 2]))
-            fence = build_fence(scenario.environment.cylinders, scenario.home, max_route_alt=top) \
-                if opts.fence and len(scenario.environment.cylinders) else []
+            env = scenario.environment
+            # min_route_alt 0: the climb-out from home counts, so a prism with a floor is never fenced
+            fence = build_fence(env.cylinders, scenario.home, max_route_alt=top, prisms=env.prisms,
+                                min_route_alt=0.0) if opts.fence and (len(env.cylinders) or len(env.prisms)) else []
             _write_mission_files(opts.report, plan_doc, scenario, items, spec, fence)
             client = (MavsdkMissionClient if isinstance(link, MavsdkLink) else MissionClient)(link)  # the link's own
             planned = len(items)  # as in the mission files
@@ -238,10 +242,13 @@ def _link(url: str, opts: FlyOptions) -> Link:
 def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,
                          fence: list) -> None:
     write_waypoints(report / "mission.waypoints", items, spec.home)
-    write_qgc_plan(report / "mission.plan", items, spec, zones_of(scenario, spec.home) if fence else ())
+    polygons = zones_from_prisms(scenario.environment.prisms, spec.home)
+    top = float(np.max(np.asarray(plan_doc["trajectory"]["points"], dtype=float)[:, 2]))
+    write_qgc_plan(report / "mission.plan", items, spec, zones_of(scenario, spec.home) if fence else (),
+                   zones=fence_zones(polygons, spec.home, 0.0, top) if fence else ())
     traj = lonlatalt(np.asarray(plan_doc["trajectory"]["points"], dtype=float), spec.home)
     write_geojson(report / "mission.geojson", lonlatalt(np.asarray(plan_doc["waypoints"]), spec.home),
-                  zones_of(scenario, spec.home), traj, {"scenario": scenario.name})
+                  zones_of(scenario, spec.home), traj, {"scenario": scenario.name}, geo_zones=polygons)
 
 
 def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: Scenario, out: FlightOutcome,

@@ -390,8 +390,8 @@ def export_from_plan_json(plan_doc: Mapping[str, Any], scenario: Scenario, fmt: 
                           densify_spacing_m: float = 50.0, fence: bool = True) -> Path:
     """Write ``fuseplan plan``'s PLAN.json as ``fmt`` (waypoints | plan | geojson) for ``fuseplan export``.
 
-    The ``.plan`` geofence holds the scenario's cylinders (``fence=False`` leaves it empty); cylinders whose
-    top is below the route's highest point are left out, since the route may pass over them.
+    The ``.plan`` geofence holds the scenario's cylinders and prisms (``fence=False`` leaves it empty); zones the
+    route may pass over or under (a top below its highest point, a floor above home) are left out.
     """
     if fmt not in FORMATS:
         raise ValueError(f"unknown export format {fmt!r} (choose from {', '.join(FORMATS)})")
@@ -404,13 +404,17 @@ def export_from_plan_json(plan_doc: Mapping[str, Any], scenario: Scenario, fmt: 
         marks = {"unchecked": f"{UNCHECKED}: {unchecked}"} if (unchecked := plan_doc.get("unchecked")) else {}
         return write_geojson(path, lonlatalt(waypoints, spec.home), zones_of(scenario, spec.home), traj,
                              {"scenario": plan_doc.get("scenario", scenario.name), "status": plan_doc.get("status"),
-                              **marks})
+                              **marks}, geo_zones=zones_from_prisms(scenario.environment.prisms, spec.home))
     items = mission_from_plan_json(plan_doc, scenario, autopilot, **options)
     unchecked = plan_doc.get("unchecked")
     if fmt == "waypoints":
         return write_waypoints(path, items, spec.home, unchecked)
     zones: list[Circle] = []
+    polygons: list[Zone] = []
     if fence:
-        route_top = float(np.max(np.asarray(trajectory, dtype=float)[:, 2] if trajectory else waypoints[:, 2]))
+        heights = np.asarray(trajectory, dtype=float)[:, 2] if trajectory else waypoints[:, 2]
+        route_top = float(np.max(heights))
         zones = [c for c in as_circles(scenario.environment.cylinders, spec.home) if c.top_m >= route_top]
-    return write_qgc_plan(path, items, spec, zones, unchecked=unchecked)
+        # a fence holds at every height: polygons the route (and its climb from home) may pass over or under stay out
+        polygons = fence_zones(zones_from_prisms(scenario.environment.prisms, spec.home), spec.home, 0.0, route_top)
+    return write_qgc_plan(path, items, spec, zones, unchecked=unchecked, zones=polygons)
