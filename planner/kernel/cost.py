@@ -440,9 +440,13 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
             if not pri_keep[k] and _box_beyond(x_lo, x_hi, y_lo, y_hi, pri_cx[k], pri_cy[k], pri_r[k] + reach):
                 continue
             for p in range(n_p):  # beyond a particle's reach the clearance adds an exact zero, as a cylinder's
+                reach_p = (d_safe + dev[s, p]) * (1.0 + 1e-9) + 1e-6
+                if not pri_keep[k] and seg_point_2d_sq(pt[s, 0, p], pt[s, 1, p], pt[s + 1, 0, p], pt[s + 1, 1, p],
+                                                       pri_cx[k], pri_cy[k]) > (pri_r[k] + reach_p) ** 2:
+                    continue  # its disc is beyond reach: not even the polygon's edges are looked at
                 c = seg_prism(pt[s, 0, p], pt[s, 1, p], pt[s, 2, p], pt[s + 1, 0, p], pt[s + 1, 1, p],
                               pt[s + 1, 2, p], pri_vx, pri_vy, pri_start[k], pri_start[k + 1], pri_floor[k],
-                              pri_ceil[k], pri_keep[k], (d_safe + dev[s, p]) * (1.0 + 1e-9) + 1e-6, cross, knots)
+                              pri_ceil[k], pri_keep[k], reach_p, cross, knots)
                 _hazard(c - dev[s, p], p, d_safe, gap_cap, pen_c, per_m, soft_pri, pen, viol)
         for k in range(rad_det.shape[0]):
             cx, cy, cz, det, wt = rad_c[k, 0], rad_c[k, 1], rad_c[k, 2], rad_det[k], rad_w[k]

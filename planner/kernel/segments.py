@@ -151,12 +151,16 @@ def seg_prism(ax, ay, az, bx, by, bz, vx, vy, i0, i1, f, h, keep, limit, cross, 
     a keep-in polygon), as geometry.segment_prism_clearance computes it (docs/method.md §2.7). Edges whose plan
     distance from the segment (bounded below from their midpoints) exceeds ``limit`` or the least so far are
     skipped: a clearance of ``limit`` or more comes back as some value ≥ ``limit`` (inf when nothing is near).
-    ``cross`` (≥ i1 − i0) and ``knots`` (6) are scratch."""
+    A segment wholly between floor and ceiling takes the closed form of two segments' plan distance instead of the
+    pieces (as the reference does). ``cross`` (≥ i1 − i0) and ``knots`` (6) are scratch."""
     dx, dy, dz = bx - ax, by - ay, bz - az
     limit2 = limit * limit
     best = math.inf
     n = 0
     inside = False
+    level = f <= min(az, az + dz) and max(az, az + dz) <= h  # wholly between floor and ceiling: plan view only
+    dd = dx * dx + dy * dy
+    dd = dd if dd > 0.0 else 1.0
     for j in range(i0, i1):
         px0, py0 = vx[j], vy[j]
         nj = j + 1 if j + 1 < i1 else i0
@@ -173,7 +177,8 @@ def seg_prism(ax, ay, az, bx, by, bz, vx, vy, i0, i1, f, h, keep, limit, cross, 
         ob = ex * (ay + dy - py0) - ey * (ax + dx - px0)
         sa = dx * (py0 - ay) - dy * (px0 - ax)
         sb = dx * (qy - ay) - dy * (qx - ax)
-        if ((oa > 0.0) != (ob > 0.0)) and ((sa > 0.0) != (sb > 0.0)):
+        hit = ((oa > 0.0) != (ob > 0.0)) and ((sa > 0.0) != (sb > 0.0))
+        if hit:
             t = oa / (oa - ob)
             m = n  # insertion sort, ascending
             while m > 0 and cross[m - 1] > t:
@@ -181,9 +186,17 @@ def seg_prism(ax, ay, az, bx, by, bz, vx, vy, i0, i1, f, h, keep, limit, cross, 
                 m -= 1
             cross[m] = t
             n += 1
+        if level:  # the closed form of two segments' distance (zero where they cross): cheaper than bounding it
+            if hit:
+                best = 0.0
+            else:
+                best = min(best, min(min(_edge_sq(ax, ay, px0, py0, ex, ey, l2), _edge_sq(ax + dx, ay + dy, px0, py0,
+                                                                                         ex, ey, l2)),
+                                     min(_edge_sq(px0, py0, ax, ay, dx, dy, dd), _edge_sq(qx, qy, ax, ay, dx, dy, dd))))
+            continue
         lb = math.sqrt(seg_point_2d_sq(ax, ay, bx, by, 0.5 * (px0 + qx), 0.5 * (py0 + qy))) - 0.5 * math.sqrt(l2)
         if lb > 0.0 and lb * lb > min(best, limit2) * (1.0 + 1e-9) + 1e-12:
-            continue
+            continue  # the edge is farther than what counts
         best = min(best, _edge_min(ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h, knots))
     # the parts between crossings whose plan view is in the solid's: their least max(w, 0), and where they are
     # between floor and ceiling too (inside the solid), d_prism at their middles
@@ -268,7 +281,7 @@ def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad
 @jit
 def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, golden_iters, gox, goy, gcell,
              gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r, pri_vx, pri_vy, pri_start, pri_floor, pri_ceil, pri_keep,
-             pri_width):  # noqa: ANN001, ANN202
+             pri_cx, pri_cy, pri_r, pri_width):  # noqa: ANN001, ANN202
     """For segments a→b (E, 3): within d_coll of a cylinder, sphere or prism, or inside a radar's range (as
     PlanningProblem.segment_blocked), visiting only the obstacles the broad phase finds within d_coll."""
     n_e = a.shape[0]
@@ -306,7 +319,8 @@ def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, ra
         if not hit:
             for q in range(n_near):
                 k = near[q] - n_cyl - n_sph
-                if k < 0:
+                if k < 0 or (not pri_keep[k] and seg_point_2d_sq(ax, ay, bx, by, pri_cx[k], pri_cy[k])
+                             > (pri_r[k] + reach) ** 2):  # the disc itself is beyond reach
                     continue
                 c = seg_prism(ax, ay, az, bx, by, bz, pri_vx, pri_vy, pri_start[k], pri_start[k + 1], pri_floor[k],
                               pri_ceil[k], pri_keep[k], reach, cross, knots)
@@ -331,5 +345,6 @@ def segment_blocked(inputs: KernelInputs, a: np.ndarray, b: np.ndarray) -> np.nd
     flat_b = np.ascontiguousarray(np.broadcast_to(b, shape), dtype=np.float64).reshape(-1, 3)
     got = _blocked(flat_a, flat_b, k.d_coll, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
                    k.rad_det, k.golden_iters, g.x0, g.y0, g.cell, g.nx, g.ny, g.start, g.items, k.ob_x, k.ob_y,
-                   k.ob_r, k.pri_vx, k.pri_vy, k.pri_start, k.pri_floor, k.pri_ceil, k.pri_keep, k.pri_width)
+                   k.ob_r, k.pri_vx, k.pri_vy, k.pri_start, k.pri_floor, k.pri_ceil, k.pri_keep,
+                   k.pri_cx, k.pri_cy, k.pri_r, k.pri_width)
     return got.reshape(shape[:-1])

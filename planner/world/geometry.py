@@ -212,13 +212,21 @@ def segment_prism_clearance(a: np.ndarray, b: np.ndarray, prisms: Prisms) -> np.
     qb = -3.0 * gl + 4.0 * gm - gh
     up = qa > 0.0
     vertex = lo + np.clip(-qb / (2.0 * np.where(up, qa, 1.0)), 0.0, 1.0) * (hi - lo)
-    best = np.minimum(gk.min(axis=0), np.where(up, g(vertex), np.inf).min(axis=0)).min(axis=1)  # (K, M)
+    piecewise = np.minimum(gk.min(axis=0), np.where(up, g(vertex), np.inf).min(axis=0))  # (K, V, M)
     # the parts of the segment between its crossings with the edges; inside the solid's plan view or not
     oa = ex * (ay - Ay) - ey * (ax - Ax)
     ob = ex * (ay + dy - Ay) - ey * (ax + dx - Ax)
     sa = dx * (Ay - ay) - dy * (Ax - ax)
     sb = dx * (By - ay) - dy * (Bx - ax)
     hit = ((oa > 0.0) != (ob > 0.0)) & ((sa > 0.0) != (sb > 0.0))
+    # where the whole segment is between floor and ceiling, g_e is the plan-view distance to e squared: the least
+    # is the closed form of two segments (zero where they cross, else an end's distance to the other segment)
+    dd = dx * dx + dy * dy
+    dd = np.where(dd > 0.0, dd, 1.0)
+    ends = np.minimum(np.minimum(_edge_sq(ax, ay, Ax, Ay, ex, ey, l2), _edge_sq(ax + dx, ay + dy, Ax, Ay, ex, ey, l2)),
+                      np.minimum(_edge_sq(Ax, Ay, ax, ay, dx, dy, dd), _edge_sq(Bx, By, ax, ay, dx, dy, dd)))
+    level = ((f <= np.minimum(az, az + dz)) & (np.maximum(az, az + dz) <= h))[:, None]  # (K, 1, M)
+    best = np.where(level, np.where(hit, 0.0, ends), piecewise).min(axis=1)  # (K, M)
     tc = np.sort(np.where(hit, oa / np.where(hit, oa - ob, 1.0), np.inf), axis=1)  # (K, V, M)
     n = np.count_nonzero(hit, axis=1)  # (K, M)
     v_n = tc.shape[1]
@@ -233,9 +241,9 @@ def segment_prism_clearance(a: np.ndarray, b: np.ndarray, prisms: Prisms) -> np.
     best = np.minimum(best, np.where(solid, wmin * wmin, np.inf).min(axis=0))
     # the parts inside the solid: in its plan view and between floor and ceiling
     flat = dz == 0.0
-    level = (f <= az) & (az <= h)
-    tw0 = np.where(flat, np.where(level, 0.0, 1.0), np.maximum(np.minimum(tf, th), 0.0))
-    tw1 = np.where(flat, np.where(level, 1.0, 0.0), np.minimum(np.maximum(tf, th), 1.0))
+    at = (f <= az) & (az <= h)
+    tw0 = np.where(flat, np.where(at, 0.0, 1.0), np.maximum(np.minimum(tf, th), 0.0))
+    tw1 = np.where(flat, np.where(at, 1.0, 0.0), np.minimum(np.maximum(tf, th), 1.0))
     s_lo, s_hi = np.maximum(lo, tw0), np.minimum(hi, tw1)
     ii, kk, mm = np.nonzero(solid & (s_hi > s_lo))
     out = np.sqrt(best)
