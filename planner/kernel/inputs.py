@@ -23,6 +23,7 @@ GRID_MIN_OBSTACLES = 16  # fewer obstacles: one cell (visiting a few obstacles c
 GRID_CELLS = 64  # broad-phase grid: at most this many cells along the map's longer side
 SLOPE_BLOCK = 4  # terrain cells per side of a block of the local slope bounds (Terrain.slope_blocks)
 KERNELS = ("compiled", "numpy")
+PRISM_COLUMNS = ("floor", "ceiling", "keep_in", "cx", "cy", "r")  # KernelInputs.pri_rows: keep_in is 1.0 or 0.0
 KEEP_IN_REACH = 1e300  # m: the broad-phase radius of a keep-in polygon (no-fly outside it: near every segment)
 
 
@@ -167,18 +168,11 @@ class KernelInputs:
     rad_c: np.ndarray  # (K, 3)
     rad_det: np.ndarray
     rad_w: np.ndarray
-    # polygon prisms (environment.Prisms): packed counter-clockwise vertices, a start index each, floor, ceiling,
-    # keep-in flag and broad-phase disc; the most vertices of one (the scratch the kernel sorts crossings in)
-    pri_vx: np.ndarray  # (V,)
-    pri_vy: np.ndarray
+    # polygon prisms (environment.Prisms), in three arrays (each argument costs the compiled call its unboxing):
+    # packed counter-clockwise vertices, a start index each, and a row each of PRISM_COLUMNS
+    pri_v: np.ndarray  # (V, 2)
     pri_start: np.ndarray  # (K + 1,) int64
-    pri_floor: np.ndarray
-    pri_ceil: np.ndarray
-    pri_keep: np.ndarray  # (K,) bool
-    pri_cx: np.ndarray
-    pri_cy: np.ndarray
-    pri_r: np.ndarray
-    pri_width: int
+    pri_rows: np.ndarray  # (K, 6)
     # the broad phase: cylinders, spheres, then prisms in plan view (a keep-in polygon's disc reaches everywhere),
     # and their grids (FUSEPLAN_BROAD_PHASE on, off)
     ob_x: np.ndarray
@@ -228,10 +222,8 @@ class KernelInputs:
             cyl_x=_f64(cyl.x), cyl_y=_f64(cyl.y), cyl_r=_f64(cyl.radius), cyl_top=_f64(cyl.top),
             sph_c=_f64(sph.center, (-1, 3)), sph_r=_f64(sph.radius),
             rad_c=_f64(rad.center, (-1, 3)), rad_det=_f64(rad.r_det), rad_w=_f64(rad.soft_weight),
-            pri_vx=_f64(pri.vertices[:, 0]), pri_vy=_f64(pri.vertices[:, 1]),
-            pri_start=np.array(pri.start, dtype=np.int64), pri_floor=_f64(pri.floor), pri_ceil=_f64(pri.ceiling),
-            pri_keep=np.array(pri.keep_in, dtype=np.bool_), pri_cx=_f64(pri.cx), pri_cy=_f64(pri.cy),
-            pri_r=_f64(pri.r), pri_width=int(np.diff(pri.start).max(initial=1)),
+            pri_v=_f64(pri.vertices, (-1, 2)), pri_start=np.array(pri.start, dtype=np.int64),
+            pri_rows=_f64(np.column_stack([pri.floor, pri.ceiling, pri.keep_in, pri.cx, pri.cy, pri.r]), (-1, 6)),
             ob_x=ob_x, ob_y=ob_y, ob_r=ob_r,
             grid=ObstacleGrid.over(env.size_x, env.size_y, ob_x, ob_y, ob_r, True),
             one_cell=ObstacleGrid.over(env.size_x, env.size_y, ob_x, ob_y, ob_r, False),

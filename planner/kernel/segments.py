@@ -146,8 +146,8 @@ def _edge_min(ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h, knots):  # noq
 
 
 @called
-def seg_prism(ax, ay, az, bx, by, bz, vx, vy, i0, i1, f, h, keep, limit, cross, knots):  # noqa: ANN001, ANN202
-    """Signed clearance of segment a→b from the prism over polygon vertices vx, vy[i0:i1] between f and h (keep:
+def seg_prism(ax, ay, az, bx, by, bz, v, i0, i1, f, h, keep, limit, cross, knots):  # noqa: ANN001, ANN202
+    """Signed clearance of segment a→b from the prism over polygon vertices v[i0:i1] (V, 2) between f and h (keep:
     a keep-in polygon), as geometry.segment_prism_clearance computes it (docs/method.md §2.7). Edges whose plan
     distance from the segment (bounded below from their midpoints) exceeds ``limit`` or the least so far are
     skipped: a clearance of ``limit`` or more comes back as some value ≥ ``limit`` (inf when nothing is near).
@@ -162,9 +162,9 @@ def seg_prism(ax, ay, az, bx, by, bz, vx, vy, i0, i1, f, h, keep, limit, cross, 
     dd = dx * dx + dy * dy
     dd = dd if dd > 0.0 else 1.0
     for j in range(i0, i1):
-        px0, py0 = vx[j], vy[j]
+        px0, py0 = v[j, 0], v[j, 1]
         nj = j + 1 if j + 1 < i1 else i0
-        qx, qy = vx[nj], vy[nj]
+        qx, qy = v[nj, 0], v[nj, 1]
         ex, ey = qx - px0, qy - py0
         l2 = ex * ex + ey * ey
         l2 = l2 if l2 > 0.0 else 1.0
@@ -222,11 +222,20 @@ def seg_prism(ax, ay, az, bx, by, bz, vx, vy, i0, i1, f, h, keep, limit, cross, 
             bd = math.inf
             for j in range(i0, i1):
                 nj = j + 1 if j + 1 < i1 else i0
-                ex, ey = vx[nj] - vx[j], vy[nj] - vy[j]
+                ex, ey = v[nj, 0] - v[j, 0], v[nj, 1] - v[j, 1]
                 l2 = ex * ex + ey * ey
-                bd = min(bd, _edge_sq(px, py, vx[j], vy[j], ex, ey, l2 if l2 > 0.0 else 1.0))
+                bd = min(bd, _edge_sq(px, py, v[j, 0], v[j, 1], ex, ey, l2 if l2 > 0.0 else 1.0))
             neg = min(neg, max(-math.sqrt(bd), max(f - pz, pz - h)))
     return neg if neg < math.inf else math.sqrt(best)
+
+
+@inline
+def prism_width(start):  # noqa: ANN001, ANN202
+    """The most vertices of one polygon, from the prisms' start indices (the crossings' scratch length)."""
+    w = 0
+    for k in range(start.shape[0] - 1):
+        w = max(w, start[k + 1] - start[k])
+    return w
 
 
 @inline
@@ -280,15 +289,14 @@ def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad
 
 @jit
 def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, golden_iters, gox, goy, gcell,
-             gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r, pri_vx, pri_vy, pri_start, pri_floor, pri_ceil, pri_keep,
-             pri_cx, pri_cy, pri_r, pri_width):  # noqa: ANN001, ANN202
+             gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r, pri_v, pri_start, pri_rows):  # noqa: ANN001, ANN202
     """For segments a→b (E, 3): within d_coll of a cylinder, sphere or prism, or inside a radar's range (as
     PlanningProblem.segment_blocked), visiting only the obstacles the broad phase finds within d_coll."""
     n_e = a.shape[0]
     out = np.zeros(n_e, dtype=np.bool_)
     n_cyl = cyl_x.shape[0]
     n_sph = sph_r.shape[0]
-    cross = np.empty(max(pri_width, 1))
+    cross = np.empty(max(prism_width(pri_start), 1))
     knots = np.empty(6)
     near = np.empty(ob_x.shape[0], dtype=np.int64)
     stamp = np.full(ob_x.shape[0], -1, dtype=np.int64)
@@ -319,11 +327,14 @@ def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, ra
         if not hit:
             for q in range(n_near):
                 k = near[q] - n_cyl - n_sph
-                if k < 0 or (not pri_keep[k] and seg_point_2d_sq(ax, ay, bx, by, pri_cx[k], pri_cy[k])
-                             > (pri_r[k] + reach) ** 2):  # the disc itself is beyond reach
+                if k < 0:
                     continue
-                c = seg_prism(ax, ay, az, bx, by, bz, pri_vx, pri_vy, pri_start[k], pri_start[k + 1], pri_floor[k],
-                              pri_ceil[k], pri_keep[k], reach, cross, knots)
+                f, h, keep, cx, cy, r = pri_rows[k, 0], pri_rows[k, 1], pri_rows[k, 2] > 0.0, pri_rows[k, 3], \
+                    pri_rows[k, 4], pri_rows[k, 5]
+                if not keep and seg_point_2d_sq(ax, ay, bx, by, cx, cy) > (r + reach) ** 2:
+                    continue  # the disc itself is beyond reach
+                c = seg_prism(ax, ay, az, bx, by, bz, pri_v, pri_start[k], pri_start[k + 1], f, h, keep, reach, cross,
+                              knots)
                 if c < d_coll:
                     hit = True
                     break
@@ -345,6 +356,5 @@ def segment_blocked(inputs: KernelInputs, a: np.ndarray, b: np.ndarray) -> np.nd
     flat_b = np.ascontiguousarray(np.broadcast_to(b, shape), dtype=np.float64).reshape(-1, 3)
     got = _blocked(flat_a, flat_b, k.d_coll, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
                    k.rad_det, k.golden_iters, g.x0, g.y0, g.cell, g.nx, g.ny, g.start, g.items, k.ob_x, k.ob_y,
-                   k.ob_r, k.pri_vx, k.pri_vy, k.pri_start, k.pri_floor, k.pri_ceil, k.pri_keep,
-                   k.pri_cx, k.pri_cy, k.pri_r, k.pri_width)
+                   k.ob_r, k.pri_v, k.pri_start, k.pri_rows)
     return got.reshape(shape[:-1])

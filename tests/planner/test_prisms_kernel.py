@@ -148,6 +148,6 @@ def test_a_map_without_prisms_is_scored_as_before() -> None:
     env = prism_world()
     bare = replace(env, prisms=Prisms.empty())
     problem = problem_on(bare)
-    assert problem.kernel_inputs.pri_floor.shape == (0,) and len(problem.kernel_inputs.ob_x) == 2
+    assert problem.kernel_inputs.pri_rows.shape == (0, 6) and len(problem.kernel_inputs.ob_x) == 2
     paths = swarm(problem, np.random.default_rng(4))
     assert_same(problem, paths)
