@@ -30,6 +30,7 @@ from planner.world.geometry import (
     segment_cylinder_clearance,
     segment_point_distance,
     segment_point_distance_2d,
+    segment_prism_clearance,
     segment_sphere_clearance,
 )
 
@@ -254,9 +255,16 @@ class PlanningProblem:
             radar_d = segment_point_distance(a[None], b[None], env.radars.center[lead + (slice(None),)])
         return cyl_c, sph_c, radar_d
 
+    def prism_clearances(self, a: np.ndarray, b: np.ndarray) -> np.ndarray | None:
+        """Exact signed clearances (K_p, ...) of segments a→b (..., 3) from the polygon prisms (docs/method.md §2.7),
+        prism axis first; None without prisms."""
+        if not len(self.env.prisms):
+            return None
+        return segment_prism_clearance(a, b, self.env.prisms)
+
     def segment_blocked(self, a: np.ndarray, b: np.ndarray) -> np.ndarray:
-        """True where segment a→b (..., 3) passes within d_coll of a static obstacle or inside a radar's
-        detection range (used to steer ant colonies away from hopeless edges)."""
+        """True where segment a→b (..., 3) passes within d_coll of a static obstacle (prisms included) or inside a
+        radar's detection range (used to steer ant colonies away from hopeless edges)."""
         if kernel.chosen() == "compiled":
             return kernel.segment_blocked(self.kernel_inputs, a, b)
         return self.segment_blocked_reference(a, b)
@@ -265,7 +273,7 @@ class PlanningProblem:
         """The numpy implementation of :meth:`segment_blocked`, the reference the kernel is held to."""
         blocked = np.zeros(a.shape[:-1], dtype=bool)
         cyl_c, sph_c, radar_d = self.static_clearances(a, b, refine_below=self.hazard.d_coll)
-        for c in (cyl_c, sph_c):
+        for c in (cyl_c, sph_c, self.prism_clearances(a, b)):
             if c is not None:
                 blocked |= (c < self.hazard.d_coll).any(axis=0)
         if radar_d is not None:
@@ -304,6 +312,9 @@ class PlanningProblem:
             margin = dev + 0.5 * gap * (1.0 + env.threats.max_speed / self.vehicle.cruise_speed)
             dist = dist - np.repeat(margin, len(_THREAT_T), axis=1)
             total += self._soft_and_violation(dist, add, 1)
+        pri_c = self.prism_clearances(a, b)  # last: a map without prisms adds nothing, not even a zero
+        if pri_c is not None:
+            total += self._soft_and_violation(pri_c - dev, add, 1)
         return total
 
     def _timed_samples(self, a, b, seg_len):  # noqa: ANN001, ANN202

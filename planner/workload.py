@@ -93,14 +93,14 @@ def post_reserve_s(problem: PlanningProblem, settings: PlannerSettings) -> float
     obstacles and threats they are checked against."""
     env = problem.env
     samples = ROUTE_STRETCH * problem.direct_distance / settings.sample_spacing
-    checked = len(env.cylinders) + len(env.spheres) + len(env.radars) + len(env.threats) + 1
+    checked = len(env.cylinders) + len(env.spheres) + len(env.radars) + len(env.prisms) + len(env.threats) + 1
     return POST_BASE_S + POST_PAIR_S * samples * checked
 
 
 def obstacles(problem: PlanningProblem) -> int:
-    """Static obstacles and radars every segment or sample is checked against."""
+    """Static obstacles and radars every segment or sample is checked against (a prism counts once)."""
     env = problem.env
-    return len(env.cylinders) + len(env.spheres) + len(env.radars)
+    return len(env.cylinders) + len(env.spheres) + len(env.radars) + len(env.prisms)
 
 
 def _route_points(problem: PlanningProblem, settings: PlannerSettings) -> int:
@@ -139,7 +139,9 @@ def memory_parts(problem: PlanningProblem, settings: PlannerSettings) -> list[tu
                            "raise planner.roadmap.spacing or lower planner.roadmap.max_levels"),
                       MAX_ROADMAP_NODES))
     if kernel.chosen() == "numpy":
-        batch = max(settings.pso.n_pop, settings.aco.n_ants) * (points - 1) * (obstacles(problem) + 1)
+        pri = problem.env.prisms  # a prism holds six breakpoints per (padded) edge
+        batch = max(settings.pso.n_pop, settings.aco.n_ants) * (points - 1) * (obstacles(problem) - len(pri)
+                                                                              + 6 * pri.padded[0].size + 1)
         parts.append((Part(batch, f"the numpy kernel (FUSEPLAN_KERNEL=numpy) holds {_n(batch)} "
                            "particle-segment-obstacle distances at once",
                            "lower planner.pso.n_pop (or use the compiled kernel)"),

@@ -30,7 +30,7 @@ from planner.bench.hardmaps import route_violations
 from planner.errors import FuseplanError
 from planner.problem import PlanningProblem
 from planner.trajectory.checks import obstacle_clearance
-from planner.world.environment import Cylinders, Environment, Radars, Spheres, Threats
+from planner.world.environment import Cylinders, Environment, Prisms, Radars, Spheres, Threats
 
 PLANNERS = ("rrtconnect", "bitstar")
 INSTALL_HINT = "install the peers extra: pip install -e '.[peers]'"
@@ -41,7 +41,7 @@ MAX_CELLS = 250_000  # coarser cells on very large maps, to bound the grid's set
 StateTest = Callable[[float, float, float], bool]
 _NONE = np.zeros(0, dtype=np.intp)
 _Reach = tuple[tuple[float, float, float, float], ...]  # (x, y, z, reach²) per obstacle
-_Square = tuple[_Reach, _Reach, StateTest]  # a grid square: cylinders' discs, spheres' and radars' balls, exact test
+_Square = tuple[_Reach, _Reach, StateTest]  # a grid square: cylinders' and prisms' discs, balls, exact test
 
 
 @dataclass
@@ -102,11 +102,13 @@ def _discs(env: Environment, need_solid: float, need_radar: float) -> dict[str, 
     """Per family, centres (x, y, z) and reach (radius + need): a point farther than the reach from a sphere's
     or a radar's centre, or horizontally from a cylinder's axis, clears that obstacle. Both distances less the
     radius bound the exact clearance from below (for a cylinder with a finite top too); cylinders have no z."""
-    cyl, sph, rad = env.cylinders, env.spheres, env.radars
+    cyl, sph, rad, pri = env.cylinders, env.spheres, env.radars, env.prisms
     return {
         "cylinders": (cyl.x, cyl.y, None, cyl.radius + need_solid),
         "spheres": (sph.center[:, 0], sph.center[:, 1], sph.center[:, 2], sph.radius + need_solid),
         "radars": (rad.center[:, 0], rad.center[:, 1], rad.center[:, 2], rad.r_det + need_radar),
+        # a prism's disc holds its polygon; a keep-in polygon (no-fly outside it) reaches everywhere
+        "prisms": (pri.cx, pri.cy, None, np.where(pri.keep_in, np.inf, pri.r + need_solid)),
     }
 
 
@@ -117,8 +119,9 @@ def _cell_members(x: np.ndarray, y: np.ndarray, reach: np.ndarray, cell: float, 
     nx, ny = shape
     cells, owners = [np.zeros(0, dtype=np.intp)], [np.zeros(0, dtype=np.intp)]
     for k in range(len(x)):
-        i0, i1 = max(int((x[k] - reach[k]) // cell), 0), min(int((x[k] + reach[k]) // cell), nx - 1)
-        j0, j1 = max(int((y[k] - reach[k]) // cell), 0), min(int((y[k] + reach[k]) // cell), ny - 1)
+        r = min(float(reach[k]), 4.0 * cell * (nx + ny))  # an unlimited reach covers every cell
+        i0, i1 = max(int((x[k] - r) // cell), 0), min(int((x[k] + r) // cell), nx - 1)
+        j0, j1 = max(int((y[k] - r) // cell), 0), min(int((y[k] + r) // cell), ny - 1)
         if i1 < i0 or j1 < j0:
             continue
         ii, jj = np.meshgrid(np.arange(i0, i1 + 1), np.arange(j0, j1 + 1), indexing="ij")
@@ -145,19 +148,23 @@ def _reach(disc: tuple[np.ndarray | None, ...], idx: np.ndarray) -> _Reach:
     return tuple(zip(x[idx].tolist(), y[idx].tolist(), zs.tolist(), (reach[idx] ** 2).tolist()))
 
 
-def _sub_environment(env: Environment, cyl: np.ndarray, sph: np.ndarray, rad: np.ndarray) -> Environment:
-    """``env`` with only the listed cylinders, spheres and radars (and no threats)."""
-    c, s, r = env.cylinders, env.spheres, env.radars
+def _sub_environment(env: Environment, cyl: np.ndarray, sph: np.ndarray, rad: np.ndarray,
+                     pri: np.ndarray) -> Environment:
+    """``env`` with only the listed cylinders, spheres, radars and prisms (and no threats)."""
+    c, s, r, p = env.cylinders, env.spheres, env.radars, env.prisms
     return replace(env, cylinders=Cylinders(c.x[cyl], c.y[cyl], c.radius[cyl], c.top[cyl], c.z_ref[cyl]),
                    spheres=Spheres(s.center[sph], s.radius[sph]),
-                   radars=Radars(r.center[rad], r.r_det[rad], r.soft_weight[rad]), threats=Threats())
+                   radars=Radars(r.center[rad], r.r_det[rad], r.soft_weight[rad]),
+                   prisms=Prisms.from_polygons([p.polygon(k) for k in pri], p.floor[pri], p.ceiling[pri],
+                                               p.keep_in[pri]), threats=Threats())
 
 
 def _exact_test(env: Environment, need_solid: float, need_radar: float) -> StateTest:
     """Clearance test of one point on ``env`` (a cell's few obstacles) with the checker's own
     :func:`obstacle_clearance`: solids need ``need_solid``, radars ``need_radar`` beyond detection range."""
-    solid = replace(env, radars=Radars.empty()) if len(env.cylinders) + len(env.spheres) else None
-    radar = replace(env, cylinders=Cylinders.empty(), spheres=Spheres.empty()) if len(env.radars) else None
+    solid = replace(env, radars=Radars.empty()) if len(env.cylinders) + len(env.spheres) + len(env.prisms) else None
+    radar = (replace(env, cylinders=Cylinders.empty(), spheres=Spheres.empty(), prisms=Prisms.empty())
+             if len(env.radars) else None)
 
     def test(x: float, y: float, z: float) -> bool:  # a Python bool: OMPL's callback cannot take numpy's
         p = np.array(((x, y, z),))
@@ -185,13 +192,13 @@ def state_validity(problem: PlanningProblem, cell: float = CELL_M) -> StateTest:
     near: dict[int, list[np.ndarray]] = {}
     for f, (x, y, _, reach) in enumerate(discs.values()):
         for i, idx in _group(*_cell_members(x, y, reach, cell, (nx, ny))):
-            near.setdefault(i, [_NONE] * 3)[f] = idx
+            near.setdefault(i, [_NONE] * 4)[f] = idx
     table: list[_Square | None] = [None] * (nx * ny)
     cache: dict[tuple[bytes, ...], _Square] = {}
     for i, members in near.items():  # squares sharing their obstacles share one entry
         key = tuple(m.tobytes() for m in members)
         if key not in cache:
-            cache[key] = (_reach(discs["cylinders"], members[0]),
+            cache[key] = (_reach(discs["cylinders"], members[0]) + _reach(discs["prisms"], members[3]),
                           _reach(discs["spheres"], members[1]) + _reach(discs["radars"], members[2]),
                           _exact_test(_sub_environment(env, *members), need_solid, need_radar))
         table[i] = cache[key]

@@ -46,12 +46,13 @@ from planner.errors import FuseplanError
 from planner.replan import BUDGET_S as REPLAN_BUDGET_S
 from planner.replan import POPULATION as REPLAN_POP
 from planner.replan import THREAT_MARGIN_M, replan_problem, scripted_picture
+from planner.world.environment import Cylinders, Environment, Prisms
 
 log = logging.getLogger(__name__)
 
 KERNEL_ENV = kernel.ENV_VAR  # FUSEPLAN_KERNEL: compiled | numpy
 BROAD_ENV = kernel.BROAD_ENV_VAR  # FUSEPLAN_BROAD_PHASE: on | off (default on), the compiled kernel's broad phase
-PARTS = ("headline", "reference", "scaling", "latency")
+PARTS = ("headline", "reference", "scaling", "latency", "polygons")
 TABLE6 = (PAPER_MODE, 'planner.algorithm="spso"', "planner.pso.stagnation_iters=100000")  # n_pop/max_iter: defaults
 
 
@@ -75,6 +76,25 @@ SCALING_SCENARIO = "large_obstacle_field.toml"
 SCALING_SET = {"n_pop": "planner.pso.n_pop", "max_iter": "planner.pso.max_iter",
                "n_waypoints": "planner.pso.n_waypoints", "obstacles": "random_obstacles.count"}
 LATENCY_SCENARIOS = ("rescue_dynamic.toml", "crossing_traffic.toml")
+# the polygons part: a field of cylinders and one of polygon prisms on the same centres and radii, unlimited or
+# roofed (tops / ceilings in the band), each scored by the compiled cost on one swarm many times
+FIELD_KEYS = ("cylinders/unlimited", "prisms/unlimited", "cylinders/roofed", "prisms/roofed")
+
+
+@dataclass(frozen=True)
+class FieldSettings:
+    """The polygons part's map and swarm: ``count`` obstacles of radius ``radius`` on a ``size`` m square map (the
+    band 50–300 m, roofs 150–250 m), ``paths`` paths of ``waypoints`` interior points scored ``repeats`` times."""
+
+    size: float = 3000.0
+    count: int = 100
+    radius: tuple[float, float] = (40.0, 120.0)
+    vertices: tuple[int, int] = (5, 10)
+    paths: int = 100
+    waypoints: int = 16
+    repeats: int = 200
+    d_safe: float = 60.0
+    d_coll: float = 15.0
 
 
 @dataclass(frozen=True)
@@ -98,6 +118,7 @@ class SpeedSettings:
     scaling_arms: tuple[tuple[str, str], ...] = (("compiled", "on"), ("compiled", "off"), ("numpy", "on"))
     budget_s: float = REPLAN_BUDGET_S  # the companion's live replan budget (ReplanConfig.budget_s)
     hog: int = 1  # busy processes beside the measured plan in the loaded half of the latency part
+    polygon_field: FieldSettings = FieldSettings()
 
     def command(self) -> str:
         """The command line that reproduces this run."""
@@ -114,7 +135,8 @@ QUICK = SpeedSettings(
     runs=2, scaling_runs=1, latency_seeds=3, quick=True,
     budget_overrides=("planner.pso.n_pop=60", "planner.pso.max_iter=20", "planner.aco.max_iter=5"),
     scaling_base={"n_pop": 40, "max_iter": 10, "n_waypoints": 8, "obstacles": 50},
-    scaling_levels={"n_pop": (20, 40), "max_iter": (5, 10), "n_waypoints": (4, 8), "obstacles": (25, 50)})
+    scaling_levels={"n_pop": (20, 40), "max_iter": (5, 10), "n_waypoints": (4, 8), "obstacles": (25, 50)},
+    polygon_field=FieldSettings(repeats=20))
 
 
 @dataclass(frozen=True)
@@ -131,6 +153,7 @@ class Job:
     broad_phase: str  # on | off
     load: int = 0  # busy processes beside it
     budget_s: float | None = None
+    polygon_field: FieldSettings | None = None  # the polygons part's map and swarm
 
     @property
     def id(self) -> str:
@@ -168,6 +191,10 @@ def jobs(s: SpeedSettings) -> list[tuple[str, int, list[Job]]]:
                 s.seed_base + r, r, k, bp)
             for r in range(s.scaling_runs) for f, levels in s.scaling_levels.items() for x in levels
             for k, bp in s.scaling_arms]))
+    if "polygons" in s.parts:
+        out.append(("polygons", 0, [
+            Job("polygons", key, "", (), s.seed_base, r, "compiled", "on", polygon_field=s.polygon_field)
+            for r in range(s.runs) for key in FIELD_KEYS]))
     if "latency" in s.parts:
         sets = (ROADMAP_MODE, f"planner.pso.n_pop={REPLAN_POP}", *s.user_overrides)
         for load in (0, s.hog):
@@ -220,6 +247,8 @@ def run_job(job: Job) -> dict[str, Any]:
     from planner.world.scenario import load_scenario
 
     _set_environment(job)
+    if job.part == "polygons":
+        return json_safe(_run_field(job, job.polygon_field or FieldSettings()))
     sc = load_scenario(job.scenario, job.overrides)
     env = sc.environment
     common = {
@@ -251,6 +280,57 @@ def run_job(job: Job) -> dict[str, Any]:
         "evaluations": res.optimiser.evaluations, "stop_reason": res.optimiser.stop_reason,
         "budget_s": job.budget_s, "overrun_s": None if job.budget_s is None else res.plan_time_s - job.budget_s,
     })
+
+
+def obstacle_field(kind: str, roofed: bool, seed: int, f: FieldSettings) -> Environment:
+    """``f.count`` cylinders, or polygon prisms on the same centres, radii and tops: each polygon's vertices at
+    0.6–1 × the radius from the centre, at jittered even angles (star-shaped, mostly concave), its disc the
+    cylinder's or smaller. Roofed: tops / ceilings 150–250 m above home; else unlimited."""
+    rng = np.random.default_rng(seed)
+    c = rng.uniform(200.0, f.size - 200.0, (f.count, 2))
+    r = rng.uniform(*f.radius, f.count)
+    top = rng.uniform(150.0, 250.0, f.count) if roofed else np.full(f.count, np.inf)
+    if kind == "cylinders":
+        return Environment(f.size, f.size, 50.0, 300.0, cylinders=Cylinders(c[:, 0], c[:, 1], r, top,
+                                                                            np.zeros(f.count)))
+    polygons = []
+    for k in range(f.count):  # set-up, once per field
+        n = int(rng.integers(f.vertices[0], f.vertices[1] + 1))
+        ang = (np.arange(n) + rng.uniform(-0.3, 0.3, n)) * 2.0 * np.pi / n
+        rad = r[k] * rng.uniform(0.6, 1.0, n)
+        polygons.append(c[k] + rad[:, None] * np.column_stack([np.cos(ang), np.sin(ang)]))
+    return Environment(f.size, f.size, 50.0, 300.0,
+                       prisms=Prisms.from_polygons(polygons, np.full(f.count, -np.inf), top))
+
+
+def _run_field(job: Job, f: FieldSettings) -> dict[str, Any]:
+    """Score one swarm ``f.repeats`` times on the job's field with the compiled cost: microseconds per path."""
+    import time
+
+    from planner.problem import PlanningProblem
+    from planner.world.config import HazardConfig, VehicleLimits
+
+    kind, tops = job.key.split("/")
+    env = obstacle_field(kind, tops == "roofed", job.seed, f)
+    start, goal = np.array([100.0, 100.0, 150.0]), np.array([f.size - 100.0, f.size - 100.0, 150.0])
+    problem = PlanningProblem(env, start, goal, VehicleLimits(), HazardConfig(d_safe=f.d_safe, d_coll=f.d_coll))
+    rng = np.random.default_rng(job.seed + 1)  # the same swarm on every field
+    line = np.linspace(start, goal, f.waypoints + 2)
+    paths = line[None] + rng.normal(0.0, 0.05 * problem.direct_distance, (f.paths, f.waypoints + 2, 3)) \
+        * np.array([1.0, 1.0, 0.3])
+    paths[:, 0], paths[:, -1] = start, goal
+    ev = problem.evaluate(paths)  # compiles or loads the kernel: not what is measured
+    t0 = time.perf_counter()
+    for _ in range(f.repeats):  # the timed loop: one swarm, scored again and again
+        problem.evaluate(paths)
+    elapsed = time.perf_counter() - t0
+    return {"id": job.id, "part": job.part, "key": job.key, "repeat": job.repeat, "seed": job.seed, "load": 0,
+            "fingerprint": job.fingerprint, "scenario": "", "broad_phase": os.environ[BROAD_ENV],
+            "source": source_hash(), "loadavg_1m": os.getloadavg()[0] if hasattr(os, "getloadavg") else None,
+            "kernel": kernel.chosen(), "obstacles": f.count, "paths": f.paths, "waypoints": f.waypoints,
+            "evaluations": f.repeats * f.paths, "time_s": elapsed, "us_per_path": 1e6 * elapsed / (f.repeats * f.paths),
+            "collisions": int(ev.violations["collision"].sum()), "hazard": float(ev.terms["J2"].sum()),
+            "cost": float(ev.total.sum())}
 
 
 def _run_reference(sc: Any, seed: int) -> dict[str, Any]:
@@ -414,6 +494,39 @@ def latency_rows(records: Sequence[dict[str, Any]], s: SpeedSettings) -> list[di
     return out
 
 
+def polygon_rows(records: Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    """Per field (unlimited, roofed): median microseconds per path of the cylinders and of the prisms, and their
+    ratio (prisms ÷ cylinders)."""
+    out = []
+    for tops in ("unlimited", "roofed"):
+        cyl = _pick(records, part="polygons", key=f"cylinders/{tops}")
+        pri = _pick(records, part="polygons", key=f"prisms/{tops}")
+        if cyl and pri:
+            c, p = (float(np.median(_times(r, "us_per_path"))) for r in (cyl, pri))
+            out.append({"part": "polygons", "key": tops, "runs": len(cyl), "obstacles": cyl[0]["obstacles"],
+                        "paths": cyl[0]["paths"], "waypoints": cyl[0]["waypoints"],
+                        "evaluations": cyl[0]["evaluations"], "cylinders_us": c, "prisms_us": p, "ratio": p / c,
+                        "cylinder_collisions": cyl[0]["collisions"], "prism_collisions": pri[0]["collisions"]})
+    return out
+
+
+def _polygons_md(rows: Sequence[dict[str, Any]], s: SpeedSettings) -> list[str]:
+    f = s.polygon_field
+    lines = ["## Polygon prisms against cylinders", "",
+             f"The compiled cost of one swarm ({f.paths} paths of {f.waypoints} interior waypoints, the straight line "
+             f"bent by noise) scored {f.repeats} times on a {f.size:g} m field of {f.count} obstacles: cylinders of "
+             f"radius {f.radius[0]:g}–{f.radius[1]:g} m, or polygon prisms on the same centres with "
+             f"{f.vertices[0]}–{f.vertices[1]} vertices at 0.6–1 × that radius (star-shaped, mostly concave); "
+             "unlimited, or roofed at 150–250 m (tops, ceilings). Median of "
+             f"{s.runs} runs, microseconds per path evaluation; ratio = prisms ÷ cylinders.", "",
+             "| field | cylinders (µs/path) | prisms (µs/path) | ratio | collisions in the swarm (cyl / prism) |",
+             "|---|---|---|---|---|"]
+    for r in rows:
+        lines.append(f"| {r['key']} | {r['cylinders_us']:.2f} | {r['prisms_us']:.2f} | {r['ratio']:.2f}× "
+                     f"| {r['cylinder_collisions']} / {r['prism_collisions']} |")
+    return [*lines, ""]
+
+
 def reproducible(records: Sequence[dict[str, Any]]) -> dict[str, Any]:
     """Same seed and settings → the same cost. ``same_kernel``: bit for bit across repeats and broad-phase settings
     of one kernel (headline, scaling, reference); ``across_kernels``: the largest relative difference of one seed's
@@ -436,7 +549,7 @@ def report(out_dir: Path, records: list[dict[str, Any]], s: SpeedSettings) -> li
     head, scal, lat = headline_rows(records), scaling_rows(records, s), latency_rows(records, s)
     paths = [out_dir / "speed.md", out_dir / "speed.csv", out_dir / "speed_runs.csv", out_dir / "speed.png"]
     paths[0].write_text(markdown(records, s))
-    write_csv(paths[1], csv_rows(head, scal, lat), CSV_COLUMNS)
+    write_csv(paths[1], csv_rows(head, scal, lat, polygon_rows(records)), CSV_COLUMNS)
     run_fields: list[str] = []
     for r in records:
         run_fields += [k for k in r if k not in run_fields]
@@ -451,9 +564,10 @@ CSV_COLUMNS = ("part", "key", "label", "kernel", "broad_phase", "load", "runs", 
 
 
 def csv_rows(head: Sequence[dict[str, Any]], scal: Sequence[dict[str, Any]], lat: Sequence[dict[str, Any]],
-             ) -> list[dict[str, Any]]:
+             poly: Sequence[dict[str, Any]] = ()) -> list[dict[str, Any]]:
     """One row per (part, row, kernel / arm, load): the headline's ``ratio`` is numpy ÷ compiled (on both of its
-    rows), the reference's its time ÷ the compiled SPSO row's."""
+    rows), the reference's its time ÷ the compiled SPSO row's, a polygon field's prisms ÷ cylinders (its time: the
+    prisms' per path)."""
     out: list[dict[str, Any]] = []
     spso = next((r for r in head if r["key"] == REFERENCE_ROW.key), None)
     for r in head:
@@ -466,6 +580,9 @@ def csv_rows(head: Sequence[dict[str, Any]], scal: Sequence[dict[str, Any]], lat
     out += [{**r, "label": f"{r['factor']} {r['level']}, {r['arm']}", "load": 0} for r in scal]
     out += [{**r, "label": f"{r['key']}, {'cpu_hog(' + str(r['load']) + ')' if r['load'] else 'idle'}",
              "kernel": "compiled", "broad_phase": "on"} for r in lat]
+    out += [{"part": "polygons", "key": r["key"], "label": f"{r['key']} field, prisms ÷ cylinders",
+             "kernel": "compiled", "broad_phase": "on", "load": 0, "runs": r["runs"], "evaluations": r["evaluations"],
+             "time_median_s": 1e-6 * r["prisms_us"], "ratio": r["ratio"]} for r in poly]
     return out
 
 
@@ -512,6 +629,9 @@ def markdown(records: Sequence[dict[str, Any]], s: SpeedSettings) -> str:
         lines += _scaling_md(scal, s)
     if lat:
         lines += _latency_md(lat, s)
+    poly = polygon_rows(records)
+    if poly:
+        lines += _polygons_md(poly, s)
     rep = reproducible(records)
     lines += ["## Reproducibility", "",
               "Only the times vary between runs. Same seed, settings and kernel → the same cost, bit for bit, across "
@@ -690,7 +810,7 @@ def check(s: SpeedSettings) -> None:
     seen = set()
     for _, _, js in jobs(s):
         for j in js:
-            if (j.scenario, j.overrides, j.budget_s) not in seen:
+            if j.part != "polygons" and (j.scenario, j.overrides, j.budget_s) not in seen:
                 seen.add((j.scenario, j.overrides, j.budget_s))
                 sc = load_scenario(j.scenario, j.overrides)
                 check_workload(problem_from_scenario(sc), sc.planner, budgeted=j.budget_s is not None,

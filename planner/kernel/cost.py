@@ -15,7 +15,7 @@ import numpy as np
 from planner.kernel.fastmath import bezier, cubic_range, fast_atan2, peak_factor
 from planner.kernel.inputs import SLOPE_BLOCK, KernelInputs, broad_phase
 from planner.kernel.jit import called, inline, jit
-from planner.kernel.segments import seg_cyl_finite, seg_point_2d_sq, seg_point_sq
+from planner.kernel.segments import prism_width, seg_cyl_finite, seg_point_2d_sq, seg_point_sq, seg_prism
 from planner.world.environment import LOITER, PATROL
 
 _EPS = 1e-9  # as planner.problem: unit directions
@@ -303,8 +303,8 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
           w_length, w_hazard, w_altitude, w_smoothness, w_destination, z_min, z_max, size_x, size_y, direct,
           has_heading, heading, timed, start_time, max_speed, thr, has_terrain, tx0, ty0, tdx, tdy, slopes, max_slope,
           sag, terrain_h,
-          cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w, peak_table, threat_t, terrain_t,
-          golden_iters, broad):  # noqa: ANN001, ANN202
+          cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w, pri_v, pri_start, pri_rows, peak_table,
+          threat_t, terrain_t, golden_iters, broad):  # noqa: ANN001, ANN202
     """terms (P, 5), penalty (P,), violations (P, 5) and the weighted total (P,) for paths (P, N, 3), from the
     fields of :class:`KernelInputs` (see :func:`evaluate`); ``thr`` holds the threats' laws, a row each.
 
@@ -334,11 +334,15 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
     soft_sph = np.zeros(n_p)
     soft_rad = np.zeros(n_p)
     soft_thr = np.zeros(n_p)
+    soft_pri = np.zeros(n_p)
     cum = np.zeros(n_p)
     pen = np.zeros(n_p)
     viol = np.zeros((5, n_p), dtype=np.int64)  # collision, altitude, bounds, turn, climb
     n_cyl = cyl_x.shape[0]
     n_sph = sph_r.shape[0]
+    n_pri = pri_rows.shape[0]
+    cross = np.empty(max(prism_width(pri_start), 1))  # scratch: a segment's crossings with one polygon's edges
+    knots = np.empty(6)
     climb_tan2 = math.tan(max_climb) ** 2 * (1.0 - 1e-9) if max_climb < 0.5 * math.pi else math.inf
     peak_max = peak_table.max()
     gap_cap = d_safe - d_coll
@@ -431,6 +435,20 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
                 pen[p] += pen_c + per_m * depth if hit else 0.0
                 g = min(max(g, 0.0), gap_cap)
                 soft_sph[p] += g * g
+        for k in range(n_pri):  # polygon prisms (§2.7): a keep-in polygon is near every segment
+            f, h, keep, cx, cy, r = pri_rows[k, 0], pri_rows[k, 1], pri_rows[k, 2] > 0.0, pri_rows[k, 3], \
+                pri_rows[k, 4], pri_rows[k, 5]
+            if not keep and _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, r + reach):
+                continue
+            for p in range(n_p):  # beyond a particle's reach the clearance adds an exact zero, as a cylinder's
+                reach_p = (d_safe + dev[s, p]) * (1.0 + 1e-9) + 1e-6
+                if not keep and seg_point_2d_sq(pt[s, 0, p], pt[s, 1, p], pt[s + 1, 0, p], pt[s + 1, 1, p], cx,
+                                                cy) > (r + reach_p) ** 2:
+                    continue  # its disc is beyond reach: not even the polygon's edges are looked at
+                c = seg_prism(pt[s, 0, p], pt[s, 1, p], pt[s, 2, p], pt[s + 1, 0, p], pt[s + 1, 1, p],
+                              pt[s + 1, 2, p], pri_v, pri_start[k], pri_start[k + 1], f, h, keep, reach_p, cross,
+                              knots)
+                _hazard(c - dev[s, p], p, d_safe, gap_cap, pen_c, per_m, soft_pri, pen, viol)
         for k in range(rad_det.shape[0]):
             cx, cy, cz, det, wt = rad_c[k, 0], rad_c[k, 1], rad_c[k, 2], rad_det[k], rad_w[k]
             for p in range(n_p):
@@ -551,7 +569,8 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
     inv_direct = max(direct, _EPS)
     for p in range(n_p):
         terms[p, 0] = j1[p]
-        terms[p, 1] = soft_cyl[p] / d_safe + soft_sph[p] / d_safe + soft_rad[p] + soft_thr[p] / d_safe
+        terms[p, 1] = (soft_cyl[p] / d_safe + soft_sph[p] / d_safe + soft_rad[p] + soft_thr[p] / d_safe
+                       + soft_pri[p] / d_safe)  # prisms last: without any, the sum is as it was, bit for bit
         terms[p, 2] = j3[p]
         terms[p, 3] = j4[p]
         terms[p, 4] = seg_len[n_s - 1, p] / inv_direct
@@ -573,7 +592,7 @@ def _arguments(k: KernelInputs) -> tuple:
             k.threat_max_speed, k.threats, k.has_terrain, k.terrain_x0, k.terrain_y0, k.terrain_dx, k.terrain_dy,
             k.terrain_slopes, k.terrain_slope, k.terrain_sag, k.terrain_heights,
             k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
-            k.rad_det, k.rad_w, k.peak_table, k.threat_t, k.terrain_t, k.golden_iters)
+            k.rad_det, k.rad_w, k.pri_v, k.pri_start, k.pri_rows, k.peak_table, k.threat_t, k.terrain_t, k.golden_iters)
 
 
 def evaluate(inputs: KernelInputs, paths: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:

@@ -23,6 +23,8 @@ GRID_MIN_OBSTACLES = 16  # fewer obstacles: one cell (visiting a few obstacles c
 GRID_CELLS = 64  # broad-phase grid: at most this many cells along the map's longer side
 SLOPE_BLOCK = 4  # terrain cells per side of a block of the local slope bounds (Terrain.slope_blocks)
 KERNELS = ("compiled", "numpy")
+PRISM_COLUMNS = ("floor", "ceiling", "keep_in", "cx", "cy", "r")  # KernelInputs.pri_rows: keep_in is 1.0 or 0.0
+KEEP_IN_REACH = 1e300  # m: the broad-phase radius of a keep-in polygon (no-fly outside it: near every segment)
 
 
 def broad_phase() -> bool:
@@ -166,7 +168,13 @@ class KernelInputs:
     rad_c: np.ndarray  # (K, 3)
     rad_det: np.ndarray
     rad_w: np.ndarray
-    # the broad phase: cylinders then spheres in plan view, and their grids (FUSEPLAN_BROAD_PHASE on, off)
+    # polygon prisms (environment.Prisms), in three arrays (each argument costs the compiled call its unboxing):
+    # packed counter-clockwise vertices, a start index each, and a row each of PRISM_COLUMNS
+    pri_v: np.ndarray  # (V, 2)
+    pri_start: np.ndarray  # (K + 1,) int64
+    pri_rows: np.ndarray  # (K, 6)
+    # the broad phase: cylinders, spheres, then prisms in plan view (a keep-in polygon's disc reaches everywhere),
+    # and their grids (FUSEPLAN_BROAD_PHASE on, off)
     ob_x: np.ndarray
     ob_y: np.ndarray
     ob_r: np.ndarray
@@ -185,9 +193,11 @@ class KernelInputs:
         """The inputs of a problem; ``start_time`` None when moving threats do not count (none, or no time)."""
         ter, cyl, sph, rad = env.terrain, env.cylinders, env.spheres, env.radars
         slopes = ter.slope_blocks(SLOPE_BLOCK) if ter is not None else np.zeros((1, 1))
-        ob_x = _f64(np.concatenate([cyl.x, sph.center[:, 0]]))  # cylinders then spheres: one grid for both
-        ob_y = _f64(np.concatenate([cyl.y, sph.center[:, 1]]))
-        ob_r = _f64(np.concatenate([cyl.radius, sph.radius]))
+        pri = env.prisms
+        # cylinders, spheres, then prisms: one grid for all (a keep-in polygon, no-fly outside it, in every cell)
+        ob_x = _f64(np.concatenate([cyl.x, sph.center[:, 0], pri.cx]))
+        ob_y = _f64(np.concatenate([cyl.y, sph.center[:, 1], pri.cy]))
+        ob_r = _f64(np.concatenate([cyl.radius, sph.radius, np.where(pri.keep_in, KEEP_IN_REACH, pri.r)]))
         return cls(
             acceptance_radius=float(vehicle.acceptance_radius), turn_overshoot=float(vehicle.turn_overshoot),
             max_turn=float(vehicle.max_turn), min_turn_radius=float(vehicle.min_turn_radius),
@@ -212,6 +222,8 @@ class KernelInputs:
             cyl_x=_f64(cyl.x), cyl_y=_f64(cyl.y), cyl_r=_f64(cyl.radius), cyl_top=_f64(cyl.top),
             sph_c=_f64(sph.center, (-1, 3)), sph_r=_f64(sph.radius),
             rad_c=_f64(rad.center, (-1, 3)), rad_det=_f64(rad.r_det), rad_w=_f64(rad.soft_weight),
+            pri_v=_f64(pri.vertices, (-1, 2)), pri_start=np.array(pri.start, dtype=np.int64),
+            pri_rows=_f64(np.column_stack([pri.floor, pri.ceiling, pri.keep_in, pri.cx, pri.cy, pri.r]), (-1, 6)),
             ob_x=ob_x, ob_y=ob_y, ob_r=ob_r,
             grid=ObstacleGrid.over(env.size_x, env.size_y, ob_x, ob_y, ob_r, True),
             one_cell=ObstacleGrid.over(env.size_x, env.size_y, ob_x, ob_y, ob_r, False),

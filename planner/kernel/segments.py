@@ -1,5 +1,6 @@
-"""Segment tests: a segment's distance to a point, a cylinder and a sphere (planner.world.geometry's, compiled),
-the broad phase's lookup of the obstacles near a segment in the grid, and the ant colonies' segment_blocked."""
+"""Segment tests: a segment's distance to a point, a cylinder, a sphere and a polygon prism (compiled, as
+planner.world.geometry computes them), the broad phase's lookup of the obstacles near a segment in the grid, and the
+ant colonies' segment_blocked."""
 
 from __future__ import annotations
 
@@ -8,7 +9,7 @@ import math
 import numpy as np
 
 from planner.kernel.inputs import KernelInputs, broad_phase
-from planner.kernel.jit import called, inline, jit
+from planner.kernel.jit import called, inline, jit, linked
 
 _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
@@ -86,6 +87,158 @@ def seg_cyl_finite(ax, ay, az, bx, by, bz, cx, cy, r, top, iters):  # noqa: ANN0
 
 
 @inline
+def _edge_sq(px, py, ax, ay, ex, ey, l2):  # noqa: ANN001, ANN202
+    """Squared plan-view distance from p to the edge A + s·E (geometry._edge_sq; ``l2`` = |E|², 1 if zero)."""
+    wx = px - ax
+    wy = py - ay
+    s = min(max((wx * ex + wy * ey) / l2, 0.0), 1.0)
+    qx = wx - s * ex
+    qy = wy - s * ey
+    return qx * qx + qy * qy
+
+
+@inline
+def _g(t, ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h):  # noqa: ANN001, ANN202
+    """g_e(t) of docs/method.md §2.7: the squared distance of a + t·d to edge e's vertical strip [f, h]."""
+    z = az + t * dz
+    wo = max(max(f - z, z - h), 0.0)
+    return _edge_sq(ax + t * dx, ay + t * dy, px0, py0, ex, ey, l2) + wo * wo
+
+
+@inline
+def _ratio(num, den):  # noqa: ANN001, ANN202
+    return num / den if den != 0.0 else 0.0
+
+
+@linked
+def _edge_min(ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h, knots):  # noqa: ANN001, ANN202
+    """The least of g_e over [0, 1] (geometry.segment_prism_clearance, step for step): the quadratic pieces between
+    the sorted breakpoints, each's vertex from three values, g evaluated there and at the breakpoints."""
+    s0 = ((ax - px0) * ex + (ay - py0) * ey) / l2
+    s1 = (dx * ex + dy * ey) / l2
+    knots[0] = 0.0
+    knots[1] = min(max(_ratio(-s0, s1), 0.0), 1.0)
+    knots[2] = min(max(_ratio(1.0 - s0, s1), 0.0), 1.0)
+    knots[3] = min(max(_ratio(f - az, dz), 0.0), 1.0)
+    knots[4] = min(max(_ratio(h - az, dz), 0.0), 1.0)
+    knots[5] = 1.0
+    for i in range(1, 6):  # insertion sort of six
+        v = knots[i]
+        j = i
+        while j > 0 and knots[j - 1] > v:
+            knots[j] = knots[j - 1]
+            j -= 1
+        knots[j] = v
+    gl = _g(knots[0], ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h)
+    best = gl
+    for i in range(5):
+        lo, hi = knots[i], knots[i + 1]
+        gh = _g(hi, ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h)
+        gm = _g(0.5 * (lo + hi), ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h)
+        qa = 2.0 * gl - 4.0 * gm + 2.0 * gh
+        qb = -3.0 * gl + 4.0 * gm - gh
+        best = min(best, gh)
+        if qa > 0.0:
+            t = lo + min(max(-qb / (2.0 * qa), 0.0), 1.0) * (hi - lo)
+            best = min(best, _g(t, ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h))
+        gl = gh
+    return best
+
+
+@called
+def seg_prism(ax, ay, az, bx, by, bz, v, i0, i1, f, h, keep, limit, cross, knots):  # noqa: ANN001, ANN202
+    """Signed clearance of segment a→b from the prism over polygon vertices v[i0:i1] (V, 2) between f and h (keep:
+    a keep-in polygon), as geometry.segment_prism_clearance computes it (docs/method.md §2.7). Edges whose plan
+    distance from the segment (bounded below from their midpoints) exceeds ``limit`` or the least so far are
+    skipped: a clearance of ``limit`` or more comes back as some value ≥ ``limit`` (inf when nothing is near).
+    A segment wholly between floor and ceiling takes the closed form of two segments' plan distance instead of the
+    pieces (as the reference does). ``cross`` (≥ i1 − i0) and ``knots`` (6) are scratch."""
+    dx, dy, dz = bx - ax, by - ay, bz - az
+    limit2 = limit * limit
+    best = math.inf
+    n = 0
+    inside = False
+    level = f <= min(az, az + dz) and max(az, az + dz) <= h  # wholly between floor and ceiling: plan view only
+    dd = dx * dx + dy * dy
+    dd = dd if dd > 0.0 else 1.0
+    for j in range(i0, i1):
+        px0, py0 = v[j, 0], v[j, 1]
+        nj = j + 1 if j + 1 < i1 else i0
+        qx, qy = v[nj, 0], v[nj, 1]
+        ex, ey = qx - px0, qy - py0
+        l2 = ex * ex + ey * ey
+        l2 = l2 if l2 > 0.0 else 1.0
+        # containment of a (even-odd, polygons.contains) and the crossings of the segment with this edge
+        if (py0 > ay) != (qy > ay):
+            dye = qy - py0 if qy != py0 else 1.0
+            if ax < px0 + (ay - py0) * (qx - px0) / dye:
+                inside = not inside
+        oa = ex * (ay - py0) - ey * (ax - px0)
+        ob = ex * (ay + dy - py0) - ey * (ax + dx - px0)
+        sa = dx * (py0 - ay) - dy * (px0 - ax)
+        sb = dx * (qy - ay) - dy * (qx - ax)
+        hit = ((oa > 0.0) != (ob > 0.0)) and ((sa > 0.0) != (sb > 0.0))
+        if hit:
+            t = oa / (oa - ob)
+            m = n  # insertion sort, ascending
+            while m > 0 and cross[m - 1] > t:
+                cross[m] = cross[m - 1]
+                m -= 1
+            cross[m] = t
+            n += 1
+        if level:  # the closed form of two segments' distance (zero where they cross): cheaper than bounding it
+            if hit:
+                best = 0.0
+            else:
+                best = min(best, min(min(_edge_sq(ax, ay, px0, py0, ex, ey, l2), _edge_sq(ax + dx, ay + dy, px0, py0,
+                                                                                         ex, ey, l2)),
+                                     min(_edge_sq(px0, py0, ax, ay, dx, dy, dd), _edge_sq(qx, qy, ax, ay, dx, dy, dd))))
+            continue
+        lb = math.sqrt(seg_point_2d_sq(ax, ay, bx, by, 0.5 * (px0 + qx), 0.5 * (py0 + qy))) - 0.5 * math.sqrt(l2)
+        if lb > 0.0 and lb * lb > min(best, limit2) * (1.0 + 1e-9) + 1e-12:
+            continue  # the edge is farther than what counts
+        best = min(best, _edge_min(ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h, knots))
+    # the parts between crossings whose plan view is in the solid's: their least max(w, 0), and where they are
+    # between floor and ceiling too (inside the solid), d_prism at their middles
+    if dz != 0.0:
+        tf, th = (f - az) / dz, (h - az) / dz
+        tw0, tw1 = max(min(tf, th), 0.0), min(max(tf, th), 1.0)
+    else:
+        level = f <= az and az <= h
+        tw0, tw1 = (0.0, 1.0) if level else (1.0, 0.0)
+    neg = math.inf
+    for i in range(n + 1):
+        if (inside != (i % 2 == 1)) == keep:
+            continue
+        lo = cross[i - 1] if i > 0 else 0.0
+        hi = cross[i] if i < n else 1.0
+        z0, z1 = az + lo * dz, az + hi * dz
+        wmin = max(max(f - max(z0, z1), min(z0, z1) - h), 0.0)
+        best = min(best, wmin * wmin)
+        s_lo, s_hi = max(lo, tw0), min(hi, tw1)
+        if s_hi > s_lo:
+            tm = 0.5 * (s_lo + s_hi)
+            px, py, pz = ax + tm * dx, ay + tm * dy, az + tm * dz
+            bd = math.inf
+            for j in range(i0, i1):
+                nj = j + 1 if j + 1 < i1 else i0
+                ex, ey = v[nj, 0] - v[j, 0], v[nj, 1] - v[j, 1]
+                l2 = ex * ex + ey * ey
+                bd = min(bd, _edge_sq(px, py, v[j, 0], v[j, 1], ex, ey, l2 if l2 > 0.0 else 1.0))
+            neg = min(neg, max(-math.sqrt(bd), max(f - pz, pz - h)))
+    return neg if neg < math.inf else math.sqrt(best)
+
+
+@inline
+def prism_width(start):  # noqa: ANN001, ANN202
+    """The most vertices of one polygon, from the prisms' start indices (the crossings' scratch length)."""
+    w = 0
+    for k in range(start.shape[0] - 1):
+        w = max(w, start[k + 1] - start[k])
+    return w
+
+
+@inline
 def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad, stamp, token, out):  # noqa: ANN001, ANN202
     """Indices (ascending, into ``out``; returns how many) of the obstacles whose plan-view discs come within
     ``reach`` (per axis) of the segment a→b. Visits the cells under the segment swept by a ±reach square, row by
@@ -136,12 +289,15 @@ def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad
 
 @jit
 def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, golden_iters, gox, goy, gcell,
-             gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r):  # noqa: ANN001, ANN202
-    """For segments a→b (E, 3): within d_coll of a cylinder or sphere, or inside a radar's range (as
+             gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r, pri_v, pri_start, pri_rows):  # noqa: ANN001, ANN202
+    """For segments a→b (E, 3): within d_coll of a cylinder, sphere or prism, or inside a radar's range (as
     PlanningProblem.segment_blocked), visiting only the obstacles the broad phase finds within d_coll."""
     n_e = a.shape[0]
     out = np.zeros(n_e, dtype=np.bool_)
     n_cyl = cyl_x.shape[0]
+    n_sph = sph_r.shape[0]
+    cross = np.empty(max(prism_width(pri_start), 1))
+    knots = np.empty(6)
     near = np.empty(ob_x.shape[0], dtype=np.int64)
     stamp = np.full(ob_x.shape[0], -1, dtype=np.int64)
     reach = d_coll * (1.0 + 1e-9) + 1e-6
@@ -163,9 +319,23 @@ def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, ra
         if not hit:
             for q in range(n_near):
                 k = near[q] - n_cyl
-                if k < 0:
+                if k < 0 or k >= n_sph:
                     continue
                 if seg_point(ax, ay, az, bx, by, bz, sph_c[k, 0], sph_c[k, 1], sph_c[k, 2]) - sph_r[k] < d_coll:
+                    hit = True
+                    break
+        if not hit:
+            for q in range(n_near):
+                k = near[q] - n_cyl - n_sph
+                if k < 0:
+                    continue
+                f, h, keep, cx, cy, r = pri_rows[k, 0], pri_rows[k, 1], pri_rows[k, 2] > 0.0, pri_rows[k, 3], \
+                    pri_rows[k, 4], pri_rows[k, 5]
+                if not keep and seg_point_2d_sq(ax, ay, bx, by, cx, cy) > (r + reach) ** 2:
+                    continue  # the disc itself is beyond reach
+                c = seg_prism(ax, ay, az, bx, by, bz, pri_v, pri_start[k], pri_start[k + 1], f, h, keep, reach, cross,
+                              knots)
+                if c < d_coll:
                     hit = True
                     break
         if not hit:
@@ -186,5 +356,5 @@ def segment_blocked(inputs: KernelInputs, a: np.ndarray, b: np.ndarray) -> np.nd
     flat_b = np.ascontiguousarray(np.broadcast_to(b, shape), dtype=np.float64).reshape(-1, 3)
     got = _blocked(flat_a, flat_b, k.d_coll, k.cyl_x, k.cyl_y, k.cyl_r, k.cyl_top, k.sph_c, k.sph_r, k.rad_c,
                    k.rad_det, k.golden_iters, g.x0, g.y0, g.cell, g.nx, g.ny, g.start, g.items, k.ob_x, k.ob_y,
-                   k.ob_r)
+                   k.ob_r, k.pri_v, k.pri_start, k.pri_rows)
     return got.reshape(shape[:-1])

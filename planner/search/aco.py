@@ -289,6 +289,6 @@ def lattice_setup_s(problem: PlanningProblem, cfg: ACOConfig, n_points: int) -> 
     scenarios against estimates of 51–457 ms."""
     m = (2 * cfg.cross_half + 1) * (2 * cfg.vert_half + 1)
     env = problem.env
-    k = len(env.cylinders) + len(env.spheres) + len(env.radars)
+    k = len(env.cylinders) + len(env.spheres) + len(env.radars) + len(env.prisms)
     edges = (n_points - 1) * m * m
     return edges * (LATTICE_EDGE_S + LATTICE_PAIR_S * k + LATTICE_SEG_S * (n_points - 1))

@@ -129,7 +129,7 @@ def segment_slack(problem: PlanningProblem, a: np.ndarray, b: np.ndarray, margin
     if not len(a):
         return out
     cyl_c, sph_c, radar_d = problem.static_clearances(a, b)
-    for c in (cyl_c, sph_c):
+    for c in (cyl_c, sph_c, problem.prism_clearances(a, b)):
         if c is not None:
             out = np.minimum(out, c.min(axis=0) - problem.hazard.d_coll)
     if radar_d is not None:
@@ -223,7 +223,8 @@ def build(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
     bound = 0.5 * (slack[e[:, 0]] + slack[e[:, 1]] - length)  # Lipschitz lower bound of the edge's slack
     check = np.flatnonzero(bound < 0.0)
     good = np.ones(len(e), dtype=bool)
-    per_chunk = max(1, min(20000, CHUNK_PAIRS // (len(env.cylinders) + len(env.spheres) + len(env.radars) + 1)))
+    pairs = len(env.cylinders) + len(env.spheres) + len(env.radars) + 6 * env.prisms.padded[0].size  # 6 knots/edge
+    per_chunk = max(1, min(20000, CHUNK_PAIRS // (pairs + 1)))
     for chunk in np.array_split(check, max(1, len(check) // per_chunk)):  # bounded temporaries
         good[chunk] = segment_slack(problem, a[chunk], b[chunk], cfg.margin) >= 0.0
     e, length = e[good], length[good]
@@ -264,9 +265,9 @@ def cached(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
 
 def _cache_key(problem: PlanningProblem, cfg: RoadmapConfig) -> str:
     env = problem.env
-    return _fingerprint(env.cylinders, env.spheres, env.radars, env.terrain, env.size_x, env.size_y, env.z_min,
-                        env.z_max, problem.hazard, problem.vehicle.acceptance_radius, problem.vehicle.max_climb,
-                        problem.vehicle.max_turn, cfg)
+    return _fingerprint(env.cylinders, env.spheres, env.radars, env.prisms, env.terrain, env.size_x, env.size_y,
+                        env.z_min, env.z_max, problem.hazard, problem.vehicle.acceptance_radius,
+                        problem.vehicle.max_climb, problem.vehicle.max_turn, cfg)
 
 
 def _build_estimate_s(problem: PlanningProblem, cfg: RoadmapConfig, known: Roadmap) -> float:

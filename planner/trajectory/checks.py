@@ -13,8 +13,8 @@ import numpy as np
 
 from planner.trajectory.smoothing import climb_angle, peak_curvature, sample_trajectory
 from planner.world.config import CATEGORIES, HazardConfig, VehicleLimits
-from planner.world.environment import Environment, Radars
-from planner.world.geometry import cylinder_signed_distance, horizontal_turn
+from planner.world.environment import Environment, Prisms, Radars
+from planner.world.geometry import cylinder_signed_distance, horizontal_turn, prism_signed_distance
 
 _TOL_M = 1e-6  # metres of slack for samples exactly on a limit (start on the band floor, say)
 _TOL_REL = 1e-6
@@ -79,6 +79,10 @@ def obstacle_clearance(
         k = slice(lo, lo + step)
         d = np.linalg.norm(points[None] - sph.center[k][:, None], axis=-1)
         parts.append((d - sph.radius[k][:, None]).min(axis=0))
+    pri = env.prisms
+    step_p = max(1, CHUNK_PAIRS // max(m * pri.padded[0].shape[1], 1))  # point × edge distances at once
+    for lo in range(0, len(pri), step_p):
+        parts.append(prism_signed_distance(points, _some_prisms(pri, slice(lo, lo + step_p))).min(axis=0))
     if include_radars:
         parts.append(radar_clearance(points, env.radars))
     if len(env.threats) and times is not None:
@@ -88,8 +92,18 @@ def obstacle_clearance(
     return np.min(np.stack(parts), axis=0)
 
 
+def _some_prisms(prisms: Prisms, k: slice) -> Prisms:
+    """Prisms ``k`` of ``prisms`` (all of them when the slice covers them: no copy)."""
+    if k.start == 0 and k.stop >= len(prisms):
+        return prisms
+    idx = np.arange(len(prisms))[k]
+    return Prisms.from_polygons([prisms.polygon(i) for i in idx], prisms.floor[k], prisms.ceiling[k],
+                                prisms.keep_in[k])
+
+
 def obstacle_distances(points: np.ndarray, env: Environment) -> dict[str, np.ndarray]:
-    """Signed distance (M,) from each point to each named static obstacle ("cylinders[i]", "spheres[j]")."""
+    """Signed distance (M,) from each point to each named static obstacle ("cylinders[i]", "spheres[j]",
+    "prisms[k]")."""
     out: dict[str, np.ndarray] = {}
     cyl = env.cylinders
     if len(cyl) and len(points):
@@ -99,6 +113,9 @@ def obstacle_distances(points: np.ndarray, env: Environment) -> dict[str, np.nda
     if len(env.spheres) and len(points):
         d = np.linalg.norm(points[None] - env.spheres.center[:, None], axis=-1) - env.spheres.radius[:, None]
         out.update({f"spheres[{j}]": d[j] for j in range(len(env.spheres))})
+    if len(env.prisms) and len(points):
+        d = prism_signed_distance(points, env.prisms)
+        out.update({f"prisms[{k}]": d[k] for k in range(len(env.prisms))})
     return out
 
 

@@ -11,6 +11,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from planner.world.environment import Prisms
+
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 GOLDEN_ITERS = 64  # interval shrinks to 0.618^64 ≈ 4e-14 of the segment
 
@@ -116,6 +118,145 @@ def segment_cylinder_clearance(
         f1, f2 = np.where(left, fn, f2), np.where(left, f1, fn)
     best = np.minimum(np.minimum(f1, f2), np.minimum(f(lo * 0.0), f(hi * 0.0 + 1.0)))
     return np.where(np.isinf(top), exact_2d, best)
+
+
+def _edge_sq(px, py, ax, ay, ex, ey, l2):  # noqa: ANN001, ANN202 - broadcastable arrays
+    """Squared plan-view distance from points (px, py) to edges A + s·E, s ∈ [0, 1] (``l2`` = |E|², 1 if zero)."""
+    wx = px - ax
+    wy = py - ay
+    s = np.clip((wx * ex + wy * ey) / l2, 0.0, 1.0)
+    qx = wx - s * ex
+    qy = wy - s * ey
+    return qx * qx + qy * qy
+
+
+def _inside_count(px, py, ax, ay, bx, by):  # noqa: ANN001, ANN202 - broadcastable arrays, edge axis -2
+    """Even-odd containment (polygons.contains) of points in each padded polygon: edges on axis −2."""
+    straddles = (ay > py) != (by > py)
+    dy = np.where(by != ay, by - ay, 1.0)
+    x_at = ax + (py - ay) * (bx - ax) / dy
+    return (np.count_nonzero(straddles & (px < x_at), axis=-2) % 2) == 1
+
+
+def _prism_edges(prisms: Prisms) -> tuple[np.ndarray, ...]:
+    """The prisms' padded edges (K, V, 1): start x, y, direction x, y and squared length (1 where zero)."""
+    ax, ay, bx, by = (e[..., None] for e in prisms.padded)
+    ex, ey = bx - ax, by - ay
+    l2 = ex * ex + ey * ey
+    return ax, ay, bx, by, ex, ey, np.where(l2 > 0.0, l2, 1.0)
+
+
+def prism_signed_distance(p: np.ndarray, prisms: Prisms) -> np.ndarray:
+    """Signed distance (K, ...) from points p (..., 3) to each prism's solid (docs/method.md §2.7): u the signed
+    plan-view distance (negative inside the polygon; the other way round for a keep-in polygon), w = max(f − z,
+    z − h); unlimited floors and ceilings (∓inf) give w = −inf, never NaN."""
+    p = np.asarray(p, dtype=float)
+    shape = p.shape[:-1]
+    q = p.reshape(-1, 3)
+    if not len(prisms):
+        return np.zeros((0, *shape))
+    ax, ay, bx, by, ex, ey, l2 = _prism_edges(prisms)
+    px, py, pz = q[:, 0], q[:, 1], q[:, 2]
+    u = np.sqrt(_edge_sq(px, py, ax, ay, ex, ey, l2).min(axis=1))  # (K, M)
+    inside = _inside_count(px, py, ax, ay, bx, by)
+    u = np.where(inside != prisms.keep_in[:, None], -u, u)
+    w = np.maximum(prisms.floor[:, None] - pz, pz - prisms.ceiling[:, None])
+    d = np.sqrt(np.maximum(u, 0.0) ** 2 + np.maximum(w, 0.0) ** 2) + np.minimum(np.maximum(u, w), 0.0)
+    return d.reshape((len(prisms), *shape))
+
+
+def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
+    """num / den where den ≠ 0, else 0 (a breakpoint that does not exist is put at the segment's start)."""
+    nz = den != 0.0
+    return np.where(nz, num / np.where(nz, den, 1.0), 0.0)
+
+
+def segment_prism_clearance(a: np.ndarray, b: np.ndarray, prisms: Prisms) -> np.ndarray:
+    """Signed clearance (K, ...) of segments a→b (..., 3) from each prism's solid, exactly (docs/method.md §2.7).
+
+    Outside: the least over edges e of the convex g_e(t) = dist(p_xy(t), e)² + max(w(t), 0)², a quadratic between
+    its breakpoints (the foot on e's line passing its ends, z crossing floor and ceiling), so on each piece its
+    vertex (found from three values, then g evaluated there) or an end is the piece's least; and on the parts whose
+    plan view is in the solid's (between crossings with the edges), the least max(w, 0). A segment that enters the
+    solid gets the least d_prism at the middles of the parts inside (negative). Vectorised over prisms, their
+    edges (padded to one length) and segments: arrays (K, V, M)."""
+    a, b = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
+    shape = a.shape[:-1]
+    k_n = len(prisms)
+    if not k_n:
+        return np.zeros((0, *shape))
+    a, b = a.reshape(-1, 3), b.reshape(-1, 3)
+    ax, ay, az = a[:, 0], a[:, 1], a[:, 2]
+    dx, dy, dz = b[:, 0] - ax, b[:, 1] - ay, b[:, 2] - az
+    Ax, Ay, Bx, By, ex, ey, l2 = _prism_edges(prisms)  # noqa: N806 - edge ends A, B
+    f, h = prisms.floor[:, None], prisms.ceiling[:, None]  # (K, 1)
+    keep = prisms.keep_in[:, None]
+    f3, h3 = f[..., None], h[..., None]
+
+    def g(t: np.ndarray) -> np.ndarray:  # g_e(t), broadcast over leading axes
+        z = az + t * dz
+        wo = np.maximum(np.maximum(f3 - z, z - h3), 0.0)
+        return _edge_sq(ax + t * dx, ay + t * dy, Ax, Ay, ex, ey, l2) + wo * wo
+
+    with np.errstate(invalid="ignore", divide="ignore"):
+        s0 = ((ax - Ax) * ex + (ay - Ay) * ey) / l2
+        s1 = (dx * ex + dy * ey) / l2
+        tf, th = _ratio(f - az, dz), _ratio(h - az, dz)  # (K, M)
+        knots = np.stack(np.broadcast_arrays(np.zeros(1), _ratio(-s0, s1), _ratio(1.0 - s0, s1), tf[:, None],
+                                             th[:, None], np.ones(1)))
+    knots = np.sort(np.clip(knots, 0.0, 1.0), axis=0)  # (6, K, V, M)
+    gk = g(knots)
+    lo, hi = knots[:-1], knots[1:]
+    gl, gh, gm = gk[:-1], gk[1:], g(0.5 * (lo + hi))
+    qa = 2.0 * gl - 4.0 * gm + 2.0 * gh
+    qb = -3.0 * gl + 4.0 * gm - gh
+    up = qa > 0.0
+    vertex = lo + np.clip(-qb / (2.0 * np.where(up, qa, 1.0)), 0.0, 1.0) * (hi - lo)
+    piecewise = np.minimum(gk.min(axis=0), np.where(up, g(vertex), np.inf).min(axis=0))  # (K, V, M)
+    # the parts of the segment between its crossings with the edges; inside the solid's plan view or not
+    oa = ex * (ay - Ay) - ey * (ax - Ax)
+    ob = ex * (ay + dy - Ay) - ey * (ax + dx - Ax)
+    sa = dx * (Ay - ay) - dy * (Ax - ax)
+    sb = dx * (By - ay) - dy * (Bx - ax)
+    hit = ((oa > 0.0) != (ob > 0.0)) & ((sa > 0.0) != (sb > 0.0))
+    # where the whole segment is between floor and ceiling, g_e is the plan-view distance to e squared: the least
+    # is the closed form of two segments (zero where they cross, else an end's distance to the other segment)
+    dd = dx * dx + dy * dy
+    dd = np.where(dd > 0.0, dd, 1.0)
+    ends = np.minimum(np.minimum(_edge_sq(ax, ay, Ax, Ay, ex, ey, l2), _edge_sq(ax + dx, ay + dy, Ax, Ay, ex, ey, l2)),
+                      np.minimum(_edge_sq(Ax, Ay, ax, ay, dx, dy, dd), _edge_sq(Bx, By, ax, ay, dx, dy, dd)))
+    level = ((f <= np.minimum(az, az + dz)) & (np.maximum(az, az + dz) <= h))[:, None]  # (K, 1, M)
+    best = np.where(level, np.where(hit, 0.0, ends), piecewise).min(axis=1)  # (K, M)
+    tc = np.sort(np.where(hit, oa / np.where(hit, oa - ob, 1.0), np.inf), axis=1)  # (K, V, M)
+    n = np.count_nonzero(hit, axis=1)  # (K, M)
+    v_n = tc.shape[1]
+    bounds = np.concatenate([np.zeros((1, k_n, len(a))), np.minimum(tc, 1.0).transpose(1, 0, 2),
+                             np.ones((1, k_n, len(a)))])  # (V + 2, K, M)
+    lo, hi = bounds[:-1], bounds[1:]
+    i = np.arange(v_n + 1)[:, None, None]
+    in0 = _inside_count(ax, ay, Ax, Ay, Bx, By)
+    solid = ((in0[None] ^ (i % 2 == 1)) ^ keep[None]) & (i <= n[None])
+    z0, z1 = az + lo * dz, az + hi * dz
+    wmin = np.maximum(np.maximum(f - np.maximum(z0, z1), np.minimum(z0, z1) - h), 0.0)
+    best = np.minimum(best, np.where(solid, wmin * wmin, np.inf).min(axis=0))
+    # the parts inside the solid: in its plan view and between floor and ceiling
+    flat = dz == 0.0
+    at = (f <= az) & (az <= h)
+    tw0 = np.where(flat, np.where(at, 0.0, 1.0), np.maximum(np.minimum(tf, th), 0.0))
+    tw1 = np.where(flat, np.where(at, 1.0, 0.0), np.minimum(np.maximum(tf, th), 1.0))
+    s_lo, s_hi = np.maximum(lo, tw0), np.minimum(hi, tw1)
+    ii, kk, mm = np.nonzero(solid & (s_hi > s_lo))
+    out = np.sqrt(best)
+    if len(kk):
+        tm = 0.5 * (s_lo[ii, kk, mm] + s_hi[ii, kk, mm])
+        px, py, pz = ax[mm] + tm * dx[mm], ay[mm] + tm * dy[mm], az[mm] + tm * dz[mm]
+        u = -np.sqrt(_edge_sq(px[:, None], py[:, None], Ax[kk, :, 0], Ay[kk, :, 0], ex[kk, :, 0], ey[kk, :, 0],
+                              l2[kk, :, 0]).min(axis=1))
+        w = np.maximum(f[kk, 0] - pz, pz - h[kk, 0])
+        neg = np.full(out.shape, np.inf)
+        np.minimum.at(neg, (kk, mm), np.maximum(u, w))
+        out = np.where(np.isfinite(neg), neg, out)
+    return out.reshape((k_n, *shape))
 
 
 def spherical_to_cartesian(

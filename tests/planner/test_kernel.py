@@ -4,6 +4,7 @@ shipped scenario and over a map with every obstacle family, threat law, terrain 
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from pathlib import Path
 
@@ -105,8 +106,7 @@ def every_family() -> Environment:
 def test_kernel_matches_the_reference_with_every_family(terrain: bool, heading, overshoot: float) -> None:  # noqa: ANN001
     env = every_family()
     if not terrain:
-        env = Environment(env.size_x, env.size_y, env.z_min, env.z_max, env.cylinders, env.spheres, env.radars,
-                          None, env.threats)
+        env = dataclasses.replace(env, terrain=None)  # by name: Environment's fields gained prisms before terrain
     problem = PlanningProblem(env, np.array([100.0, 100.0, 120.0]), np.array([1900.0, 1850.0, 200.0]),
                               VehicleLimits(turn_overshoot=overshoot), HazardConfig(d_safe=120.0, d_coll=20.0),
                               start_time=3.0, start_heading=heading)

@@ -176,3 +176,23 @@ def test_reference_cost_by_hand() -> None:
     j, viol = ref.terms(ref.decode(x, world), world)
     assert j[0, 0] == pytest.approx(np.linalg.norm(d)) and viol[0] == 2  # both legs touch the cylinder at (500, 500)
     assert ref.cost(x, world, cfg)[0] == pytest.approx(np.dot(j[0], cfg.weights) + 2 * cfg.penalty)
+
+
+# --- the polygons part: prisms against cylinders of the same size ---------------------------------------------------
+def test_polygon_field_is_the_cylinder_field_drawn_as_polygons(tiny_run) -> None:  # noqa: ANN001
+    f = speed.FieldSettings(count=30)
+    for roofed in (False, True):
+        cyl = speed.obstacle_field("cylinders", roofed, 7, f).cylinders
+        pri = speed.obstacle_field("prisms", roofed, 7, f).prisms
+        assert len(cyl) == len(pri) == 30 and np.array_equal(pri.ceiling, cyl.top)
+        assert np.all(np.isfinite(pri.ceiling)) == roofed and np.all(np.isneginf(pri.floor))
+        for k in range(30):  # each polygon lies in its cylinder's disc, at 0.6–1 × its radius
+            d = np.hypot(*(pri.polygon(k) - [cyl.x[k], cyl.y[k]]).T)
+            assert 0.6 * cyl.radius[k] - 1e-9 <= d.min() and d.max() <= cyl.radius[k] + 1e-9
+    _, records, _ = tiny_run
+    rows = speed.polygon_rows(records)
+    assert [r["key"] for r in rows] == ["unlimited", "roofed"]
+    assert all(r["ratio"] == pytest.approx(r["prisms_us"] / r["cylinders_us"]) and r["prism_collisions"] > 0
+               for r in rows)
+    md = speed.markdown(records, TINY)
+    assert "## Polygon prisms against cylinders" in md and "| unlimited |" in md and "| roofed |" in md
