@@ -382,7 +382,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     mission = read_mission(source, args.fence, args.rally)
     autopilot = "px4" if mission.extras.get("firmware_type") == PX4_FIRMWARE else "ardupilot"
     with tempfile.TemporaryDirectory(prefix="fuseplan-") as tmp:
-        args.output = Path(tmp) / "PLAN.json"
+        args.output, args.output_is_temporary = Path(tmp) / "PLAN.json", True
         code = planner_cli.cmd_plan(args)
         if code != EXIT_OK:
             print(f"fuseplan: {out} not written: the route is not safe", file=sys.stderr)

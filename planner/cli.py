@@ -212,7 +212,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
               + f"; winner {winner}")
     if args.output:
         write_text(args.output, json.dumps(doc, indent=1, allow_nan=False) + "\n")
-        print(f"  wrote {args.output}")
+        if not getattr(args, "output_is_temporary", False):  # plan -o SAFE.plan: the caller says what it wrote
+            print(f"  wrote {args.output}")
     if args.plot:
         from planner.plot import plot_plan
 

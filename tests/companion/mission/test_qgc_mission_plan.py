@@ -102,4 +102,4 @@ def test_the_safe_plan_keeps_the_fence_and_loads_in_mavsdk(planned: tuple[Path, 
     assert fence == [(5001, 6)] * 6 + [(5002, 4)] * 4 + [(5002, 8)] * 8 + [(5002, 3)] * 3 + [(5004, 60)]
     assert len(data.rally_items) == 1
     positions = [it for it in data.mission_items if it.command == 16]
-    assert len(positions) >= 2 and positions[-1].x == round(op.goal.lat * 1e7)
+    assert len(positions) >= 2 and abs(positions[-1].x - round(op.goal.lat * 1e7)) <= 2  # 1e-7° through ENU

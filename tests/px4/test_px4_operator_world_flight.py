@@ -1,0 +1,54 @@
+"""Issue 35 on PX4 SITL (SIH quadrotor): a ground-station script on PX4's GCS link uploads a fence (an inclusion
+polygon, three exclusion polygons, one concave, and a circle; PX4 enforces it at once) and a one-item mission;
+``fuseplan fly --fence-from-vehicle --goal-from-vehicle --arm`` on the API/offboard link reads them (PX4 has no
+home item: home is the scenario's), plans round them and flies there; the flown track keeps d_coll from every
+zone (the report's telemetry clearance, and the track's positions checked here)."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+from pathlib import Path
+
+import numpy as np
+from operator_course import D_COLL, GOAL, POLYGONS, base_scenario, fence_items, goal_mission, track_clearance
+from px4_harness import FAST
+
+from companion.cli import main
+from companion.mavlink.items import FENCE, MISSION
+from companion.mavlink.link import Link
+from companion.mavlink.protocol import MissionClient
+from planner.world.home import Home
+
+HOME = Home(-35.363261, 149.165230, 584.0)
+
+
+async def _ground_station(port: int) -> None:
+    async with Link(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190, open_timeout=5.0) as link:
+        await link.wait_heartbeat(20.0)
+        client = MissionClient(link)
+        await client.upload_verified(fence_items(HOME), FENCE)
+        await client.upload_verified(goal_mission(HOME, home_item=False), MISSION)
+
+
+def test_px4_flies_round_the_fence_and_to_the_goal_the_operator_uploaded(px4_factory_fn, tmp_path: Path) -> None:
+    scenario = base_scenario(tmp_path / "base.toml", HOME, "copter", 10.0)
+    px4 = px4_factory_fn(HOME, speedup=FAST)
+    asyncio.run(_ground_station(px4.gcs_port))
+    report = tmp_path / "rep"
+    code = main(["fly", str(scenario), "--connect", px4.companion_url, "--fence-from-vehicle", "--goal-from-vehicle",
+                 "--arm", "--report", str(report), "-q"])
+    flight = json.loads((report / "flight.json").read_text())
+    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    assert code == 0 and flight["completed"] is True and flight["flown_safe"] is True, flight
+    world = next(e for e in events if e["event"] == "vehicle_world")
+    assert len(world["zones"]) == len(POLYGONS) + 1 and world["goal"] is not None
+    assert flight["fence_items"] == 0  # the operator's fence stays on the vehicle as it is
+    assert flight["min_static_clearance_m"] >= D_COLL, flight
+    flown = np.array([[e["x"], e["y"]] for e in events if e["event"] == "position"])
+    assert len(flown) > 20
+    gaps = track_clearance(flown)
+    print(f"flown clearance {flight['min_static_clearance_m']:.1f} m ({flight.get('nearest_obstacle')}); "
+          f"by zone {gaps}")
+    assert min(gaps.values()) >= D_COLL, gaps
+    assert np.hypot(*(flown[-1] - np.asarray(GOAL))) < 100.0  # it got there
