@@ -1,4 +1,4 @@
-"""``fuseplan bench speed``: how fast the planner is, in one run (issues 5 and 16). Four parts:
+"""``fuseplan bench speed``: how fast the planner is, in one run (issues 5, 16 and 35). Five parts:
 
 - **headline**: the same plans on both cost kernels (``FUSEPLAN_KERNEL=compiled`` and ``=numpy``, set in the worker
   process before it plans; :func:`planner.kernel.chosen` reads it at each evaluation): a Table-6 SPSO run on
@@ -14,7 +14,9 @@
 - **latency**: plans at the live replanner's budget (100 particles, 0.15 s, roadmap pipeline, the roadmap built
   before the clock) on ``rescue_dynamic`` and ``crossing_traffic`` with their threat picture, ``latency_seeds``
   seeds, with and without :func:`planner.bench.load.cpu_hog` (one busy process), reporting how far plan time runs
-  over the budget (median, p99, max).
+  over the budget (median, p99, max);
+- **polygons**: the compiled cost of one swarm on a field of polygon prisms and on a field of cylinders of the same
+  centres, radii and tops (:func:`obstacle_field`), unlimited and roofed: microseconds per path and their ratio.
 
 Every plan is a record in ``DIR/speed.jsonl`` (appended as it finishes, so an interrupted run resumes) that names
 the kernel it ran on (as :func:`planner.kernel.chosen` saw it in the worker) and the broad-phase setting. Writes
