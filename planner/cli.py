@@ -128,7 +128,7 @@ def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.Argument
     bn.add_argument("--quick", action="store_true",
                     help="bench speed only: reduced budgets, levels and seeds (a smoke test, about a minute)")
     bn.add_argument("--parts", default=None, metavar="LIST",
-                    help="bench speed only: comma-separated subset of headline,reference,scaling,latency "
+                    help="bench speed only: comma-separated subset of headline,reference,scaling,latency,polygons "
                     "(default: all)")
     bn.add_argument("--latency-seeds", type=int, default=None, metavar="N",
                     help="bench speed only: seeds per scenario and load in the latency part (default 20)")
