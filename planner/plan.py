@@ -284,6 +284,8 @@ def plan_to_json(result: PlanResult, scenario: Scenario, start_time: float | Non
         "history": [float(h) for h in result.optimiser.history],
         **_phases(result.optimiser),
         "home": {"lat": scenario.home.lat, "lon": scenario.home.lon, "alt": scenario.home.alt},
+        # where the vehicle's home is in the frame (m east, north): the origin, but for a geographic scenario's region
+        "launch": [float(v) for v in scenario.launch],
         "vehicle": {"type": scenario.vehicle.type, "cruise_speed": scenario.vehicle.cruise_speed,
                     "min_turn_radius_m": scenario.vehicle.min_turn_radius,
                     "turn_overshoot": scenario.vehicle.turn_overshoot},

@@ -82,10 +82,18 @@ class MissionSpec:
 
     autopilot: Autopilot
     vehicle: VehicleLimits
-    home: Home
+    home: Home  # the frame's origin: every ENU point is converted from it
     densify: bool = False
     densify_spacing_m: float = 50.0
     fly_to_start: bool = True
+    # the vehicle's home, when it is not the origin (a geographic scenario's region): ArduPilot's item 0 and a
+    # plan's planned home
+    launch: Home | None = None
+
+    @property
+    def planned_home(self) -> Home:
+        """Where the vehicle takes off: the home item and a .plan's plannedHomePosition."""
+        return self.launch if self.launch is not None else self.home
 
     def __post_init__(self) -> None:
         mission_layout(self.autopilot)  # ValueError for an unknown key
@@ -113,7 +121,7 @@ def time_to_start(scenario: Scenario) -> float:
     v = scenario.vehicle
     start = np.asarray(scenario.start, dtype=float)
     alt = max(v.takeoff_alt, float(start[2]))
-    horizontal = float(np.hypot(start[0], start[1]))
+    horizontal = float(np.hypot(start[0] - scenario.launch[0], start[1] - scenario.launch[1]))
     if v.type == "plane":
         climb = alt / (v.cruise_speed * math.sin(v.max_climb))
         covered = alt / math.tan(v.max_climb)
@@ -151,8 +159,9 @@ def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any 
 
     items: list[MissionItem] = []
     if spec.layout.home_item:
-        items.append(MissionItem(0, FRAME_GLOBAL, CMD_WAYPOINT, x=to_int_e7(home.lat), y=to_int_e7(home.lon),
-                                 z=float(home.alt)))
+        planned = spec.planned_home
+        items.append(MissionItem(0, FRAME_GLOBAL, CMD_WAYPOINT, x=to_int_e7(planned.lat), y=to_int_e7(planned.lon),
+                                 z=float(planned.alt)))
     takeoff_alt = max(vehicle.takeoff_alt, float(wps[0, 2]))
     vtol = spec.layout.vtol  # VTOL_TAKEOFF's param1 0: PX4's transition heading, towards the item's position
     items.append(MissionItem(0, FRAME_REL_ALT_INT, CMD_VTOL_TAKEOFF if vtol else CMD_TAKEOFF,
@@ -334,10 +343,15 @@ def mission_from_plan_json(doc: Mapping[str, Any], vehicle: VehicleLimits | Scen
 
 def spec_from_plan_json(doc: Mapping[str, Any], vehicle: VehicleLimits | Scenario,
                         autopilot: Autopilot = "ardupilot", **options: Any) -> MissionSpec:
-    """The :class:`MissionSpec` for a PLAN.json document (its home; the given vehicle)."""
+    """The :class:`MissionSpec` for a PLAN.json document (its home, and its launch when that is not the origin;
+    the given vehicle)."""
     h = doc["home"]
-    return MissionSpec(autopilot, _vehicle_of(vehicle), Home(float(h["lat"]), float(h["lon"]), float(h["alt"])),
-                       **options)
+    home = Home(float(h["lat"]), float(h["lon"]), float(h["alt"]))
+    launch = doc.get("launch") or [0.0, 0.0]
+    if any(float(v) != 0.0 for v in launch):
+        lat, lon, _ = enu_to_geodetic(np.array([float(launch[0]), float(launch[1]), 0.0]), home)
+        options.setdefault("launch", Home(float(lat), float(lon), home.alt))
+    return MissionSpec(autopilot, _vehicle_of(vehicle), home, **options)
 
 
 __all__ = [

@@ -198,7 +198,7 @@ def qgc_plan(items: Sequence[MissionItem], spec: MissionSpec, fence: Cylinders |
             "vehicleType": VEHICLE_TYPE[vehicle.type],
             "cruiseSpeed": float(vehicle.cruise_speed),
             "hoverSpeed": float(vehicle.cruise_speed),
-            "plannedHomePosition": [home.lat, home.lon, home.alt],
+            "plannedHomePosition": [spec.planned_home.lat, spec.planned_home.lon, spec.planned_home.alt],
             "items": plan_items,
         },
         "geoFence": _plan_fence(zones, as_circles(fence, home)),

@@ -76,6 +76,8 @@ def test_the_safe_plan_keeps_the_fence_and_loads_in_mavsdk(planned: tuple[Path, 
     assert main(["plan", str(MISSION), "-o", str(safe), "-q"]) == 0
     op, back = read_qgc_plan(MISSION), read_qgc_plan(safe)
     assert back.zones == op.zones and back.rally == op.rally  # the operator's fence and rally point, as they were
+    # the planned home is the operator's, not the frame's origin (the region's south-west corner)
+    assert back.home is not None and abs(back.home.lat - op.home.lat) < 1e-7 and abs(back.home.lon - op.home.lon) < 1e-7
     sc = load_scenario(out / "SAFE.scenario.toml")
     assert back.goal is not None and abs(back.goal.lat - op.goal.lat) < 1e-6 and abs(back.goal.lon - op.goal.lon) < 1e-6
     from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
