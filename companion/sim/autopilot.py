@@ -44,6 +44,7 @@ from companion.sim.navigator import (
 from companion.sim.streams import StreamTable
 from companion.sim.transport import SimTransport
 from planner.world.config import VehicleLimits
+from planner.world.home import Home
 from planner.world.scenario import Scenario
 
 logger = logging.getLogger(__name__)
@@ -175,7 +176,12 @@ class SimAutopilot:
         self.is_plane = limits.type == "plane"
         self.system_id = system_id
         self.speedup = float(speedup)
-        self._home = scenario.home
+        self._home = scenario.home  # the frame's origin: every conversion to and from lat/lon
+        # the vehicle's home, where it stands at power-up and returns to: the origin, but for a geographic
+        # scenario's region (Scenario.launch)
+        self._launch = (float(scenario.launch[0]), float(scenario.launch[1]))
+        lat, lon, _ = pymap3d.enu2geodetic(*self._launch, 0.0, scenario.home.lat, scenario.home.lon, scenario.home.alt)
+        self._launch_home = Home(float(lat), float(lon), scenario.home.alt)
         self._rng = np.random.default_rng(seed)
         self._transport = SimTransport(listen, self._on_message, system_id=system_id, component_id=COMPONENT_ID,
                                        loss=loss, latency_s=latency_s, rng=self._rng, signing_key=signing_key)
@@ -192,8 +198,9 @@ class SimAutopilot:
         self._ready = False
         self._sim_time = 0.0
         self._model = FlightModel(limits, math.radians(heading_deg))
+        self._model.state.x, self._model.state.y = self._launch
         self._events = _Events(self)
-        self._nav = Navigator(self._model, self._item_to_enu, self._events)
+        self._nav = Navigator(self._model, self._item_to_enu, self._events, home=self._launch)
         firmware = Firmware.of(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._mav_type())
         self._server = MissionServer(self._send, self._home_item, lambda: self._nav.running,
                                      self._set_current, self._text, firmware=firmware,
@@ -601,7 +608,7 @@ class SimAutopilot:
                 self._start_mission()
         elif name == "RTL":
             self._mode_task = ReturnHome((s.x, s.y), self.vehicle.acceptance_radius, rtl_altitude(self._model),
-                                         for_ever=True)
+                                         for_ever=True, home=self._launch)
         elif name == "LAND":
             self._mode_task = Land((s.x, s.y), (s.x, s.y))
         elif name == "TAKEOFF":
@@ -863,8 +870,9 @@ class SimAutopilot:
         """Item 0 as read back: home in frame GLOBAL with AMSL altitude, all zeros while home is not set."""
         if not self._ready:
             return MissionItem(0, FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, mission_type=MISSION)
-        return MissionItem(0, FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, x=round(self._home.lat * 1e7),
-                           y=round(self._home.lon * 1e7), z=float(self._home.alt), mission_type=MISSION)
+        home = self._launch_home
+        return MissionItem(0, FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, x=round(home.lat * 1e7),
+                           y=round(home.lon * 1e7), z=float(home.alt), mission_type=MISSION)
 
     def _geodetic(self) -> tuple[float, float]:
         s = self._model.state
@@ -927,7 +935,7 @@ class SimAutopilot:
                                                        1 if self.mode == "AUTO" else 0)
 
     def _home_position(self) -> mavlink.MAVLink_home_position_message:
-        h = self._home
+        h = self._launch_home
         return mavlink.MAVLink_home_position_message(
             round(h.lat * 1e7), round(h.lon * 1e7), round(h.alt * 1000), 0.0, 0.0, 0.0, [1.0, 0.0, 0.0, 0.0],
             0.0, 0.0, 0.0, int(self._sim_time * 1e6))

@@ -205,28 +205,31 @@ class ReturnHome(NavTask):
     """Fly home at the RTL altitude. Plane: done on arrival (mission) or circles home for ever (mode);
     copter: done on arrival (mission item) or lands there (mode and mission item both land, as ArduCopter)."""
 
-    def __init__(self, origin: tuple[float, float], radius: float, z: float, for_ever: bool) -> None:
-        self.origin, self.radius, self.z, self.for_ever = origin, radius, z, for_ever
+    def __init__(self, origin: tuple[float, float], radius: float, z: float, for_ever: bool,
+                 home: tuple[float, float] = (0.0, 0.0)) -> None:
+        self.origin, self.radius, self.z, self.for_ever, self.home = origin, radius, z, for_ever, home
         self._phase: NavTask | None = None
 
     def step(self, model: FlightModel, dt: float) -> bool:
         s = model.state
+        hx, hy = self.home
+        off = math.hypot(s.x - hx, s.y - hy)
         if self._phase is not None:
             return self._phase.step(model, dt) and not self.for_ever
         if model.is_plane:
-            model.fly_to((0.0, 0.0, self.z), self.origin, dt)
-            if math.hypot(s.x, s.y) <= max(self.radius, PLANE_LOITER_RADIUS):
+            model.fly_to((hx, hy, self.z), self.origin, dt)
+            if off <= max(self.radius, PLANE_LOITER_RADIUS):
                 self.note = "Reached RTL location"
                 if not self.for_ever:
                     return True
-                self._phase = Loiter((0.0, 0.0, self.z), PLANE_LOITER_RADIUS)
+                self._phase = Loiter((hx, hy, self.z), PLANE_LOITER_RADIUS)
             return False
-        if s.z < self.z - 0.5 and math.hypot(s.x, s.y) > 2.0:
+        if s.z < self.z - 0.5 and off > 2.0:
             model.vertical(self.z, dt)
-        elif math.hypot(s.x, s.y) > 1.0:
-            model.fly_to((0.0, 0.0, max(s.z, self.z)), None, dt)
+        elif off > 1.0:
+            model.fly_to((hx, hy, max(s.z, self.z)), None, dt)
         else:
-            self._phase = Land((0.0, 0.0), (s.x, s.y))
+            self._phase = Land((hx, hy), (s.x, s.y))
             self.for_ever = False
         return False
 
@@ -246,8 +249,10 @@ class NavigatorEvents(Protocol):
 class Navigator:
     """Runs the stored mission (item 0 = home is never flown)."""
 
-    def __init__(self, model: FlightModel, to_enu: Callable[[MissionItem], Point], events: NavigatorEvents):
+    def __init__(self, model: FlightModel, to_enu: Callable[[MissionItem], Point], events: NavigatorEvents,
+                 home: tuple[float, float] = (0.0, 0.0)):
         self.model = model
+        self.home = home  # where RTL returns to, m in the frame
         self._to_enu = to_enu
         self._events = events
         self.current_seq = 0
@@ -375,7 +380,7 @@ class Navigator:
             return Loiter((x, y, z), loiter_radius, clockwise=item.param3 >= 0.0, duration=duration)
         if cmd == mavlink.MAV_CMD_NAV_RETURN_TO_LAUNCH:
             return ReturnHome(here, self.model.vehicle.acceptance_radius, rtl_altitude(self.model),
-                              for_ever=False)
+                              for_ever=False, home=self.home)
         if cmd == mavlink.MAV_CMD_NAV_LAND:
             return Land((x, y), origin)
         return Waypoint(item.seq, (x, y, z), origin, radius, origin_z=origin_z)
