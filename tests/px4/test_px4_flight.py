@@ -54,6 +54,19 @@ def mountain_plan(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return path
 
 
+OPERATOR_FLIGHT = ("px4/test_px4_operator_world_flight.py::"
+                   "test_px4_flies_round_the_fence_and_to_the_goal_the_operator_uploaded")
+
+
+@pytest.mark.slow(covered_by=(
+    # a whole flight of the PX4 quad, boot to goal (arm, AUTO.MISSION, set-current, the navigator's acceptance)
+    OPERATOR_FLIGHT,
+    # the companion's fence and mission verified as PX4 stores them, flown to a landing
+    "test_rescue_static_flies_on_the_px4_standard_vtol",
+    # the quad landing and disarming itself after the mission
+    "px4/test_px4_companion.py::test_the_rtl_end_action_returns_lands_and_disarms[pymavlink]",
+    # mountain_rescue (terrain) flown to its end by an autopilot
+    "sitl/test_flights.py::test_copter_scenario_flies_on_arducopter"))
 def test_mountain_rescue_flies_on_px4_with_the_default_options(px4_factory_fn, mountain_plan: Path,
                                                                 tmp_path: Path) -> None:
     """`fuseplan fly PLAN --connect udpin:127.0.0.1:14540 --arm` against a PX4 started a moment before: boot
@@ -78,8 +91,8 @@ def test_mountain_rescue_flies_on_px4_with_the_default_options(px4_factory_fn, m
     assert hb.custom_mode == AUTO_MISSION
 
 
-@pytest.mark.slow(covered_by=(  # a flight on PX4 with the default options, and the end action "loiter" on PX4
-    "test_mountain_rescue_flies_on_px4_with_the_default_options",
+@pytest.mark.slow(covered_by=(  # a whole flight of the PX4 quad, and the end action "loiter" on PX4
+    OPERATOR_FLIGHT,
     "px4/test_px4_companion.py::test_the_loiter_end_action_holds_over_the_goal_armed[pymavlink]"))
 def test_rescue_static_flies_on_px4_as_a_copter(px4_factory_fn, tmp_path: Path) -> None:
     """`fuseplan fly rescue_static.toml --set vehicle.type=copter --arm` on the PX4 quad, default options:

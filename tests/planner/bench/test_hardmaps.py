@@ -40,6 +40,16 @@ from planner.world.scenario import Scenario, load_scenario
 REPO = Path(__file__).resolve().parents[3]
 SEEDS = range(5)
 CASES = [(family, seed) for family in FAMILIES for seed in SEEDS]
+
+
+def _seeds_past_the_first(test: str) -> list:
+    """CASES, the seeds after a family's first left to ``--with-covered``: the same generator and check on more
+    draws of it, which the first seed's case covers (the suite's time; issue 35)."""
+    first = SEEDS[0]
+    return [(f, s) if s == first else pytest.param(f, s, marks=pytest.mark.slow(covered_by=f"{test}[{f}-{first}]"))
+            for f, s in CASES]
+
+
 GRID_M = 10.0  # plan-view grid of the reachability tests
 
 
@@ -70,7 +80,8 @@ def _cell_of(p: np.ndarray) -> tuple[int, int]:
     return int(p[0] // GRID_M), int(p[1] // GRID_M)
 
 
-@pytest.mark.parametrize(("family", "seed"), CASES)
+@pytest.mark.parametrize(("family", "seed"),
+                         _seeds_past_the_first("test_the_planted_route_is_flyable_on_the_generated_map"))
 def test_the_planted_route_is_flyable_on_the_generated_map(family: str, seed: int, tmp_path: Path) -> None:
     m = generate(family, seed)
     sc = _load(m, tmp_path)
@@ -88,7 +99,7 @@ def test_the_planted_route_is_flyable_on_the_generated_map(family: str, seed: in
     assert not any(route_violations(m.planted, sc.environment, sc.hazard, sc.vehicle).values())
 
 
-@pytest.mark.parametrize(("family", "seed"), CASES)
+@pytest.mark.parametrize(("family", "seed"), _seeds_past_the_first("test_the_straight_line_is_blocked"))
 def test_the_straight_line_is_blocked(family: str, seed: int, tmp_path: Path) -> None:
     m = generate(family, seed)
     sc = _load(m, tmp_path)
@@ -102,7 +113,7 @@ def test_the_straight_line_is_blocked(family: str, seed: int, tmp_path: Path) ->
     assert m.straight_blocked
 
 
-@pytest.mark.parametrize(("family", "seed"), CASES)
+@pytest.mark.parametrize(("family", "seed"), _seeds_past_the_first("test_the_straight_route_fails_the_checker"))
 def test_the_straight_route_fails_the_checker(family: str, seed: int, tmp_path: Path) -> None:
     """Not trivial: the two-waypoint route start→goal is not flyable (checker or cost)."""
     m = generate(family, seed)
