@@ -55,11 +55,16 @@ GUARD_SHARE_OF_D_COLL = 0.5
 # vehicle seconds before the exit point of its hold circle that a plane is resumed onto the route planned from there
 # (ArduPlane rolls out of its bank over about a second; docs/design.md, "Leaving a hold")
 EXIT_LEAD_S = 1.0
-# vehicle seconds after the exit was due that a plane still short of it, or seen past it only now, has missed it (the
-# plan's time is gone); one that comes to it late, or passed it between two looks before then, is resumed only when
-# the join, checked from where and when it is, is clear (on the simulator a held plane flew its circle at 16 m/s
+# vehicle seconds after the exit was due that a plane still short of it has missed it (the plan's time is gone; plus
+# EXIT_PACE_SLACK of the time to circle there), and the seconds of flight past it that a plane seen past it only now
+# has missed it by; one that comes to it late, or passed it by less, is resumed only when the join, checked from
+# where and when it is, is clear (on the simulator a held plane flew its circle at 16 m/s
 # against the 18 m/s assumed, and came to an exit 418 m round it 3 s after it was due)
 EXIT_LATE_S = 3.0
+# of the time planned to circle to the exit, the share a plane may take longer and still be awaited there (the
+# simulator's plane at 16 m/s against 18 assumed is 11 % slower; on a loaded CI machine a route whose exit lay most
+# of a lap round was missed for it and planned a lap later)
+EXIT_PACE_SLACK = 0.2
 # m beyond d_coll the resume at a circle's exit is checked with (leg_blocked): its route was planned from there with
 # RESUME_MARGIN_M more than d_coll and its turns' swing, and, aligned with its first leg, the plane flies it with
 # little turn; the check's paths turn up to WIDE_TURNS times wider than the path-follower's bound, which is for
@@ -384,12 +389,14 @@ class LiveReplanner:
         # the arc left at the last look, or as planned: an exit planned most of a lap ahead is not one just passed
         prev = leaving.exit.arc_m if leaving.left_m is None else leaving.left_m
         leaving.left_m = left
-        passed = left > prev + 0.5 * lap  # what is left jumped up by most of a lap: passed between two looks
-        if left > lead and not passed:  # not there yet
-            if now > leaving.due + EXIT_LATE_S:  # slower round its circle than planned: the route's timing is gone
-                self._exit_missed(seq, leaving, left)
+        # passed between two looks: what is left jumped up by most of a lap, or, once due, most of a lap is left (a
+        # loop starved since the plan saw no jump: half a lap late is not a slow pace, it is a pass)
+        passed = left > prev + 0.5 * lap or (now > leaving.due and left > 0.5 * lap)
+        if left > lead and not passed:  # not there yet: it may circle slower than assumed, in proportion
+            if now > leaving.due + EXIT_LATE_S + EXIT_PACE_SLACK * leaving.exit.arc_m / speed:
+                self._exit_missed(seq, leaving, left)  # far slower than planned: the route's timing is gone
             return
-        if passed and now > leaving.due + EXIT_LATE_S:  # looked at too late (a starved loop): not flown late
+        if passed and lap - left > EXIT_LATE_S * speed:  # looked at too late (a starved loop): not flown late
             self._exit_missed(seq, leaving, left)
             return
         modes.exit = None
