@@ -389,9 +389,7 @@ class LiveReplanner:
         # the arc left at the last look, or as planned: an exit planned most of a lap ahead is not one just passed
         prev = leaving.exit.arc_m if leaving.left_m is None else leaving.left_m
         leaving.left_m = left
-        # passed between two looks: what is left jumped up by most of a lap, or, once due, most of a lap is left (a
-        # loop starved since the plan saw no jump: half a lap late is not a slow pace, it is a pass)
-        passed = left > prev + 0.5 * lap or (now > leaving.due and left > 0.5 * lap)
+        passed = left > prev + 0.5 * lap  # what is left jumped up by most of a lap: passed between two looks
         if left > lead and not passed:  # not there yet: it may circle slower than assumed, in proportion
             if now > leaving.due + EXIT_LATE_S + EXIT_PACE_SLACK * leaving.exit.arc_m / speed:
                 self._exit_missed(seq, leaving, left)  # far slower than planned: the route's timing is gone
