@@ -15,7 +15,7 @@ import numpy as np
 from planner.kernel.fastmath import bezier, cubic_range, fast_atan2, peak_factor
 from planner.kernel.inputs import SLOPE_BLOCK, KernelInputs, broad_phase
 from planner.kernel.jit import called, inline, jit
-from planner.kernel.segments import prism_width, seg_cyl_finite, seg_point_2d_sq, seg_point_sq, seg_prism
+from planner.kernel.segments import prism_lanes, prism_width, seg_cyl_finite, seg_point_2d_sq, seg_point_sq
 from planner.world.environment import LOITER, PATROL
 
 _EPS = 1e-9  # as planner.problem: unit directions
@@ -341,8 +341,11 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
     n_cyl = cyl_x.shape[0]
     n_sph = sph_r.shape[0]
     n_pri = pri_rows.shape[0]
-    cross = np.empty(max(prism_width(pri_start), 1))  # scratch: a segment's crossings with one polygon's edges
-    knots = np.empty(6)
+    lane = np.empty((7, n_p))  # the near particles' segments against one prism (prism_lanes), and scratch
+    lane_p = np.empty(n_p, dtype=np.int64)
+    near_i = np.empty(n_p, dtype=np.int64)
+    clr = np.empty(n_p)
+    pri_ws = np.empty((12, max(2 * n_p, prism_width(pri_start), 6)))
     climb_tan2 = math.tan(max_climb) ** 2 * (1.0 - 1e-9) if max_climb < 0.5 * math.pi else math.inf
     peak_max = peak_table.max()
     gap_cap = d_safe - d_coll
@@ -440,15 +443,33 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
                 pri_rows[k, 4], pri_rows[k, 5]
             if not keep and _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, r + reach):
                 continue
-            for p in range(n_p):  # beyond a particle's reach the clearance adds an exact zero, as a cylinder's
-                reach_p = (d_safe + dev[s, p]) * (1.0 + 1e-9) + 1e-6
-                if not keep and seg_point_2d_sq(pt[s, 0, p], pt[s, 1, p], pt[s + 1, 0, p], pt[s + 1, 1, p], cx,
-                                                cy) > (r + reach_p) ** 2:
-                    continue  # its disc is beyond reach: not even the polygon's edges are looked at
-                c = seg_prism(pt[s, 0, p], pt[s, 1, p], pt[s, 2, p], pt[s + 1, 0, p], pt[s + 1, 1, p],
-                              pt[s + 1, 2, p], pri_v, pri_start[k], pri_start[k + 1], f, h, keep, reach_p, cross,
-                              knots)
-                _hazard(c - dev[s, p], p, d_safe, gap_cap, pen_c, per_m, soft_pri, pen, viol)
+            m = 0
+            if keep:
+                for p in range(n_p):
+                    lane_p[p] = p
+                m = n_p
+            else:
+                for p in range(n_p):  # beyond a particle's reach the clearance adds an exact zero, as a cylinder's
+                    reach_p = (d_safe + dev[s, p]) * (1.0 + 1e-9) + 1e-6  # its disc beyond: no edge is looked at
+                    lim = r + reach_p
+                    near_i[p] = 0 if seg_point_2d_sq(pt[s, 0, p], pt[s, 1, p], pt[s + 1, 0, p], pt[s + 1, 1, p], cx,
+                                                     cy) > lim * lim else 1
+                for p in range(n_p):  # the near particles, in order (no branch: every p written, m moved by 0/1)
+                    lane_p[m] = p
+                    m += near_i[p]
+                if m == 0:
+                    continue
+            for q in range(m):  # their segments, gathered into lanes
+                p = lane_p[q]
+                for i in range(3):
+                    lane[i, q] = pt[s, i, p]
+                    lane[3 + i, q] = pt[s + 1, i, p]
+                lane[6, q] = (d_safe + dev[s, p]) * (1.0 + 1e-9) + 1e-6
+            prism_lanes(lane, pri_v, pri_start[k], pri_start[k + 1], f, h, keep, m, pri_ws, clr)
+            for i in range(m):
+                if clr[i] < lane[6, i]:  # at or beyond reach the term is an exact zero
+                    p = lane_p[i]
+                    _hazard(clr[i] - dev[s, p], p, d_safe, gap_cap, pen_c, per_m, soft_pri, pen, viol)
         for k in range(rad_det.shape[0]):
             cx, cy, cz, det, wt = rad_c[k, 0], rad_c[k, 1], rad_c[k, 2], rad_det[k], rad_w[k]
             for p in range(n_p):

@@ -229,6 +229,111 @@ def seg_prism(ax, ay, az, bx, by, bz, v, i0, i1, f, h, keep, limit, cross, knots
     return neg if neg < math.inf else math.sqrt(best)
 
 
+@linked
+def prism_lanes(la, v, i0, i1, f, h, keep, m, ws, clr):  # noqa: ANN001, ANN202
+    """seg_prism for m segments at once, bit for bit (docs/method.md §2.7): lanes la[:, 0:m] hold ax, ay, az, bx, by,
+    bz and the limit (rows 0–6); their clearances go to clr[0:m]. Edge by edge, the segments innermost (SIMD lanes):
+    a's containment, the crossings' count, first and last, and the least squared plan distance (ends to edges,
+    vertices to the segment: the closed form's four distances, each vertex once). A segment wholly between floor and
+    ceiling with at most two crossings is finished from these, the middles of its parts inside measured in a second
+    lane pass; any other (rare) goes to seg_prism. ``ws`` (12 rows of ≥ 2m, the most vertices and 6) is scratch."""
+    best, tmin, tmax, ncr, ins = ws[0], ws[1], ws[2], ws[3], ws[4]
+    qx_, qy_, qb = ws[5], ws[6], ws[7]  # query points (a part's middle) and their least squared edge distance
+    owner, qz = ws[8], ws[9]
+    for i in range(m):
+        best[i] = math.inf
+        tmin[i] = math.inf
+        tmax[i] = -math.inf
+        ncr[i] = 0.0
+        ins[i] = 0.0
+    for j in range(i0, i1):
+        px0, py0 = v[j, 0], v[j, 1]
+        nj = j + 1 if j + 1 < i1 else i0
+        qx, qy = v[nj, 0], v[nj, 1]
+        ex, ey = qx - px0, qy - py0
+        l2 = ex * ex + ey * ey
+        l2 = l2 if l2 > 0.0 else 1.0
+        dye = qy - py0 if qy != py0 else 1.0
+        for i in range(m):  # branch-free: the SIMD pass
+            ax, ay = la[0, i], la[1, i]
+            dx, dy = la[3, i] - ax, la[4, i] - ay
+            dd = dx * dx + dy * dy
+            dd = dd if dd > 0.0 else 1.0
+            # 0/1 flags as numbers, and no division by a lane's zero: either keeps this loop in SIMD lanes
+            up = abs((1.0 if py0 > ay else 0.0) - (1.0 if qy > ay else 0.0))
+            ins[i] = abs(ins[i] - up * (1.0 if ax < px0 + (ay - py0) * (qx - px0) / dye else 0.0))
+            oa = ex * (ay - py0) - ey * (ax - px0)
+            ob = ex * (ay + dy - py0) - ey * (ax + dx - px0)
+            sa = dx * (py0 - ay) - dy * (px0 - ax)
+            sb = dx * (qy - ay) - dy * (qx - ax)
+            hit = abs((1.0 if oa > 0.0 else 0.0) - (1.0 if ob > 0.0 else 0.0)) \
+                * abs((1.0 if sa > 0.0 else 0.0) - (1.0 if sb > 0.0 else 0.0))
+            den = oa - ob  # not zero where they cross
+            t = oa / (den if den != 0.0 else 1.0)
+            ncr[i] += hit
+            tmin[i] = min(tmin[i], t if hit > 0.5 else math.inf)
+            tmax[i] = max(tmax[i], t if hit > 0.5 else -math.inf)
+            d = min(min(_edge_sq(ax, ay, px0, py0, ex, ey, l2), _edge_sq(ax + dx, ay + dy, px0, py0, ex, ey, l2)),
+                    _edge_sq(px0, py0, ax, ay, dx, dy, dd))
+            best[i] = min(best[i], d)
+    n_q = 0
+    for i in range(m):  # each segment's parts in the solid (seg_prism's second half); middles become queries
+        az, bz = la[2, i], la[5, i]
+        dz = bz - az
+        n = int(ncr[i])
+        if not (f <= min(az, az + dz) and max(az, az + dz) <= h) or n > 2:
+            clr[i] = math.nan  # finished by seg_prism below
+            continue
+        b = 0.0 if n > 0 else best[i]
+        inside = ins[i] > 0.5
+        if dz != 0.0:
+            tf, th = (f - az) / dz, (h - az) / dz
+            tw0, tw1 = max(min(tf, th), 0.0), min(max(tf, th), 1.0)
+        else:
+            tw0, tw1 = 0.0, 1.0
+        for k in range(n + 1):
+            if (inside != (k % 2 == 1)) == keep:
+                continue
+            lo = 0.0 if k == 0 else (tmin[i] if k == 1 else tmax[i])
+            hi = 1.0 if k == n else (tmin[i] if k == 0 else tmax[i])
+            z0, z1 = az + lo * dz, az + hi * dz
+            wmin = max(max(f - max(z0, z1), min(z0, z1) - h), 0.0)
+            b = min(b, wmin * wmin)
+            s_lo, s_hi = max(lo, tw0), min(hi, tw1)
+            if s_hi > s_lo:
+                tm = 0.5 * (s_lo + s_hi)
+                ax, ay = la[0, i], la[1, i]
+                qx_[n_q] = ax + tm * (la[3, i] - ax)
+                qy_[n_q] = ay + tm * (la[4, i] - ay)
+                qz[n_q] = az + tm * dz
+                owner[n_q] = i
+                n_q += 1
+        clr[i] = math.sqrt(b)
+    if n_q:
+        for q in range(n_q):
+            qb[q] = math.inf
+        for j in range(i0, i1):
+            nj = j + 1 if j + 1 < i1 else i0
+            ex, ey = v[nj, 0] - v[j, 0], v[nj, 1] - v[j, 1]
+            l2 = ex * ex + ey * ey
+            l2 = l2 if l2 > 0.0 else 1.0
+            for q in range(n_q):
+                qb[q] = min(qb[q], _edge_sq(qx_[q], qy_[q], v[j, 0], v[j, 1], ex, ey, l2))
+        q = 0
+        while q < n_q:  # a segment's queries are consecutive: the least of its parts' d_prism replaces sqrt(b)
+            i = int(owner[q])
+            neg = math.inf
+            while q < n_q and int(owner[q]) == i:
+                pz = qz[q]
+                neg = min(neg, max(-math.sqrt(qb[q]), max(f - pz, pz - h)))
+                q += 1
+            clr[i] = neg
+    for i in range(m):
+        if math.isnan(clr[i]):
+            clr[i] = seg_prism(la[0, i], la[1, i], la[2, i], la[3, i], la[4, i], la[5, i], v, i0, i1, f, h, keep,
+                               la[6, i], ws[10], ws[11])
+
+
 @inline
 def prism_width(start):  # noqa: ANN001, ANN202
     """The most vertices of one polygon, from the prisms' start indices (the crossings' scratch length)."""

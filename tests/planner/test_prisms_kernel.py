@@ -151,3 +151,35 @@ def test_a_map_without_prisms_is_scored_as_before() -> None:
     assert problem.kernel_inputs.pri_rows.shape == (0, 6) and len(problem.kernel_inputs.ob_x) == 2
     paths = swarm(problem, np.random.default_rng(4))
     assert_same(problem, paths)
+
+
+def test_the_lane_pass_gives_seg_prism_bit_for_bit() -> None:
+    """prism_lanes (the cost's SIMD pass over the segments near one prism) against seg_prism, one segment at a time:
+    the same value exactly, for segments outside, crossing once, twice or more, wholly inside, above a ceiling or
+    below a floor, against concave and keep-in polygons."""
+    from planner.kernel.segments import prism_lanes, seg_prism
+
+    prisms = prism_world().prisms
+    rng = np.random.default_rng(35)
+    m = 200
+    cases = {"crossings>2": 0, "inside": 0, "outside": 0, "non-level": 0}
+    for k in range(len(prisms)):
+        i0, i1 = int(prisms.start[k]), int(prisms.start[k + 1])
+        cx, cy, r = prisms.cx[k], prisms.cy[k], prisms.r[k]
+        f, h, keep = float(prisms.floor[k]), float(prisms.ceiling[k]), bool(prisms.keep_in[k])
+        for _ in range(5):
+            a = np.column_stack([rng.uniform(cx - 1.5 * r, cx + 1.5 * r, m), rng.uniform(cy - 1.5 * r, cy + 1.5 * r, m),
+                                 rng.uniform(0.0, 300.0, m)])
+            b = a + rng.normal(0.0, [0.8 * r, 0.8 * r, 40.0], (m, 3))
+            la = np.vstack([a.T, b.T, rng.uniform(20.0, 120.0, m)])
+            clr = np.empty(m)
+            prism_lanes(la, prisms.vertices, i0, i1, f, h, keep, m, np.empty((12, 2 * m + i1 - i0 + 6)), clr)
+            cross, knots = np.empty(i1 - i0), np.empty(6)
+            want = np.array([seg_prism(*a[i], *b[i], prisms.vertices, i0, i1, f, h, keep, la[6, i], cross, knots)
+                             for i in range(m)])
+            assert np.array_equal(clr, want), (k, np.flatnonzero(clr != want)[:5])
+            zlo, zhi = np.minimum(a[:, 2], b[:, 2]), np.maximum(a[:, 2], b[:, 2])
+            cases["non-level"] += int(np.sum((zlo < f) | (zhi > h)))
+            cases["inside"] += int(np.sum(want < 0.0))
+            cases["outside"] += int(np.sum(want > 0.0))
+    assert min(cases["inside"], cases["outside"], cases["non-level"]) > 50, cases
