@@ -1,8 +1,9 @@
-"""Shared fixtures: paths to the shipped scenarios, and real ArduPilot SITL processes (tests/sitl_harness.py) and
-PX4 SITL processes (tests/px4_harness.py)."""
+"""Shared fixtures: paths to the shipped scenarios, the TOML examples in the docs, and real ArduPilot SITL processes
+(tests/sitl_harness.py) and PX4 SITL processes (tests/px4_harness.py)."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import TypeVar
@@ -25,6 +26,18 @@ PX4_FIXTURES = {"px4_factory", "px4_factory_fn"}
 @pytest.fixture
 def rescue_static() -> Path:
     return SCENARIOS / "rescue_static.toml"
+
+
+@pytest.fixture
+def doc_toml() -> Callable[[str, str], str]:
+    """``doc_toml(doc, heading)``: the first TOML block after ``heading`` in docs/``doc`` (examples run as tests)."""
+
+    def block(doc: str, heading: str) -> str:
+        found = re.search(r"```toml\n(.*?)```", (ROOT / "docs" / doc).read_text().partition(heading)[2], re.S)
+        assert found is not None, f"no TOML block after {heading!r} in docs/{doc}"
+        return found[1]
+
+    return block
 
 
 def pytest_addoption(parser: pytest.Parser) -> None:

@@ -7,16 +7,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import gcs_world
 import numpy as np
-import pymap3d
-from pymavlink.dialects.v20 import common as mavlink
 
-from companion.mavlink.items import FENCE, MISSION, MissionItem
+from companion.mavlink.items import MissionItem
 from planner.world.home import Home
 from planner.world.polygons import boundary_distance, contains
 
-GLOBAL_INT, REL_INT = mavlink.MAV_FRAME_GLOBAL_INT, mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT
-# (inclusion, vertices as (east, north) metres from home)
+# (inclusion, vertices as (east, north) metres from home: the flights' plan-view x, y)
 POLYGONS = (
     (True, ((-300.0, -250.0), (1450.0, -250.0), (1600.0, 300.0), (1450.0, 1000.0), (-150.0, 1000.0), (-300.0, 400.0))),
     (False, ((280.0, -120.0), (420.0, -120.0), (420.0, 330.0), (280.0, 330.0))),
@@ -29,32 +27,16 @@ GOAL = (1180.0, 720.0)  # east, north
 D_COLL = 20.0
 
 
-def e7(home: Home, east: float, north: float) -> tuple[int, int]:
-    lat, lon, _ = pymap3d.enu2geodetic(east, north, 0.0, home.lat, home.lon, home.alt)
-    return round(float(lat) * 1e7), round(float(lon) * 1e7)
-
-
 def fence_items(home: Home) -> list[MissionItem]:
-    items = []
-    for inclusion, vertices in POLYGONS:
-        command = (mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_INCLUSION if inclusion
-                   else mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION)
-        items += [MissionItem(0, GLOBAL_INT, command, param1=float(len(vertices)), x=x, y=y, mission_type=FENCE)
-                  for x, y in (e7(home, e, n) for e, n in vertices)]
-    x, y = e7(home, *CIRCLE[:2])
-    items.append(MissionItem(0, GLOBAL_INT, mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION, param1=CIRCLE[2], x=x, y=y,
-                             mission_type=FENCE))
+    """The zones as a ground station uploads them, numbered (gcs_world.fence_items, which takes north, east)."""
+    polygons = [(inclusion, [(n, e) for e, n in vertices]) for inclusion, vertices in POLYGONS]
+    items = gcs_world.fence_items(home, polygons, (CIRCLE[1], CIRCLE[0], CIRCLE[2]))
     return [it.with_seq(k) for k, it in enumerate(items)]
 
 
 def goal_mission(home: Home, home_item: bool, alt: float = 60.0) -> list[MissionItem]:
     """One navigation item (the goal); on ArduPilot after the home placeholder at item 0."""
-    x, y = e7(home, *GOAL)
-    items = [MissionItem(0, REL_INT, mavlink.MAV_CMD_NAV_WAYPOINT, x=x, y=y, z=alt, mission_type=MISSION)]
-    if home_item:
-        hx, hy = e7(home, 0.0, 0.0)
-        items.insert(0, MissionItem(0, mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_CMD_NAV_WAYPOINT, x=hx, y=hy,
-                                    z=home.alt, mission_type=MISSION))
+    items = gcs_world.goal_mission(home, north=GOAL[1], east=GOAL[0], alt=alt, home_item=home_item)
     return [it.with_seq(k) for k, it in enumerate(items)]
 
 

@@ -41,11 +41,11 @@ from companion.mission import picture
 from companion.mission.builder import (
     build_fence,
     mission_from_plan_json,
+    prisms_left_out,
     spec_from_plan_json,
 )
 from companion.mission.events import EventLog
 from companion.mission.exports import (
-    fence_zones,
     write_geojson,
     write_qgc_plan,
     write_waypoints,
@@ -244,8 +244,9 @@ def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scena
     write_waypoints(report / "mission.waypoints", items, spec.home)
     polygons = zones_from_prisms(scenario.environment.prisms, spec.home)
     top = float(np.max(np.asarray(plan_doc["trajectory"]["points"], dtype=float)[:, 2]))
+    left_out = prisms_left_out(scenario.environment.prisms, 0.0, top)
     write_qgc_plan(report / "mission.plan", items, spec, zones_of(scenario, spec.home) if fence else (),
-                   zones=fence_zones(polygons, spec.home, 0.0, top) if fence else ())
+                   zones=[z for k, z in enumerate(polygons) if k not in left_out] if fence else ())
     traj = lonlatalt(np.asarray(plan_doc["trajectory"]["points"], dtype=float), spec.home)
     write_geojson(report / "mission.geojson", lonlatalt(np.asarray(plan_doc["waypoints"]), spec.home),
                   zones_of(scenario, spec.home), traj, {"scenario": scenario.name}, geo_zones=polygons)

@@ -275,22 +275,35 @@ def build_fence(zones: Cylinders | Sequence[Circle], home: Home, max_route_alt: 
     return [item.with_seq(seq) for seq, item in enumerate(items)]
 
 
+def prisms_left_out(prisms: Prisms, low_m: float | None, high_m: float | None) -> dict[int, str]:
+    """The prisms a fence leaves out for a route flown between ``low_m`` and ``high_m`` m above home (None: that
+    side not checked), each with why. A fence holds at every height, so a no-fly prism is fenced only when the route
+    cannot pass over or under it: its ceiling at least ``high_m`` and its floor at most ``low_m``; a keep-in
+    polygon always is. The one rule for :func:`build_fence` and the exported fences (companion.mission.exports,
+    the flight's mission files)."""
+    out = {}
+    for k in range(len(prisms)):
+        if prisms.keep_in[k]:
+            continue
+        floor, ceiling = float(prisms.floor[k]), float(prisms.ceiling[k])
+        if high_m is not None and ceiling < high_m:
+            out[k] = f"its ceiling {ceiling:.0f} m is below the route's highest {high_m:.0f} m"
+        elif low_m is not None and floor > low_m:
+            out[k] = f"its floor {floor:.0f} m is above the route's lowest {low_m:.0f} m"
+    return out
+
+
 def _polygon_items(prisms: Prisms, home: Home, max_route_alt: float | None,
                    min_route_alt: float | None) -> list[MissionItem]:
     """Vertex items of the prisms to fence (:func:`build_fence`), keep-in polygons first."""
     lat, lon, _ = enu_to_geodetic(np.column_stack([prisms.vertices, np.zeros(len(prisms.vertices))]), home)
+    left_out = prisms_left_out(prisms, min_route_alt, max_route_alt)
     keep_in, no_fly = [], []
     for k in range(len(prisms)):
+        if k in left_out:
+            logger.info("fence: leaving out polygon %d: %s", k, left_out[k])
+            continue
         inclusion = bool(prisms.keep_in[k])
-        floor, ceiling = float(prisms.floor[k]), float(prisms.ceiling[k])
-        if not inclusion and max_route_alt is not None and ceiling < max_route_alt:
-            logger.info("fence: leaving out polygon %d: its ceiling %.0f m is below the route's highest %.0f m",
-                        k, ceiling, max_route_alt)
-            continue
-        if not inclusion and min_route_alt is not None and floor > min_route_alt:
-            logger.info("fence: leaving out polygon %d: its floor %.0f m is above the route's lowest %.0f m",
-                        k, floor, min_route_alt)
-            continue
         first, end = int(prisms.start[k]), int(prisms.start[k + 1])
         command = CMD_FENCE_POLYGON_INCLUSION if inclusion else CMD_FENCE_POLYGON_EXCLUSION
         (keep_in if inclusion else no_fly).extend(
@@ -356,5 +369,5 @@ def spec_from_plan_json(doc: Mapping[str, Any], vehicle: VehicleLimits | Scenari
 
 __all__ = [
     "Autopilot", "MissionSpec", "build_fence", "build_mission", "is_home_item", "mission_from_plan_json",
-    "mission_waypoint_index", "spec_from_plan_json", "time_to_start", "waypoint_items",
+    "mission_waypoint_index", "prisms_left_out", "spec_from_plan_json", "time_to_start", "waypoint_items",
 ]

@@ -24,6 +24,7 @@ from companion.mission.builder import (
     MissionSpec,
     is_home_item,
     mission_from_plan_json,
+    prisms_left_out,
     spec_from_plan_json,
 )
 from companion.mission.geo import Circle, as_circles, circle_ring, enu_to_geodetic, lonlatalt, to_int_e7
@@ -416,5 +417,7 @@ def export_from_plan_json(plan_doc: Mapping[str, Any], scenario: Scenario, fmt: 
         route_top = float(np.max(heights))
         zones = [c for c in as_circles(scenario.environment.cylinders, spec.home) if c.top_m >= route_top]
         # a fence holds at every height: polygons the route (and its climb from home) may pass over or under stay out
-        polygons = fence_zones(zones_from_prisms(scenario.environment.prisms, spec.home), spec.home, 0.0, route_top)
+        prisms = scenario.environment.prisms
+        left_out = prisms_left_out(prisms, 0.0, route_top)
+        polygons = [z for k, z in enumerate(zones_from_prisms(prisms, spec.home)) if k not in left_out]
     return write_qgc_plan(path, items, spec, zones, unchecked=unchecked, zones=polygons)

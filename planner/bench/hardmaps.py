@@ -43,6 +43,7 @@ from planner.world.environment import Cylinders, Environment, Radars, Spheres
 from planner.world.geometry import cylinder_signed_distance, horizontal_turn
 from planner.world.home import Home
 from planner.world.terrain import Terrain
+from planner.world.toml_text import Fixed, Table, dumps
 
 OBSTACLE_FAMILIES = ("gates", "dense", "maze", "ridge", "canyon")
 TERRAIN_FAMILIES = ("valley", "saddle", "saddle_radar", "mixed")
@@ -50,6 +51,7 @@ FAMILIES = OBSTACLE_FAMILIES + TERRAIN_FAMILIES
 BAND = (50.0, 300.0)  # altitude band above terrain, m
 TERRAIN_BAND = (30.0, 150.0)  # the terrain families' band, m above the ground: low, under the terrain around
 DEM_CELL_M = 25.0  # node spacing of the terrain families' DEM (heights written to 0.1 m)
+DEM_NOTE = "ESRI ASCII grid beside this file: ENU metres from home, heights m AMSL (docs/scenario_format.md)"
 HAZARD = HazardConfig(d_safe=60.0, d_coll=15.0)  # as sitl_scenarios/large_obstacle_field.toml
 BUFFER_M = 10.0  # extra corridor beyond d_coll and the tracking margin
 CHORD_STEP_M = 5.0  # spacing of the samples on the waypoint chords
@@ -319,17 +321,17 @@ def _dense(seed: int, rng: np.random.Generator, count: int = 250, size: float = 
                            spheres=_spheres(sph))
     if any(route_violations(route, env_full, hazard).values()):  # the corridor guarantees it; check anyway
         raise RuntimeError(f"dense: planted route not flyable after placing obstacles (seed {seed})")
-    body = []
+    entries = []  # in the order drawn, the kinds interleaved
     for k, (x, y, z, r) in zip(kinds_a, obs):
         if k == 0:
-            body.append(f"\n[[cylinders]]\nx = {x:.2f}\ny = {y:.2f}\nradius = {r:.2f}\n")
+            entries += _entries("cylinders", [[x, y, r]], ("x", "y", "radius"))
         elif k == 1:
-            body.append(f"\n[[spheres]]\nx = {x:.2f}\ny = {y:.2f}\nz = {z:.2f}\nradius = {r:.2f}\n")
+            entries += _entries("spheres", [[x, y, z, r]], ("x", "y", "z", "radius"))
         else:
-            body.append(f"\n[[hemispheres]]\nx = {x:.2f}\ny = {y:.2f}\nradius = {r:.2f}\n")
+            entries += _entries("hemispheres", [[x, y, r]], ("x", "y", "radius"))
     what = (f"{len(obs)} obstacles off a planted route: {len(cyl)} unlimited cylinders, {len(sph)} spheres and "
             f"hemispheres, some in {n_clusters} clumps")
-    text = _header("dense", seed, size, size, route, hazard, what) + "".join(body)
+    text = _scenario_text("dense", seed, size, size, route, hazard, what, entries)
     return HardMap("dense", seed, text, route, len(obs), _straight_blocked(route, env_full, hazard))
 
 
@@ -507,8 +509,8 @@ def _ridge(seed: int, rng: np.random.Generator, size: float = 2400.0,
             continue
         what = (f"a ridge of {len(peaks)} hemispherical peaks with one saddle (floor {r_s:.0f} m) and radars on "
                 f"its two flanking summits covering the pass above {way[:, 1].max():.0f} m")
-        text = (_header("ridge", seed, size_x, size_y, route, hazard, what) + _toml_hemispheres(hemi)
-                + _toml_radars(radars))
+        text = _scenario_text("ridge", seed, size_x, size_y, route, hazard, what,
+                              _hemisphere_entries(hemi) + _radar_entries(radars))
         return HardMap("ridge", seed, text, route, len(hemi) + len(radars), True)
     raise RuntimeError(f"ridge: no flyable route in {MAX_ROUTE_DRAWS} draws (seed {seed})")
 
@@ -716,10 +718,12 @@ def _terrain_env(size_x: float, size_y: float, terrain: Terrain, **obstacles: An
 
 
 def _terrain_map(family: str, seed: int, env: Environment, route: np.ndarray, hazard: HazardConfig, what: str,
-                 dem: str, body: str = "", n_obstacles: int = 0) -> HardMap:
-    """The HardMap of a terrain family: the header naming its DEM ``hardmap_{family}_{seed}.asc``, then ``body``."""
+                 dem: str, obstacles: list[Entry] | None = None, n_obstacles: int = 0) -> HardMap:
+    """The HardMap of a terrain family: its scenario naming its DEM ``hardmap_{family}_{seed}.asc``, with
+    ``obstacles`` (array-of-tables entries)."""
     name = f"hardmap_{family}_{seed}.asc"
-    text = _header(family, seed, env.size_x, env.size_y, route, hazard, what, TERRAIN_BAND, name) + body
+    text = _scenario_text(family, seed, env.size_x, env.size_y, route, hazard, what, obstacles or [], TERRAIN_BAND,
+                          name)
     return HardMap(family, seed, text, route, n_obstacles, _straight_blocked(route, env, hazard), dem, name)
 
 
@@ -848,7 +852,7 @@ def _saddle(seed: int, rng: np.random.Generator, radars: bool = False, size_x: f
         route = _route_over(xy, env, rng, (70.0, 110.0), above, vehicle)
         if route is None:
             continue
-        body, n_obstacles = "", 0
+        obstacles, n_obstacles = [], 0
         if radars:
             in_pass = np.abs(route[:, 0] - xr) <= top + run
             h_cover = float(route[in_pass, 2].max()) + rng.uniform(*ceiling)
@@ -857,7 +861,7 @@ def _saddle(seed: int, rng: np.random.Generator, radars: bool = False, size_x: f
             zs = env.ground(sites[:, 0], sites[:, 1]) + 10.0
             rows = np.round(np.column_stack([sites, zs, np.hypot(dy, zs - h_cover)]), 2)
             env = replace(env, radars=Radars(rows[:, :3], rows[:, 3], np.ones(2)))
-            body, n_obstacles = _toml_radars(rows), 2
+            obstacles, n_obstacles = _radar_entries(rows), 2
         if not _planted_ok(route, env, hazard) or not straight_fails(route, env, hazard):
             continue
         if profile_flyable(route[[0, -1], :2], env, vehicle):
@@ -870,7 +874,7 @@ def _saddle(seed: int, rng: np.random.Generator, radars: bool = False, size_x: f
         what = (f"a ridge {crest:.0f} m high across the map with one saddle {2 * p_half:.0f} m wide at "
                 f"{p_h:.0f} m" + (f", radars on its two flanking summits covering the pass above {h_cover:.0f} m"
                                   if radars else ""))
-        return _terrain_map("saddle_radar" if radars else "saddle", seed, env, route, hazard, what, dem, body,
+        return _terrain_map("saddle_radar" if radars else "saddle", seed, env, route, hazard, what, dem, obstacles,
                             n_obstacles)
     raise RuntimeError(f"saddle: no flyable route in {MAX_ROUTE_DRAWS} draws (seed {seed})")
 
@@ -972,8 +976,8 @@ def _mixed(seed: int, rng: np.random.Generator, size: float = 2400.0, hills: tup
             continue
         what = (f"{n_m} mountains {pk[:, 3].min():.0f}-{pk[:, 3].max():.0f} m high off a planted route over hills up "
                 f"to {base.max():.0f} m, {len(cyl)} unlimited cylinders and a radar (range {radar[0, 3]:.0f} m)")
-        return _terrain_map("mixed", seed, env, route, hazard, what, dem, _toml_cylinders(cyl, rc)
-                            + _toml_radars(radar), len(cyl) + 1)
+        return _terrain_map("mixed", seed, env, route, hazard, what, dem, _cylinder_entries(cyl, rc)
+                            + _radar_entries(radar), len(cyl) + 1)
     raise RuntimeError(f"mixed: no flyable route in {MAX_ROUTE_DRAWS} draws (seed {seed})")
 
 
@@ -996,20 +1000,27 @@ def _chain(poly: np.ndarray, radius: float) -> np.ndarray:
     return np.column_stack([np.interp(at, s, poly[:, 0]), np.interp(at, s, poly[:, 1])])
 
 
-def _toml_cylinders(xy: np.ndarray, r: np.ndarray) -> str:
+Entry = tuple[str, dict[str, Fixed]]  # an array-of-tables entry for toml_text.dumps: ("cylinders", {"x": ...})
+
+
+def _entries(name: str, rows: Iterable[Sequence[float]], keys: Sequence[str]) -> list[Entry]:
+    """``[[name]]`` entries, one a row, its values under ``keys`` to 0.01 m (the generator's precision)."""
+    return [(name, {k: Fixed(float(v)) for k, v in zip(keys, row)}) for row in rows]
+
+
+def _cylinder_entries(xy: np.ndarray, r: np.ndarray) -> list[Entry]:
     """``[[cylinders]]`` entries (unlimited) for centres xy (K, 2) and radii r (K,)."""
-    return "".join(f"\n[[cylinders]]\nx = {x:.2f}\ny = {y:.2f}\nradius = {rr:.2f}\n" for (x, y), rr in zip(xy, r))
+    return _entries("cylinders", np.column_stack([xy, r]), ("x", "y", "radius"))
 
 
-def _toml_hemispheres(rows: np.ndarray) -> str:
+def _hemisphere_entries(rows: np.ndarray) -> list[Entry]:
     """``[[hemispheres]]`` entries for rows (K, 3) of x, y, radius."""
-    return "".join(f"\n[[hemispheres]]\nx = {x:.2f}\ny = {y:.2f}\nradius = {r:.2f}\n" for x, y, r in rows)
+    return _entries("hemispheres", rows, ("x", "y", "radius"))
 
 
-def _toml_radars(rows: np.ndarray) -> str:
+def _radar_entries(rows: np.ndarray) -> list[Entry]:
     """``[[radars]]`` entries with a given detection range for rows (K, 4) of x, y, z, r_det."""
-    return "".join(f"\n[[radars]]\nx = {x:.2f}\ny = {y:.2f}\nz = {z:.2f}\nr_det = {r:.2f}\n"
-                   for x, y, z, r in rows)
+    return _entries("radars", rows, ("x", "y", "z", "r_det"))
 
 
 def _only_the_planted_way(route: np.ndarray, env: Environment, hazard: HazardConfig) -> bool:
@@ -1025,7 +1036,7 @@ def _walled_env(size_x: float, size_y: float, xy: np.ndarray, r: np.ndarray) -> 
 def _walled_map(family: str, seed: int, env: Environment, route: np.ndarray, hazard: HazardConfig, what: str,
                 xy: np.ndarray, r: np.ndarray) -> HardMap:
     """The HardMap of a map of unlimited cylinders (``_walled_env``) and its planted route."""
-    text = _header(family, seed, env.size_x, env.size_y, route, hazard, what) + _toml_cylinders(xy, r)
+    text = _scenario_text(family, seed, env.size_x, env.size_y, route, hazard, what, _cylinder_entries(xy, r))
     return HardMap(family, seed, text, route, len(xy), _straight_blocked(route, env, hazard))
 
 
@@ -1045,23 +1056,21 @@ def straight_fails(route: np.ndarray, env: Environment, hazard: HazardConfig = H
     return any(route_violations(route[[0, -1]], env, hazard).values())
 
 
-def _header(family: str, seed: int, size_x: float, size_y: float, route: np.ndarray, hazard: HazardConfig,
-            what: str, band: tuple[float, float] = BAND, dem_name: str = "") -> str:
-    """Scenario text up to the obstacles (docs/scenario_format.md); default vehicle and planner settings; with
-    ``dem_name`` a ``[terrain]`` table naming that DEM beside the scenario."""
-    s, g = (", ".join(f"{v:.2f}" for v in p) for p in (route[0], route[-1]))
-    terrain = (f"# ESRI ASCII grid beside this file: ENU metres from home, heights m AMSL (docs/scenario_format.md)\n"
-               f'[terrain]\nkind = "file"\npath = "{dem_name}"\n\n' if dem_name else "")
+def _scenario_text(family: str, seed: int, size_x: float, size_y: float, route: np.ndarray, hazard: HazardConfig,
+                   what: str, obstacles: list[Entry], band: tuple[float, float] = BAND, dem_name: str = "") -> str:
+    """The scenario's text (docs/scenario_format.md), its ``obstacles`` last; default vehicle and planner settings;
+    with ``dem_name`` a ``[terrain]`` table naming that DEM beside the scenario."""
     keeps = "the terrain and obstacles keep" if dem_name else "obstacles keep"
-    return (f'# Generated by planner.bench.hardmaps (issue {34 if dem_name else 15}): family "{family}", seed {seed}.\n'
-            f"# A planted route ({len(route)} waypoints) is flyable; {keeps} a corridor around it.\n"
-            f'name = "hardmap_{family}_{seed}"\ndescription = "{what}"\n\n'
-            f"[home]\nlat = {HOME[0]}\nlon = {HOME[1]}\nalt = {HOME[2]}\n\n"
-            f"[bounds]\nx = {size_x:.2f}\ny = {size_y:.2f}\n\n"
-            f"[altitude]\nmin = {band[0]:.2f}\nmax = {band[1]:.2f}\n\n"
-            f"{terrain}"
-            f"[route]\nstart = [{s}]\ngoal = [{g}]\n\n"
-            f"[hazard]\nd_safe = {hazard.d_safe:.2f}\nd_coll = {hazard.d_coll:.2f}\n")
+    header = (f'Generated by planner.bench.hardmaps (issue {34 if dem_name else 15}): family "{family}", seed {seed}.\n'
+              f"A planted route ({len(route)} waypoints) is flyable; {keeps} a corridor around it.")
+    raw = {"name": f"hardmap_{family}_{seed}", "description": what,
+           "home": Table(lat=HOME[0], lon=HOME[1], alt=HOME[2]),
+           "bounds": {"x": Fixed(size_x), "y": Fixed(size_y)},
+           "altitude": {"min": Fixed(band[0]), "max": Fixed(band[1])},
+           "terrain": {"kind": "file", "path": dem_name} if dem_name else None,
+           "route": {"start": [Fixed(float(v)) for v in route[0]], "goal": [Fixed(float(v)) for v in route[-1]]},
+           "hazard": {"d_safe": Fixed(hazard.d_safe), "d_coll": Fixed(hazard.d_coll)}}
+    return dumps(raw, header, {"terrain": DEM_NOTE}, obstacles)
 
 
 _GENERATORS: dict[str, Callable[..., HardMap]] = {"gates": _gates, "dense": _dense, "maze": _maze,

@@ -11,6 +11,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
+LAT_LIMIT_DEG, LON_LIMIT_DEG = 90.0, 180.0  # a latitude lies in ±90°, a longitude in ±180° (WGS-84 degrees)
 AltitudeRef = Literal["home", "ground", "amsl"]  # above home (MAVLink relative alt), above ground (terrain), AMSL
 ALTITUDE_REFS: tuple[AltitudeRef, ...] = ("home", "ground", "amsl")
 

@@ -21,7 +21,7 @@ import numpy as np
 import pymap3d
 
 from planner.errors import ScenarioError
-from planner.world.geo_inputs import ALTITUDE_REFS
+from planner.world.geo_inputs import ALTITUDE_REFS, LAT_LIMIT_DEG, LON_LIMIT_DEG
 from planner.world.home import Home
 from planner.world.terrain import Terrain
 
@@ -81,7 +81,8 @@ class _Reader:
         return float(value)
 
     def latlon(self, table: dict[str, Any], where: str) -> tuple[float, float]:
-        return self.number(table, "lat", where, -90.0, 90.0), self.number(table, "lon", where, -180.0, 180.0)
+        return (self.number(table, "lat", where, -LAT_LIMIT_DEG, LAT_LIMIT_DEG),
+                self.number(table, "lon", where, -LON_LIMIT_DEG, LON_LIMIT_DEG))
 
     def ref(self, table: dict[str, Any], key: str, where: str) -> str:
         ref = table.get(key, "home")

@@ -15,6 +15,8 @@ from planner.world.environment import Prisms
 
 _GOLDEN = (np.sqrt(5.0) - 1.0) / 2.0
 GOLDEN_ITERS = 64  # interval shrinks to 0.618^64 ≈ 4e-14 of the segment
+# (K, V, M) elements a chunk of segment_prism_clearance holds: its few dozen float temporaries stay under ~50 MB
+PRISM_CHUNK_ELEMENTS = 40_000
 
 
 def _dot(u: tuple[np.ndarray, ...], v: tuple[np.ndarray, ...]) -> np.ndarray:
@@ -179,16 +181,29 @@ def segment_prism_clearance(a: np.ndarray, b: np.ndarray, prisms: Prisms) -> np.
     vertex (found from three values, then g evaluated there) or an end is the piece's least; and on the parts whose
     plan view is in the solid's (between crossings with the edges), the least max(w, 0). A segment that enters the
     solid gets the least d_prism at the middles of the parts inside (negative). Vectorised over prisms, their
-    edges (padded to one length) and segments: arrays (K, V, M)."""
+    edges (padded to one length) and segments: arrays (K, V, M), M taken in chunks of at most
+    :data:`PRISM_CHUNK_ELEMENTS` // (K·V) segments (each segment's result is its own, so chunking changes no bit)."""
     a, b = np.broadcast_arrays(np.asarray(a, dtype=float), np.asarray(b, dtype=float))
     shape = a.shape[:-1]
     k_n = len(prisms)
     if not k_n:
         return np.zeros((0, *shape))
     a, b = a.reshape(-1, 3), b.reshape(-1, 3)
+    edges = _prism_edges(prisms)
+    rows = max(1, PRISM_CHUNK_ELEMENTS // edges[0].size)
+    out = np.empty((k_n, len(a)))
+    for i in range(0, len(a), rows):
+        out[:, i:i + rows] = _segment_prism_chunk(a[i:i + rows], b[i:i + rows], prisms, edges)
+    return out.reshape((k_n, *shape))
+
+
+def _segment_prism_chunk(a: np.ndarray, b: np.ndarray, prisms: Prisms, edges: tuple[np.ndarray, ...]) -> np.ndarray:
+    """:func:`segment_prism_clearance` (K, M) of segments a→b (M, 3), the prisms' ``edges`` from
+    :func:`_prism_edges`."""
+    k_n = len(prisms)
     ax, ay, az = a[:, 0], a[:, 1], a[:, 2]
     dx, dy, dz = b[:, 0] - ax, b[:, 1] - ay, b[:, 2] - az
-    Ax, Ay, Bx, By, ex, ey, l2 = _prism_edges(prisms)  # noqa: N806 - edge ends A, B
+    Ax, Ay, Bx, By, ex, ey, l2 = edges  # noqa: N806 - edge ends A, B
     f, h = prisms.floor[:, None], prisms.ceiling[:, None]  # (K, 1)
     keep = prisms.keep_in[:, None]
     f3, h3 = f[..., None], h[..., None]
@@ -256,7 +271,7 @@ def segment_prism_clearance(a: np.ndarray, b: np.ndarray, prisms: Prisms) -> np.
         neg = np.full(out.shape, np.inf)
         np.minimum.at(neg, (kk, mm), np.maximum(u, w))
         out = np.where(np.isfinite(neg), neg, out)
-    return out.reshape((k_n, *shape))
+    return out
 
 
 def spherical_to_cartesian(

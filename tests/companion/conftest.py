@@ -1,14 +1,17 @@
 """Companion test fixtures: a leak check on every test (tasks, threads, sockets — as pymodbus' test/conftest.py
-does), a raw MAVLink peer on a plain UDP socket, for talking to a :class:`Link` without going through it, and
-quick plans of rescue_static to fly (made once per session)."""
+does), a raw MAVLink peer on a plain UDP socket, for talking to a :class:`Link` without going through it, a MAVSDK
+ground station on our simulated autopilot, and quick plans of rescue_static to fly (made once per session)."""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import copy
 import socket
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
+from contextlib import AbstractAsyncContextManager
 from pathlib import Path
+from typing import Any
 
 import pytest
 import pytest_asyncio
@@ -82,6 +85,35 @@ def raw_peer():
     with RawPeer() as peer:
         yield peer
 
+
+
+@contextlib.asynccontextmanager
+async def _mavsdk_ground_station(scenario: Any) -> AsyncIterator[Any]:
+    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
+    from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
+
+    from companion.sim import SimAutopilot
+
+    async with SimAutopilot(scenario, listen="udpin:127.0.0.1:0", speedup=5.0) as sim:
+        cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
+        sdk = Mavsdk(cfg)
+        cfg.destroy()
+        try:
+            await sdk.add_any_connection(f"udpout://127.0.0.1:{sim.port}")
+            system = await sdk.first_autopilot(10.0)
+            assert system is not None
+            yield MissionRawAsync(system)
+        finally:
+            sdk.destroy()
+            await asyncio.get_running_loop().shutdown_default_executor()
+
+
+@pytest.fixture
+def mavsdk_ground_station() -> Callable[[Any], AbstractAsyncContextManager[Any]]:
+    """``async with mavsdk_ground_station(scenario) as raw``: a MAVSDK 4 ground station connected over UDP to our
+    simulated autopilot flying ``scenario`` (5x), ``raw`` its MissionRawAsync (the ground station's importers);
+    afterwards MAVSDK is destroyed and the loop's default executor shut down, then the autopilot stops."""
+    return _mavsdk_ground_station
 
 
 STATIC = Path(__file__).resolve().parents[2] / "sitl_scenarios" / "rescue_static.toml"

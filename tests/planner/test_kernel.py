@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from kernel_reference import assert_broad_phase_exact, assert_same, swarm
 
 from planner import kernel
 from planner.kernel import fastmath
@@ -31,40 +32,9 @@ from planner.world.terrain import Terrain
 
 SCENARIOS = sorted((Path(__file__).resolve().parents[2] / "sitl_scenarios").glob("*.toml"))
 SCENARIOS_BY_NAME = {p.stem: p for p in SCENARIOS}
-RTOL = 1e-9
 
-pytestmark = pytest.mark.skipif(kernel.njit is None, reason="numba is not installed: only the reference runs")
-
-
-def swarm(problem: PlanningProblem, rng: np.random.Generator, n_pop: int = 64, n_wp: int = 8,
-          spread: float = 0.25) -> np.ndarray:
-    """Random paths start → goal: the straight line bent by noise of ``spread`` × the direct distance, so a
-    swarm has every kind of particle, from clean to colliding, out of the band and out of bounds."""
-    line = np.linspace(problem.start, problem.goal, n_wp + 2)
-    scale = spread * max(problem.direct_distance, 100.0)
-    paths = line[None] + rng.normal(0.0, scale, (n_pop, n_wp + 2, 3)) * np.array([1.0, 1.0, 0.3])
-    paths[:, 0], paths[:, -1] = problem.start, problem.goal
-    paths[:3, 1:-1] = line[1:-1]  # straight and near-straight particles too
-    paths[1, 1] = paths[1, 0]  # a zero-length segment
-    return paths
-
-
-def assert_same(problem: PlanningProblem, paths: np.ndarray) -> None:
-    got = problem.evaluate(paths)
-    ref = problem.evaluate_reference(paths)
-    for name in TERMS:
-        np.testing.assert_allclose(got.terms[name], ref.terms[name], rtol=RTOL, atol=1e-12, err_msg=name)
-    np.testing.assert_allclose(got.penalty, ref.penalty, rtol=RTOL, atol=1e-9)
-    np.testing.assert_allclose(got.total, ref.total, rtol=RTOL, atol=1e-9)
-    for c in CATEGORIES:
-        np.testing.assert_array_equal(got.violations[c], ref.violations[c], err_msg=c)
-
-
-@pytest.fixture(autouse=True)
-def compiled(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.delenv(kernel.ENV_VAR, raising=False)
-    monkeypatch.delenv(kernel.BROAD_ENV_VAR, raising=False)
-    assert kernel.chosen() == "compiled" and kernel.broad_phase()
+pytestmark = [pytest.mark.skipif(kernel.njit is None, reason="numba is not installed: only the reference runs"),
+              pytest.mark.usefixtures("compiled")]
 
 
 @pytest.mark.parametrize("path", SCENARIOS, ids=lambda p: p.stem)
@@ -168,13 +138,7 @@ def test_the_broad_phase_gives_the_same_costs_bit_for_bit(monkeypatch: pytest.Mo
     rng = np.random.default_rng(9)
     for n_wp, spread in ((2, 0.3), (16, 0.002), (16, 0.02), (16, 0.1), (40, 0.05)):
         paths = swarm(problem, rng, n_pop=128, n_wp=n_wp, spread=spread)
-        on = problem.evaluate(paths)
-        monkeypatch.setenv(kernel.BROAD_ENV_VAR, "off")
-        off = problem.evaluate(paths)
-        monkeypatch.delenv(kernel.BROAD_ENV_VAR)
-        assert np.array_equal(on.total, off.total) and np.array_equal(on.penalty, off.penalty)
-        assert all(np.array_equal(on.terms[t], off.terms[t]) for t in TERMS)
-        assert all(np.array_equal(on.violations[c], off.violations[c]) for c in CATEGORIES)
+        on = assert_broad_phase_exact(problem, paths, monkeypatch)
         assert_same(problem, paths)
     assert on.violations["collision"].max() > 0 and on.terms[TERMS[1]].max() > 0
     monkeypatch.setenv(kernel.BROAD_ENV_VAR, "sometimes")

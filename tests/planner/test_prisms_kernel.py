@@ -7,18 +7,20 @@ from __future__ import annotations
 
 from dataclasses import replace
 
+import kernel_reference
 import numpy as np
 import pytest
+from kernel_reference import assert_broad_phase_exact, assert_same
 
 from planner import kernel
-from planner.problem import CATEGORIES, TERMS, PlanningProblem
+from planner.problem import PlanningProblem
 from planner.trajectory.checks import check_trajectory, nearest_obstacle, obstacle_clearance, smooth
 from planner.world.config import HazardConfig, VehicleLimits
 from planner.world.environment import Cylinders, Environment, Prisms, Spheres
 from planner.world.terrain import Terrain
 
-RTOL = 1e-9
-pytestmark = pytest.mark.skipif(kernel.njit is None, reason="numba is not installed: only the reference runs")
+pytestmark = [pytest.mark.skipif(kernel.njit is None, reason="numba is not installed: only the reference runs"),
+              pytest.mark.usefixtures("compiled")]
 
 
 def star(cx: float, cy: float, r_out: float, r_in: float, n: int = 5) -> np.ndarray:
@@ -53,30 +55,9 @@ def problem_on(env: Environment, **kw) -> PlanningProblem:  # noqa: ANN003
                            HazardConfig(d_safe=80.0, d_coll=20.0), **kw)
 
 
-def swarm(problem: PlanningProblem, rng: np.random.Generator, n_pop: int = 64, n_wp: int = 8,
-          spread: float = 0.25) -> np.ndarray:
-    """The straight line bent by noise of ``spread`` × the direct distance (z a third of it)."""
-    line = np.linspace(problem.start, problem.goal, n_wp + 2)
-    paths = line[None] + rng.normal(0.0, spread * problem.direct_distance, (n_pop, n_wp + 2, 3)) * [1.0, 1.0, 0.3]
-    paths[:, 0], paths[:, -1] = problem.start, problem.goal
-    paths[:2, 1:-1] = line[1:-1]
-    return paths
-
-
-def assert_same(problem: PlanningProblem, paths: np.ndarray) -> None:
-    got, ref = problem.evaluate(paths), problem.evaluate_reference(paths)
-    for name in TERMS:
-        np.testing.assert_allclose(got.terms[name], ref.terms[name], rtol=RTOL, atol=1e-12, err_msg=name)
-    np.testing.assert_allclose(got.penalty, ref.penalty, rtol=RTOL, atol=1e-9)
-    np.testing.assert_allclose(got.total, ref.total, rtol=RTOL, atol=1e-9)
-    for c in CATEGORIES:
-        np.testing.assert_array_equal(got.violations[c], ref.violations[c], err_msg=c)
-
-
-@pytest.fixture(autouse=True)
-def compiled(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.delenv(kernel.ENV_VAR, raising=False)
-    monkeypatch.delenv(kernel.BROAD_ENV_VAR, raising=False)
+def swarm(problem: PlanningProblem, rng: np.random.Generator, **kw: float) -> np.ndarray:
+    """kernel_reference.swarm as these tests draw it: two straight particles, no zero-length segment."""
+    return kernel_reference.swarm(problem, rng, straight=2, zero_length=False, **kw)
 
 
 @pytest.mark.parametrize("terrain", [False, True], ids=["flat", "terrain"])
@@ -100,12 +81,7 @@ def test_the_broad_phase_skips_prisms_exactly(monkeypatch: pytest.MonkeyPatch) -
     rng = np.random.default_rng(9)
     for n_wp, spread in ((2, 0.3), (12, 0.002), (12, 0.03), (24, 0.1)):
         paths = swarm(problem, rng, n_pop=96, n_wp=n_wp, spread=spread)
-        on = problem.evaluate(paths)
-        monkeypatch.setenv(kernel.BROAD_ENV_VAR, "off")
-        off = problem.evaluate(paths)
-        monkeypatch.delenv(kernel.BROAD_ENV_VAR)
-        assert np.array_equal(on.total, off.total) and np.array_equal(on.penalty, off.penalty)
-        assert all(np.array_equal(on.violations[c], off.violations[c]) for c in CATEGORIES)
+        assert_broad_phase_exact(problem, paths, monkeypatch)
         assert_same(problem, paths)
 
 

@@ -58,12 +58,12 @@ async def test_the_world_a_ground_station_uploaded_reads_back_exactly(clients) -
     assert got.home is None and got.start is None
 
 
-SQUARE_X, SQUARE_Y = e7(HOME, 0.0, 0.0)
+SQUARE_X, SQUARE_Y = e7(HOME, north=0.0, east=0.0)
 
 
 def _vertices(count: float, *points: tuple[float, float]) -> list[MissionItem]:
     return [MissionItem(0, mavlink.MAV_FRAME_GLOBAL_INT, EXC, param1=count, x=x, y=y, mission_type=FENCE)
-            for x, y in (e7(HOME, n, e) for n, e in points)]
+            for x, y in (e7(HOME, north=n, east=e) for n, e in points)]
 
 
 SQUARE = ((0.0, 0.0), (0.0, 100.0), (100.0, 100.0), (100.0, 0.0))

@@ -17,7 +17,7 @@ import numpy as np
 
 from planner.errors import ScenarioError
 from planner.files import FileRefused, read_regular_file
-from planner.world.geo_inputs import Altitude, AltitudeRef, GeoPoint
+from planner.world.geo_inputs import LAT_LIMIT_DEG, LON_LIMIT_DEG, Altitude, AltitudeRef, GeoPoint
 from planner.world.polygons import simplicity_problem
 
 MAX_IMPORT_BYTES = 64 * 2**20  # a national airspace GeoJSON is tens of MB; a mission file far less
@@ -108,10 +108,10 @@ def member(file: str, where: str, obj: Any, key: str, types: type | tuple[type, 
 def lat_lon(file: str, where: str, lat: Any, lon: Any) -> tuple[float, float]:
     """A checked (lat, lon) in degrees: numbers, |lat| ≤ 90, |lon| ≤ 180."""
     lat, lon = number(file, where, lat), number(file, where, lon)
-    if abs(lat) > 90.0:
-        raise ScenarioError(file, where, f"latitude {lat:g} is outside -90..90 degrees")
-    if abs(lon) > 180.0:
-        raise ScenarioError(file, where, f"longitude {lon:g} is outside -180..180 degrees")
+    if abs(lat) > LAT_LIMIT_DEG:
+        raise ScenarioError(file, where, f"latitude {lat:g} is outside -{LAT_LIMIT_DEG:g}..{LAT_LIMIT_DEG:g} degrees")
+    if abs(lon) > LON_LIMIT_DEG:
+        raise ScenarioError(file, where, f"longitude {lon:g} is outside -{LON_LIMIT_DEG:g}..{LON_LIMIT_DEG:g} degrees")
     return lat, lon
 
 

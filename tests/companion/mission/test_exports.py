@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import json
 import math
 from pathlib import Path
@@ -201,32 +200,18 @@ def test_export_from_plan_json_all_formats(tmp_path: Path, plan_doc):
 
 
 @pytest.mark.asyncio
-async def test_qgc_plan_is_read_back_by_mavsdk_import(tmp_path: Path, plan_doc):
+async def test_qgc_plan_is_read_back_by_mavsdk_import(tmp_path: Path, plan_doc, mavsdk_ground_station):
     """A MAVSDK 4 ground station connected to our simulated autopilot imports the exported .plan with
     import_qgroundcontrol_mission: same items as we built (after the plannedHomePosition item it puts first),
     and one geofence item per exported circle."""
-    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
-    from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
-
     from companion.mission.builder import is_home_item, mission_from_plan_json
-    from companion.sim import SimAutopilot
 
     doc, scenario = plan_doc
     path = export_from_plan_json(doc, scenario, "plan", tmp_path / "r.plan")
     ours = [it for it in mission_from_plan_json(doc, scenario, "ardupilot") if not is_home_item(it)]
     n_circles = len(json.loads(path.read_text())["geoFence"]["circles"])
-    async with SimAutopilot(scenario, listen="udpin:127.0.0.1:0", speedup=5.0) as sim:
-        cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
-        sdk = Mavsdk(cfg)
-        cfg.destroy()
-        try:
-            await sdk.add_any_connection(f"udpout://127.0.0.1:{sim.port}")
-            system = await sdk.first_autopilot(10.0)
-            assert system is not None
-            data = await MissionRawAsync(system).import_qgroundcontrol_mission(str(path))
-        finally:
-            sdk.destroy()
-            await asyncio.get_running_loop().shutdown_default_executor()
+    async with mavsdk_ground_station(scenario) as raw:
+        data = await raw.import_qgroundcontrol_mission(str(path))
     items = data.mission_items
     assert len(items) == len(ours) + 1  # MAVSDK puts the planned home first
     for got, want in zip(items[1:], ours):

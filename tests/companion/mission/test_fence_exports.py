@@ -3,7 +3,6 @@ importers (round trips), by MAVSDK's QGroundControl and Mission Planner importer
 
 from __future__ import annotations
 
-import asyncio
 import json
 import math
 from pathlib import Path
@@ -163,33 +162,17 @@ def test_fence_zones_keeps_what_holds_at_every_height():
 
 
 @pytest.mark.asyncio
-async def test_operator_plan_and_mp_fence_load_in_mavsdk(tmp_path: Path, rescue_static: Path):
+async def test_operator_plan_and_mp_fence_load_in_mavsdk(tmp_path: Path, rescue_static: Path, mavsdk_ground_station):
     """A MAVSDK ground station connected to our simulated autopilot imports the written .plan with
     import_qgroundcontrol_mission (fence polygons as vertex items of param1 = vertex count, circles, rally
     points) and the Mission Planner fence with import_mission_planner_mission (every line an item)."""
-    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
-    from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
-
-    from companion.sim import SimAutopilot
-
     op = read_qgc_plan(DATA / "cmac_mission.plan")
     zones = list(op.zones) + zones_from_prisms(PRISMS, HOME)[:2]
     plan = write_operator_plan(tmp_path / "safe.plan", build_mission(WPS, spec()), spec(), op, zones=zones)
     fence_text = mp_fence_text(zones, HOME)
-    async with SimAutopilot(load_scenario(rescue_static), listen="udpin:127.0.0.1:0", speedup=5.0) as sim:
-        cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
-        sdk = Mavsdk(cfg)
-        cfg.destroy()
-        try:
-            await sdk.add_any_connection(f"udpout://127.0.0.1:{sim.port}")
-            system = await sdk.first_autopilot(10.0)
-            assert system is not None
-            raw = MissionRawAsync(system)
-            data = await raw.import_qgroundcontrol_mission(str(plan))
-            mp = await raw.import_mission_planner_mission_from_string(fence_text)
-        finally:
-            sdk.destroy()
-            await asyncio.get_running_loop().shutdown_default_executor()
+    async with mavsdk_ground_station(load_scenario(rescue_static)) as raw:
+        data = await raw.import_qgroundcontrol_mission(str(plan))
+        mp = await raw.import_mission_planner_mission_from_string(fence_text)
     polygons = [z for z in zones if z.polygon is not None]
     circles = [z for z in zones if z.centre is not None]
     want = [(5001 if z.inclusion else 5002, len(z.polygon), a, o) for z in polygons for a, o in z.polygon]

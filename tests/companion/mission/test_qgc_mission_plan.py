@@ -7,7 +7,9 @@ from __future__ import annotations
 
 import asyncio
 import json
+from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pymap3d
@@ -70,7 +72,8 @@ def test_the_route_keeps_d_coll_from_every_polygon_edge_and_the_circle(planned: 
     assert gap.min() >= d_coll, gap.min()
 
 
-def test_the_safe_plan_keeps_the_fence_and_loads_in_mavsdk(planned: tuple[Path, dict], rescue_static: Path) -> None:
+def test_the_safe_plan_keeps_the_fence_and_loads_in_mavsdk(planned: tuple[Path, dict], rescue_static: Path,
+                                                           mavsdk_ground_station: Callable[..., Any]) -> None:
     out, doc = planned
     safe = out / "SAFE.plan"
     assert main(["plan", str(MISSION), "-o", str(safe), "-q"]) == 0
@@ -80,24 +83,10 @@ def test_the_safe_plan_keeps_the_fence_and_loads_in_mavsdk(planned: tuple[Path, 
     assert back.home is not None and abs(back.home.lat - op.home.lat) < 1e-7 and abs(back.home.lon - op.home.lon) < 1e-7
     sc = load_scenario(out / "SAFE.scenario.toml")
     assert back.goal is not None and abs(back.goal.lat - op.goal.lat) < 1e-6 and abs(back.goal.lon - op.goal.lon) < 1e-6
-    from mavsdk.asyncio import ComponentType, Configuration, Mavsdk
-    from mavsdk.asyncio.plugins.mission_raw import MissionRawAsync
-
-    from companion.sim import SimAutopilot
 
     async def imported() -> object:
-        async with SimAutopilot(sc, listen="udpin:127.0.0.1:0", speedup=5.0) as sim:
-            cfg = Configuration.create_with_component_type(ComponentType.GROUND_STATION)
-            sdk = Mavsdk(cfg)
-            cfg.destroy()
-            try:
-                await sdk.add_any_connection(f"udpout://127.0.0.1:{sim.port}")
-                system = await sdk.first_autopilot(10.0)
-                assert system is not None
-                return await MissionRawAsync(system).import_qgroundcontrol_mission(str(safe))
-            finally:
-                sdk.destroy()
-                await asyncio.get_running_loop().shutdown_default_executor()
+        async with mavsdk_ground_station(sc) as raw:
+            return await raw.import_qgroundcontrol_mission(str(safe))
 
     data = asyncio.run(imported())
     fence = [(it.command, round(it.param1)) for it in data.geofence_items]

@@ -4,7 +4,7 @@ sets home where it is (docs/scenario_format.md, "Geographic scenarios")."""
 
 from __future__ import annotations
 
-import re
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -16,16 +16,12 @@ from companion.mavlink.protocol import MissionClient
 from companion.sim import SimAutopilot
 from planner.world.scenario import load_scenario
 
-ROOT = Path(__file__).resolve().parents[3]
-
 
 @pytest.mark.asyncio
-async def test_the_simulator_stands_and_sets_home_at_the_scenarios_home(tmp_path: Path) -> None:
-    text = (ROOT / "docs" / "scenario_format.md").read_text().partition("## Geographic scenarios")[2]
-    block = re.search(r"```toml\n(.*?)```", text, re.S)
-    assert block is not None
+async def test_the_simulator_stands_and_sets_home_at_the_scenarios_home(tmp_path: Path,
+                                                                       doc_toml: Callable[[str, str], str]) -> None:
     path = tmp_path / "lakeside_geo.toml"
-    path.write_text(block[1])
+    path.write_text(doc_toml("scenario_format.md", "## Geographic scenarios"))
     sc = load_scenario(path)
     assert np.hypot(*sc.launch) > 300.0  # home is well inside the region, far from the frame's corner
     async with SimAutopilot(sc, "udpin:127.0.0.1:0", speedup=20.0) as sim:

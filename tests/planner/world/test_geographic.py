@@ -4,7 +4,7 @@ each mistake refused in one line naming its field."""
 from __future__ import annotations
 
 import math
-import re
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -146,10 +146,7 @@ def test_mistakes_are_one_line_naming_the_field(tmp_path: Path, edit: tuple[str,
     assert "\n" not in str(err.value)
 
 
-def test_the_documented_geographic_example_loads(tmp_path: Path) -> None:
-    text = (Path(__file__).resolve().parents[3] / "docs" / "scenario_format.md").read_text()
-    block = re.search(r"```toml\n(.*?)```", text.partition("## Geographic scenarios")[2], re.S)
-    assert block is not None
-    sc = load_scenario(_write(tmp_path, block[1]))
+def test_the_documented_geographic_example_loads(tmp_path: Path, doc_toml: Callable[[str, str], str]) -> None:
+    sc = load_scenario(_write(tmp_path, doc_toml("scenario_format.md", "## Geographic scenarios")))
     assert sc.name == "lakeside_geo" and len(sc.environment.prisms) == 2 and sc.environment.prisms.keep_in[-1]
     assert sc.goal[2] == pytest.approx(60.0)

@@ -7,10 +7,11 @@ without NaNs."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from planner.world import polygons
+from planner.world import geometry, polygons
 from planner.world.environment import Prisms
 from planner.world.geometry import prism_signed_distance, segment_prism_clearance
 
@@ -119,3 +120,22 @@ def test_shapes_broadcast_and_no_prisms() -> None:
     np.testing.assert_array_equal(got[:, 3, 2], segment_prism_clearance(a[3, 2], b[3, 2], prisms))
     assert segment_prism_clearance(a, b, Prisms.empty()).shape == (0, 7, 5)
     assert prism_signed_distance(a, Prisms.empty()).shape == (0, 7, 5)
+
+
+def test_a_batch_chunked_equals_it_unchunked_bit_for_bit(monkeypatch: pytest.MonkeyPatch) -> None:
+    """segment_prism_clearance takes its segments in chunks (bounded memory): one segment a chunk, uneven chunks
+    and the whole batch at once give the same bits, zero-length and level segments included."""
+    prisms = prisms_of([-np.inf, 40.0, 90.0, -np.inf], [np.inf, 120.0, 160.0, 160.0])
+    rng = np.random.default_rng(11)
+    a = rng.uniform([-60, -60, 0], [460, 460, 220], (9, 37, 3))
+    b = a + rng.normal(0.0, 80.0, a.shape)
+    b[::3, ::4] = a[::3, ::4]
+    b[1::3, ::5, 2] = a[1::3, ::5, 2]
+    elements = geometry._prism_edges(prisms)[0].size  # K·V
+    monkeypatch.setattr(geometry, "PRISM_CHUNK_ELEMENTS", 10**9)
+    whole = segment_prism_clearance(a, b, prisms)
+    for rows in (1, 7, 100):
+        monkeypatch.setattr(geometry, "PRISM_CHUNK_ELEMENTS", rows * elements)
+        got = segment_prism_clearance(a, b, prisms)
+        assert got.shape == whole.shape == (4, 9, 37)
+        assert got.tobytes() == whole.tobytes(), rows

@@ -128,12 +128,9 @@ def test_minimal_scenario_takes_dataclass_defaults(tmp_path: Path) -> None:
     assert not s.start.flags.writeable
 
 
-def test_documented_example_loads(tmp_path: Path) -> None:
-    text = (REPO / "docs" / "scenario_format.md").read_text().partition("## Full example")[2]
-    block = re.search(r"```toml\n(.*?)```", text, re.S)
-    assert block is not None
+def test_documented_example_loads(tmp_path: Path, doc_toml: Callable[[str, str], str]) -> None:
     path = tmp_path / "example.toml"
-    path.write_text(block[1])
+    path.write_text(doc_toml("scenario_format.md", "## Full example"))
     s = load_scenario(path)
     assert len(s.environment.radars) == 2 and len(s.environment.threats) == 2
     assert s.environment.threats.direction.tolist() == [-1.0, 1.0]
