@@ -40,6 +40,7 @@ from companion.mavlink.vehicle_limits import (
 from companion.mission import picture
 from companion.mission.builder import (
     build_fence,
+    fenced_circles,
     mission_from_plan_json,
     prisms_left_out,
     spec_from_plan_json,
@@ -245,7 +246,8 @@ def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scena
     polygons = zones_from_prisms(scenario.environment.prisms, spec.home)
     top = float(np.max(np.asarray(plan_doc["trajectory"]["points"], dtype=float)[:, 2]))
     left_out = prisms_left_out(scenario.environment.prisms, 0.0, top)
-    write_qgc_plan(report / "mission.plan", items, spec, zones_of(scenario, spec.home) if fence else (),
+    write_qgc_plan(report / "mission.plan", items, spec,  # the fence's zones, by the rule the upload used
+                   fenced_circles(scenario.environment.cylinders, spec.home, top) if fence else (),
                    zones=[z for k, z in enumerate(polygons) if k not in left_out] if fence else ())
     traj = lonlatalt(np.asarray(plan_doc["trajectory"]["points"], dtype=float), spec.home)
     write_geojson(report / "mission.geojson", lonlatalt(np.asarray(plan_doc["waypoints"]), spec.home),

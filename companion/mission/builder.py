@@ -264,15 +264,28 @@ def build_fence(zones: Cylinders | Sequence[Circle], home: Home, max_route_alt: 
     fenced. Radii are rounded up to whole metres (a slightly larger exclusion, and what every autopilot stores exactly).
     """
     items = _polygon_items(prisms, home, max_route_alt, min_route_alt) if prisms is not None else []
-    for c in as_circles(zones, home):
-        if max_route_alt is not None and c.top_m < max_route_alt:
-            logger.info("fence: leaving out the zone at (%.6f, %.6f): top %.0f m is below the route's %.0f m",
-                        c.lat, c.lon, c.top_m, max_route_alt)
-            continue
+    for c in fenced_circles(zones, home, max_route_alt, log=True):
         items.append(MissionItem(0, FRAME_GLOBAL_INT, CMD_FENCE_CIRCLE_EXCLUSION,
                                  param1=float(math.ceil(c.radius_m)), param2=0.0, x=to_int_e7(c.lat),
                                  y=to_int_e7(c.lon), z=0.0, mission_type=FENCE))
     return [item.with_seq(seq) for seq, item in enumerate(items)]
+
+
+def fenced_circles(zones: Cylinders | Sequence[Circle], home: Home, max_route_alt: float | None,
+                   log: bool = False) -> list[Circle]:
+    """The circles a fence holds for a route whose highest point is ``max_route_alt`` m above home (None: all): a
+    zone whose top is below it may be flown over, and a fence holds at every height, so it is left out (logged
+    with ``log``). The one rule for :func:`build_fence` and the exported fences, as :func:`prisms_left_out` is for
+    polygons."""
+    kept = []
+    for c in as_circles(zones, home):
+        if max_route_alt is not None and c.top_m < max_route_alt:
+            if log:
+                logger.info("fence: leaving out the zone at (%.6f, %.6f): top %.0f m is below the route's %.0f m",
+                            c.lat, c.lon, c.top_m, max_route_alt)
+            continue
+        kept.append(c)
+    return kept
 
 
 def prisms_left_out(prisms: Prisms, low_m: float | None, high_m: float | None) -> dict[int, str]:

@@ -22,6 +22,7 @@ from companion.mavlink.items import FRAME_GLOBAL, MissionItem, normalise_frame
 from companion.mission.builder import (
     Autopilot,
     MissionSpec,
+    fenced_circles,
     is_home_item,
     mission_from_plan_json,
     prisms_left_out,
@@ -415,7 +416,7 @@ def export_from_plan_json(plan_doc: Mapping[str, Any], scenario: Scenario, fmt: 
     if fence:
         heights = np.asarray(trajectory, dtype=float)[:, 2] if trajectory else waypoints[:, 2]
         route_top = float(np.max(heights))
-        zones = [c for c in as_circles(scenario.environment.cylinders, spec.home) if c.top_m >= route_top]
+        zones = fenced_circles(scenario.environment.cylinders, spec.home, route_top)
         # a fence holds at every height: polygons the route (and its climb from home) may pass over or under stay out
         prisms = scenario.environment.prisms
         left_out = prisms_left_out(prisms, 0.0, route_top)

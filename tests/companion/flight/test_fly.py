@@ -185,3 +185,22 @@ def test_the_readme_demo_completes_clear_of_the_intruder_it_predicted(tmp_path, 
     assert set(flight["min_separation_m"]) >= {"intruder-1", "loiter-1", "patrol-1"}
     assert min(flight["min_separation_m"].values()) > flight["d_coll_m"]
     assert all((tmp_path / "fuseplan-demo" / name).exists() for name in ("PLAN.json", "events.jsonl"))
+
+
+def test_the_reports_mission_plan_fences_what_export_fences(tmp_path) -> None:
+    """The flight report's mission.plan holds the fence by the rule the upload and `export` use: spheres are not
+    fenced (the autopilots' fences are 2-D circles and polygons), nor zones the route may fly over."""
+    from companion.flight.fly import _write_mission_files
+    from companion.mission.builder import mission_from_plan_json, spec_from_plan_json
+    from planner.world.scenario import load_scenario
+
+    source = ROOT / "sitl_scenarios" / "crossing_traffic.toml"  # six cylinders and two spheres
+    plan = tmp_path / "PLAN.json"
+    assert main(["plan", str(source), "-o", str(plan), "-q", *FAST]) == 0
+    assert main(["export", str(plan), "--format", "plan", "-o", str(tmp_path / "export.plan")]) == 0
+    doc, scenario = json.loads(plan.read_text()), load_scenario(source)
+    spec, items = spec_from_plan_json(doc, scenario, "ardupilot"), mission_from_plan_json(doc, scenario, "ardupilot")
+    _write_mission_files(tmp_path, doc, scenario, items, spec, fence=[object()])
+    flown, exported = (json.loads((tmp_path / n).read_text())["geoFence"] for n in ("mission.plan", "export.plan"))
+    assert len(flown["circles"]) == len(scenario.environment.cylinders)  # the spheres left out
+    assert flown == exported
