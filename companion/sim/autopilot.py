@@ -24,6 +24,7 @@ import numpy as np
 import pymap3d
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.mavlink.fence_capacity import fence_capacity
 from companion.mavlink.items import FENCE, FRAME_GLOBAL, MISSION, RALLY, MissionItem
 from companion.mavlink.signing import SigningKey
 from companion.mavlink.storage import Firmware
@@ -534,6 +535,8 @@ class SimAutopilot:
         """Items an upload may have now: while booting a mission has room for none and the other lists are not
         loaded yet."""
         if self.booted:
+            if mission_type == FENCE:  # ArduPlane's or ArduCopter's fence storage, as the vehicle imitated
+                return fence_capacity(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._mav_type()).max_items
             return MAX_ITEMS.get(mission_type)
         return 0 if mission_type == MISSION else None
 
