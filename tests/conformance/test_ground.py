@@ -306,10 +306,10 @@ async def test_a_fence_upload_abandoned_part_way_leaves_the_old_fence(vehicle, m
     assert _difference(vehicle, fence, got, skip_home=False) is None, _difference(vehicle, fence, got, False)
 
 
-def _ring(vertices: int, radius_m: float = 1000.0) -> list[MissionItem]:
-    """One exclusion polygon of ``vertices`` vertices on a circle around home."""
+def _ring(vertices: int, radius_m: float = 300.0, north_m: float = 3000.0) -> list[MissionItem]:
+    """One exclusion polygon of ``vertices`` vertices on a circle ``north_m`` north of home (home stays outside)."""
     angles = [2.0 * math.pi * k / vertices for k in range(vertices)]
-    return numbered([item(mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, radius_m * math.sin(a),
+    return numbered([item(mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, north_m + radius_m * math.sin(a),
                           radius_m * math.cos(a), frame=mavlink.MAV_FRAME_GLOBAL_INT, param1=float(vertices))
                      for a in angles], FENCE)
 
