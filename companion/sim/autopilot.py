@@ -83,7 +83,9 @@ PARAMS = {"FENCE_ENABLE": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
           "FENCE_TYPE": ((4.0, 7.0), mavlink.MAV_PARAM_TYPE_INT8),
           "FENCE_ACTION": ((1.0, 1.0), mavlink.MAV_PARAM_TYPE_INT8),
           "RALLY_TOTAL": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
-          "RALLY_LIMIT_KM": ((5.0, 0.3), mavlink.MAV_PARAM_TYPE_REAL32)}
+          "RALLY_LIMIT_KM": ((5.0, 0.3), mavlink.MAV_PARAM_TYPE_REAL32),
+          # no SD-card fence storage (SITL has the parameter, 0): the fence is the storage layout's
+          "BRD_SD_FENCE": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT16)}
 PLANE_DEFAULT_LOITER_RAD = PLANE_LOITER_RADIUS  # WP_LOITER_RAD of SITL's plane.parm, settable with PARAM_SET
 
 
