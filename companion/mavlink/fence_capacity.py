@@ -30,6 +30,7 @@ ARDUPILOT_FENCE_BYTES_PLANE_LAYOUT = 672  # SITL: "Only 84 items are supported" 
 ARDUPILOT_FENCE_BYTES_COPTER_LAYOUT = 560  # SITL: "Only 70 items are supported" (ArduCopter 4.7.0-dev)
 ARDUPILOT_SD_FENCE_PARAM = "BRD_SD_FENCE"
 ARDUPILOT_FILE_STORAGE_MAX = 0xFFFF
+ARDUPILOT_MAX_POLYGON_VERTICES = 255  # a polygon's vertex count is stored in one byte (AC_PolyFenceItem)
 # AC_PolyFence_loader::fence_storage_space_required(): a header, then per polygon a type and a count byte and 8
 # bytes a vertex, per circle a type, 8 bytes of position and 4 of radius, a return point a type and 8 bytes
 _AP_HEADER, _AP_POLYGON, _AP_VERTEX, _AP_CIRCLE, _AP_RETURN = 4, 2, 8, 13, 9
@@ -76,11 +77,16 @@ class FenceCapacity:
     max_items: int
     storage_bytes: int | None = None
     source: str = ""
+    max_polygon_vertices: int | None = None  # ArduPilot keeps a polygon's vertex count in a byte
 
     def problem(self, items: Sequence[MissionItem]) -> str | None:
         """Why ``items`` do not fit (what they need against what the autopilot has), or None."""
         if len(items) > self.max_items:
             return f"{len(items)} fence items, {self.autopilot} stores at most {self.max_items}"
+        counts = [it.param1 for it in items if it.command in _POLYGONS]
+        if self.max_polygon_vertices is not None and counts and max(counts) > self.max_polygon_vertices:
+            return (f"a polygon of {max(counts):.0f} vertices, {self.autopilot} stores at most "
+                    f"{self.max_polygon_vertices} a polygon")
         if self.storage_bytes is not None and (need := ardupilot_fence_bytes(items)) > self.storage_bytes:
             return (f"{len(items)} fence items need {need} bytes of fence storage, {self.autopilot} has "
                     f"{self.storage_bytes}")
@@ -114,7 +120,7 @@ def fence_capacity(autopilot: int | None, vehicle_type: int | None,
         size, source = ARDUPILOT_FENCE_BYTES_PLANE_LAYOUT, "StorageManager's plane/rover layout"
     else:
         size, source = ARDUPILOT_FENCE_BYTES_COPTER_LAYOUT, "StorageManager's copter layout"
-    return FenceCapacity(name, size // ARDUPILOT_BYTES_PER_ITEM, size, source)
+    return FenceCapacity(name, size // ARDUPILOT_BYTES_PER_ITEM, size, source, ARDUPILOT_MAX_POLYGON_VERTICES)
 
 
 __all__ = ["ARDUPILOT_BYTES_PER_ITEM", "FenceCapacity", "PX4_FENCE_ITEMS", "ardupilot_fence_bytes",

@@ -40,7 +40,9 @@ def test_ardupilot_sd_card_fence_storage_is_read_from_its_parameter() -> None:
     assert capacity_params(AP) == ("BRD_SD_FENCE",) and capacity_params(PX4) == ()
     cap = fence_capacity(AP, mavlink.MAV_TYPE_QUADROTOR, {"BRD_SD_FENCE": 2.0})
     assert (cap.max_items, cap.storage_bytes) == (256, 2048) and "BRD_SD_FENCE" in cap.source
-    assert fence_capacity(AP, mavlink.MAV_TYPE_QUADROTOR, {"BRD_SD_FENCE": 100.0}).storage_bytes == 65535
+    big = fence_capacity(AP, mavlink.MAV_TYPE_QUADROTOR, {"BRD_SD_FENCE": 100.0})
+    assert big.storage_bytes == 65535 and big.fits(polygon(255))
+    assert big.problem(polygon(256)) == "a polygon of 256 vertices, ArduCopter stores at most 255 a polygon"
 
 
 def test_px4_takes_64_items_and_other_autopilots_are_not_checked() -> None:
