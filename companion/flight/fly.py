@@ -242,12 +242,12 @@ def _check_fence_fits(fence: list, link: Link, params: dict[str, float], scenari
     capacity = fence_capacity(link.autopilot, link.vehicle_type, params)
     if not fence or capacity is None:
         return
-    zones = fenced_zones(scenario.environment, scenario.home, top, 0.0)  # the route heights build_fence was given
-    refusal = fence_refusal(fence, zones, capacity)
+    fits = capacity.fits(fence)
     events.log("fence_capacity", items=len(fence), max_items=capacity.max_items,
-               storage_bytes=capacity.storage_bytes, source=capacity.source, fits=refusal is None)
-    if refusal is not None:
-        raise FenceTooLarge(refusal)
+               storage_bytes=capacity.storage_bytes, source=capacity.source, fits=fits)
+    if not fits:  # which zones: each built alone, with the route heights build_fence was given
+        zones = fenced_zones(scenario.environment, scenario.home, top, 0.0)
+        raise FenceTooLarge(fence_refusal(fence, zones, capacity) or "the fence does not fit the autopilot")
 
 
 def _link(url: str, opts: FlyOptions) -> Link:
