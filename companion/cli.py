@@ -1,6 +1,7 @@
 """The ``fuseplan`` command line: plan, compare, bench (:mod:`planner.cli`) with export, fly, sim, demo, report.
 
-The top layer: it assembles the planner's subcommands and the companion's. User mistakes print one line and exit 2;
+The top layer: it assembles the planner's subcommands and the companion's. User mistakes print one line and exit 2
+(``fly``: also a fence larger than the autopilot stores, refused before anything is sent);
 an infeasible plan exits 3; success exits 0; ``fly`` adds 4 (link or upload failure, or a vehicle the scenario
 cannot be flown from), 5 (started but not completed) and 6 (the flown track broke d_coll).
 """
@@ -504,7 +505,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
     import asyncio
 
     from companion.flight.fly import FlyOptions, fly
-    from companion.mavlink.errors import CompanionError
+    from companion.mavlink.errors import CompanionError, FenceTooLarge
     from companion.mavlink.signing import key_from_files
     from companion.mission.events import EventLog
 
@@ -592,7 +593,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
         events.log("failed", error=str(e))
         write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e)}, indent=1) + "\n")
         print(f"fuseplan: error: {e}", file=sys.stderr)
-        return EXIT_LINK
+        return EXIT_BAD_INPUT if isinstance(e, FenceTooLarge) else EXIT_LINK  # the user's zones, not the link
     except KeyboardInterrupt:
         events.log("aborted", reason="interrupted by the user")
         write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": "interrupted"}) + "\n")

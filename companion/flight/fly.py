@@ -24,7 +24,8 @@ from companion.flight.supervisor import (
     FlightSupervisor,
     check_one_autopilot,
 )
-from companion.mavlink.errors import CompanionError
+from companion.mavlink.errors import CompanionError, FenceTooLarge
+from companion.mavlink.fence_capacity import capacity_params, fence_capacity
 from companion.mavlink.link import Link
 from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
 from companion.mavlink.params import read_params
@@ -53,6 +54,7 @@ from companion.mission.exports import (
     zones_from_prisms,
     zones_of,
 )
+from companion.mission.fence_fit import fence_refusal, fenced_zones
 from companion.mission.geo import geodetic_to_enu, lonlatalt
 from companion.replanning.replan import ReplanConfig, with_room
 from companion.replanning.replanner import LiveReplanner
@@ -134,7 +136,8 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             await asyncio.gather(_rates_answered(rates), asyncio.sleep(IDENTITY_WINDOW_S))
             check_one_autopilot(link, events)
             autopilot = link.profile.layout  # the builder's layout key ("ardupilot", "px4")
-            params = await read_params(link, parameter_names(autopilot, scenario.vehicle.type))
+            params = await read_params(link, [*parameter_names(autopilot, scenario.vehicle.type),
+                                              *capacity_params(link.autopilot)])
             limits = limits_from(params, autopilot, scenario.vehicle, DEFAULT_LOITER_RADIUS_M)
             events.log("vehicle_limits", **limits.summary())
             plan_doc, scenario = await _plan_within(plan_doc, scenario, limits, opts, events)
@@ -146,6 +149,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
             fence = build_fence(env.cylinders, scenario.home, max_route_alt=top, prisms=env.prisms,
                                 min_route_alt=0.0) if opts.fence and (len(env.cylinders) or len(env.prisms)) else []
             _write_mission_files(opts.report, plan_doc, scenario, items, spec, fence)
+            _check_fence_fits(fence, link, params, scenario, top, events)
             client = (MavsdkMissionClient if isinstance(link, MavsdkLink) else MissionClient)(link)  # the link's own
             planned = len(items)  # as in the mission files
             if opts.replan and client.writes_in_part:  # room for a replan's longer route (never flown)
@@ -230,6 +234,21 @@ def _departure_check(plan_doc: dict[str, Any], scenario: Scenario, limits: Autop
         if verdict.refusal is not None:
             raise DepartureRefused(verdict.refusal)
     return check
+
+
+def _check_fence_fits(fence: list, link: Link, params: dict[str, float], scenario: Scenario, top: float,
+                      events: EventLog) -> None:
+    """Refuse, before anything is sent, a fence larger than the autopilot stores (its HEARTBEAT says which
+    autopilot; ArduPilot's storage may be widened by a parameter): the vehicle's mission and fence stay as they are."""
+    capacity = fence_capacity(link.autopilot, link.vehicle_type, params)
+    if not fence or capacity is None:
+        return
+    fits = capacity.fits(fence)
+    events.log("fence_capacity", items=len(fence), max_items=capacity.max_items,
+               storage_bytes=capacity.storage_bytes, source=capacity.source, fits=fits)
+    if not fits:  # which zones: each built alone, with the route heights build_fence was given
+        zones = fenced_zones(scenario.environment, scenario.home, top, 0.0)
+        raise FenceTooLarge(fence_refusal(fence, zones, capacity) or "the fence does not fit the autopilot")
 
 
 def _link(url: str, opts: FlyOptions) -> Link:

@@ -202,11 +202,12 @@ class FlightSupervisor:
         if said:
             self.events.log("booted", seconds=round(self.booted_at - t0, 2))
 
-    def _refused_while_booting(self, e: Exception) -> bool:
-        """An upload refused with MAV_MISSION_NO_SPACE by an autopilot that is booting or has just booted
-        (its mission storage is not ready yet): worth doing again, unlike a real lack of space. (A fence or
-        rally upload during the boot is not refused: ArduPilot answers it once booted.)"""
-        if not (isinstance(e, MissionUploadError) and e.result == mavlink.MAV_MISSION_NO_SPACE):
+    def _refused_while_booting(self, e: Exception, kind: int = MISSION) -> bool:
+        """A mission upload refused with MAV_MISSION_NO_SPACE by an autopilot that is booting or has just booted
+        (its mission storage is not ready yet): worth doing again, unlike a real lack of space. A fence or rally
+        upload during the boot is not refused (ArduPilot answers it once booted), so their NO_SPACE is always a
+        real lack of space (docs/autopilots.md §5.9)."""
+        if kind != MISSION or not (isinstance(e, MissionUploadError) and e.result == mavlink.MAV_MISSION_NO_SPACE):
             return False
         hb = self.link.last_heartbeat_msg
         recent = self.booted_at is not None and time.monotonic() - self.booted_at < BOOT_GRACE_S
@@ -273,12 +274,15 @@ class FlightSupervisor:
         flight a transfer the link broke (timeout, the autopilot's own timeout cancelling it, a readback that
         differs) is simply done again, up to ``attempts`` times; a refusal of an item is not. Each list is read
         first, so that if its upload fails for good the previous one can be restored (the stored list may be
-        part new, part old): raises :class:`UploadAborted` saying what the vehicle was left with."""
+        part new, part old): raises :class:`UploadAborted` saying what the vehicle was left with. A list that fails
+        after an earlier one was stored (the fence after the mission) has the earlier one restored too, so the
+        vehicle is not left with half of the upload."""
         self.events.log("upload_start", mission_items=len(items), fence_items=len(fence))
         dt = 0.0  # the uploads' own time, not the backups' (the replanner's first guess at a replan upload)
         if items and self.link.profile.first_item_current_on_upload:
             # PX4 keeps its current item across uploads: the first item flagged current resets it
             items = [replace(items[0], current=1), *items[1:]]
+        stored: list[tuple[int, list[MissionItem] | None]] = []  # lists this call changed, with their backups
         for kind, payload in ((MISSION, items), (FENCE, fence)):
             if not payload:
                 continue
@@ -289,7 +293,7 @@ class FlightSupervisor:
                     await self.client.upload_verified(payload, kind)
                     break
                 except (MissionTimeout, MissionVerifyError, MissionUploadError, LinkError) as e:
-                    booting = self._refused_while_booting(e)
+                    booting = self._refused_while_booting(e, kind)
                     transient = booting or not (isinstance(e, MissionUploadError) and e.refused)
                     self.events.log("upload_failed", mission_type=kind, attempt=attempt, error=str(e),
                                     retrying=transient and attempt < attempts)
@@ -300,11 +304,17 @@ class FlightSupervisor:
                                             "do not start it") from e
                     if not transient or attempt == attempts:
                         _, left_with = await restore_mission(self.client, self.events, previous, kind)
+                        for earlier, backup in stored:  # the mission stored before a failed fence: put back too
+                            ok, also = await restore_mission(self.client, self.events, backup, earlier)
+                            left_with = f"{left_with}; {also}"
+                            if earlier == MISSION:
+                                self.verified = list(backup or []) if ok else []
                         raise UploadAborted(e, left_with) from e
                     if booting:
                         await self.wait_booted()
                         await asyncio.sleep(1.0)
             dt += time.monotonic() - t0
+            stored.append((kind, previous))
             if kind == MISSION:
                 self.verified, self._outages_checked = list(payload), self.link.outages
             if kind == MISSION and self.link.profile.awaits_mission_verdict:

@@ -84,3 +84,12 @@ class VehicleContentError(CompanionError):
     def __init__(self, list_name: str, seq: int, reason: str) -> None:
         self.list_name, self.seq, self.reason = list_name, seq, reason
         super().__init__(f"the vehicle's {list_name} item {seq}: {reason}")
+
+
+class FenceTooLarge(CompanionError):
+    """The fence does not fit the autopilot's fence storage, found before any of it was sent (a user's zones to
+    drop or simplify, not a link fault): the one-line ``reason`` says how much, the limit and which zones."""
+
+    def __init__(self, reason: str) -> None:
+        self.reason = reason
+        super().__init__(reason)

@@ -24,8 +24,9 @@ Imitated:
 - The mission protocol (``mission_server``) for the mission, fence and rally lists, storing items as ArduPilot
   does (:func:`companion.mavlink.storage.stored`), so a readback is the real one; polygon and circle fences checked
   as a whole when their upload completes, as ArduPilot's polyfence loader does (``mission_server.fence_problem``);
-  ArduPlane SITL's capacities (84 fence items in 672 bytes of fence storage, 50 rally points).
-- A few parameters (FENCE_ENABLE, FENCE_TYPE, FENCE_ACTION, RALLY_TOTAL, RALLY_LIMIT_KM, SITL's values):
+  ArduPlane SITL's capacities (84 fence items in 672 bytes of fence storage, 50 rally points; ArduCopter's fence:
+  70 items in 560 bytes, as companion.mavlink.fence_capacity says).
+- A few parameters (FENCE_ENABLE, FENCE_TYPE, FENCE_ACTION, RALLY_TOTAL, RALLY_LIMIT_KM, BRD_SD_FENCE, SITL's values):
   PARAM_SET echoed with PARAM_VALUE (other names ignored, as ArduPilot does), PARAM_REQUEST_READ / _LIST;
   SYS_STATUS says the geofence is enabled once FENCE_ENABLE is set and a fence is stored.
 - ``wait_for_client=True``: time starts with the first client, as SITL's clock does on SERIAL0.

@@ -24,6 +24,7 @@ import numpy as np
 import pymap3d
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.mavlink.fence_capacity import fence_capacity
 from companion.mavlink.items import FENCE, FRAME_GLOBAL, MISSION, RALLY, MissionItem
 from companion.mavlink.signing import SigningKey
 from companion.mavlink.storage import Firmware
@@ -82,7 +83,9 @@ PARAMS = {"FENCE_ENABLE": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
           "FENCE_TYPE": ((4.0, 7.0), mavlink.MAV_PARAM_TYPE_INT8),
           "FENCE_ACTION": ((1.0, 1.0), mavlink.MAV_PARAM_TYPE_INT8),
           "RALLY_TOTAL": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT8),
-          "RALLY_LIMIT_KM": ((5.0, 0.3), mavlink.MAV_PARAM_TYPE_REAL32)}
+          "RALLY_LIMIT_KM": ((5.0, 0.3), mavlink.MAV_PARAM_TYPE_REAL32),
+          # no SD-card fence storage (SITL has the parameter, 0): the fence is the storage layout's
+          "BRD_SD_FENCE": ((0.0, 0.0), mavlink.MAV_PARAM_TYPE_INT16)}
 PLANE_DEFAULT_LOITER_RAD = PLANE_LOITER_RADIUS  # WP_LOITER_RAD of SITL's plane.parm, settable with PARAM_SET
 
 
@@ -534,6 +537,8 @@ class SimAutopilot:
         """Items an upload may have now: while booting a mission has room for none and the other lists are not
         loaded yet."""
         if self.booted:
+            if mission_type == FENCE:  # ArduPlane's or ArduCopter's fence storage, as the vehicle imitated
+                return fence_capacity(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._mav_type()).max_items
             return MAX_ITEMS.get(mission_type)
         return 0 if mission_type == MISSION else None
 

@@ -55,6 +55,7 @@ from dataclasses import dataclass, replace
 
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
+from companion.mavlink.fence_capacity import ARDUPILOT_BYTES_PER_ITEM, ardupilot_fence_bytes
 from companion.mavlink.items import FENCE, MISSION, RALLY, MissionItem, normalise_frame
 from companion.mavlink.storage import Firmware, stored
 
@@ -63,9 +64,10 @@ logger = logging.getLogger(__name__)
 REQUEST_RESEND_S = 1.0  # ArduPilot: 1000 ms (+ stream slow-down) without an item → request again
 UPLOAD_TIMEOUT_S = 8.0  # ArduPilot upload_timeout_ms
 LIST_NAME = {MISSION: "Mission", FENCE: "Fence", RALLY: "Rally"}  # in ArduPilot's STATUSTEXTs
-# what ArduPlane 4.7 SITL holds ("Only 84 items are supported" for a fence of 85, "Only 50 …" for 100 rally points)
+# what ArduPlane 4.7 SITL holds ("Only 84 items are supported" for a fence of 85, "Only 50 …" for 100 rally points);
+# the simulated copter's fence is ArduCopter's (companion.mavlink.fence_capacity: 70 items, 560 bytes)
 MAX_ITEMS = {MISSION: 724, FENCE: 84, RALLY: 50}
-FENCE_BYTES_PER_ITEM = 8  # AC_PolyFence_loader::max_items() is the fence storage's size / 8 (one lat/lon pair)
+FENCE_BYTES_PER_ITEM = ARDUPILOT_BYTES_PER_ITEM  # AC_PolyFence_loader::max_items() is the storage's size / 8
 
 GLOBAL_FRAMES = frozenset({
     mavlink.MAV_FRAME_GLOBAL, mavlink.MAV_FRAME_GLOBAL_INT,
@@ -121,9 +123,8 @@ def _vertex_count(item: MissionItem) -> int:
 def fence_problem(items: list[MissionItem], storage_bytes: int) -> tuple[str, bool] | None:
     """Why ArduPilot would refuse a completed fence upload, or None: its STATUSTEXT and whether "Fence validation
     failed" follows. AC_PolyFence_loader's ``validate_fence`` item by item, then the storage the fence needs
-    (``fence_storage_space_required``: 4 bytes of header; a polygon 2 + 8 per vertex, a circle 13, a return point 9)."""
+    (``fence_storage_space_required``, :func:`companion.mavlink.fence_capacity.ardupilot_fence_bytes`)."""
     want_type = left = count = 0
-    needed = 4
     seen_return = False
     for item in items:
         kind = _POLYFENCE_TYPE[item.command]
@@ -133,7 +134,6 @@ def fence_problem(items: list[MissionItem], storage_bytes: int) -> tuple[str, bo
                 return f"Invalid vertex count ({n})", True
             if left == 0:
                 want_type, left, count = kind, n, n
-                needed += 2 + 8 * n
             elif kind != want_type:
                 return f"Received incorrect vertex type (want={want_type} got={kind})", True
             elif n != count:
@@ -145,15 +145,13 @@ def fence_problem(items: list[MissionItem], storage_bytes: int) -> tuple[str, bo
         if item.command in _CIRCLES:
             if not item.param1 > 0:
                 return "Non-positive circle radius", True
-            needed += 13
         else:  # the return point
             if seen_return:
                 return "Multiple return points", True
             seen_return = True
-            needed += 9
     if left:
         return "Incorrect item count", True  # ArduPilot sends this one as MAV_SEVERITY_INFO
-    if needed > storage_bytes:
+    if ardupilot_fence_bytes(items) > storage_bytes:
         return "Fence exceeds storage size", False
     return None
 

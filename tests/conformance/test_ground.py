@@ -5,14 +5,17 @@ fences, rally points, the current item, and the copter's refusal to arm in AUTO.
 from __future__ import annotations
 
 import asyncio
+import math
 from dataclasses import dataclass
 
 import pytest
 from conformance.conftest import HOME, NAN, collect, home_item, item, next_matching, numbered, takeoff, texts, waypoint
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
-from companion.mavlink.errors import CommandError
+from companion.mavlink.errors import CommandError, MissionUploadError
+from companion.mavlink.fence_capacity import capacity_params, fence_capacity
 from companion.mavlink.items import FENCE, MISSION, RALLY, MissionItem, compare_items
+from companion.mavlink.params import read_params
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 
@@ -301,3 +304,37 @@ async def test_a_fence_upload_abandoned_part_way_leaves_the_old_fence(vehicle, m
     assert "Fence upload timeout" in texts(seen)
     got = await vehicle.client.download(FENCE)
     assert _difference(vehicle, fence, got, skip_home=False) is None, _difference(vehicle, fence, got, False)
+
+
+def _ring(vertices: int, radius_m: float = 300.0, north_m: float = 3000.0) -> list[MissionItem]:
+    """One exclusion polygon of ``vertices`` vertices on a circle ``north_m`` north of home (home stays outside)."""
+    angles = [2.0 * math.pi * k / vertices for k in range(vertices)]
+    return numbered([item(mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, north_m + radius_m * math.sin(a),
+                          radius_m * math.cos(a), frame=mavlink.MAV_FRAME_GLOBAL_INT, param1=float(vertices))
+                     for a in angles], FENCE)
+
+
+async def test_the_fence_capacity_the_companion_assumes_is_the_vehicles(vehicle, measure) -> None:
+    """The capacity the companion's pre-upload check uses (companion.mavlink.fence_capacity, from the HEARTBEAT and
+    BRD_SD_FENCE) is the vehicle's: the largest polygon it says fits is stored; one vertex more it refuses, and so
+    does the autopilot when sent anyway (after the last item, "Fence exceeds storage size"), as it refuses a count
+    above its item limit at MISSION_COUNT (MAV_MISSION_NO_SPACE); the fence stored before stays."""
+    link = vehicle.link
+    cap = fence_capacity(link.autopilot, link.vehicle_type, await read_params(link, capacity_params(link.autopilot)))
+    largest = (cap.storage_bytes - 6) // 8  # 4 bytes of header, 2 for the polygon, 8 a vertex
+    fits, more = _ring(largest), _ring(largest + 1)
+    assert cap.fits(fits) and not cap.fits(more)
+    await vehicle.client.upload_verified(fits, FENCE)
+    refusals = []
+    for fence in (more, _ring(cap.max_items + 1)):
+        with link.subscribe("STATUSTEXT") as sub:
+            with pytest.raises(MissionUploadError) as refused:
+                await vehicle.client.upload(fence, FENCE)
+            said = [t.strip() for t in texts(sub.drain() + await collect(sub, 0.2))]
+        refusals.append((refused.value.result, [t for t in said if "Fence" in t or "items are" in t]))
+    measure(f"fence capacity {cap.max_items} items, {cap.storage_bytes} bytes: {largest} vertices stored; "
+            f"refused {refusals}")
+    assert refusals == [(mavlink.MAV_MISSION_ERROR, ["Fence exceeds storage size"]),
+                        (mavlink.MAV_MISSION_NO_SPACE, [f"Only {cap.max_items} items are supported"])]
+    got = await vehicle.client.download(FENCE)
+    assert _difference(vehicle, fits, got, skip_home=False) is None, _difference(vehicle, fits, got, False)

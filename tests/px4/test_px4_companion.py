@@ -19,7 +19,8 @@ from px4_harness import FAST
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 from companion.flight.supervisor import FlightSupervisor
-from companion.mavlink.errors import CompanionError
+from companion.mavlink.errors import CompanionError, MissionUploadError
+from companion.mavlink.fence_capacity import fence_capacity
 from companion.mavlink.items import FENCE, FRAME_REL_ALT_INT, MissionItem, compare_items
 from companion.mavlink.link import Link
 from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
@@ -120,6 +121,47 @@ async def test_fence_reads_back_as_the_px4_storage_rules_say(px4_link) -> None:
         assert back.z == sent.z and back.param1 == sent.param1
 
 
+def _ring(vertices: int) -> list[MissionItem]:
+    """One exclusion polygon of ``vertices`` vertices, 300 m round a point 3 km north of home (home stays outside)."""
+    angles = [2.0 * math.pi * k / vertices for k in range(vertices)]
+    return [_fence_item(mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, 3000.0 + 300.0 * math.sin(a),
+                        300.0 * math.cos(a), float(vertices),
+                        mavlink.MAV_FRAME_GLOBAL_INT).with_seq(k) for k, a in enumerate(angles)]
+
+
+async def test_the_fence_capacity_the_companion_assumes_is_px4s(px4_link) -> None:
+    """The pre-upload check's limit (companion.mavlink.fence_capacity) is PX4's: 64 fence items are stored; 65 the
+    check refuses, and so does PX4 when sent anyway (MAV_MISSION_NO_SPACE at MISSION_COUNT); a fence refused part-way
+    (a vertex count below 3 at item 5: MAV_MISSION_ERROR) leaves the stored fence as it was too, since PX4 writes an
+    upload to its other fence slot and switches only when complete. The module's fence is put back afterwards."""
+    link, client, _ = px4_link
+    if isinstance(link, MavsdkLink):
+        pytest.skip("the limit is the autopilot's, not the backend's: checked through our own link")
+    cap = fence_capacity(link.autopilot, link.vehicle_type)
+    before = await client.download(FENCE)
+    fits, more = _ring(cap.max_items), _ring(cap.max_items + 1)
+    assert cap.max_items == 64 and cap.fits(fits) and not cap.fits(more)
+    try:
+        await client.upload_verified(fits, FENCE)
+        bad = _ring(10)
+        bad[5] = replace(bad[5], param1=2.0)
+        results = []
+        for fence in (more, bad):
+            with pytest.raises(MissionUploadError) as refused:
+                await client.upload(fence, FENCE)
+            results.append(refused.value.result)
+        assert results == [mavlink.MAV_MISSION_NO_SPACE, mavlink.MAV_MISSION_ERROR]
+        got = await client.download(FENCE)
+        assert len(got) == len(fits)
+        for sent, back in zip(fits, got):
+            assert compare_items(stored(sent, Firmware.PX4), back) is None, (sent, back)
+    finally:
+        if before:
+            await client.upload_verified(before, FENCE)
+        else:
+            await client.clear(FENCE)
+
+
 async def test_set_current_falls_back_to_the_message_and_remembers(px4_link) -> None:
     """PX4 answers MAV_CMD_DO_SET_MISSION_CURRENT with UNSUPPORTED; the client then sends MISSION_SET_CURRENT
     (confirmed by MISSION_CURRENT) and does so straight away from then on. MAVSDK sends only the message (after
@@ -196,3 +238,4 @@ async def test_the_loiter_end_action_holds_over_the_goal_armed(px4_link) -> None
     assert hb.custom_mode == AUTO_MISSION and hb.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED, hex(hb.custom_mode)
     (n, e), (gn, ge) = _offset_m(pos.lat, pos.lon), _offset_m(items[last].x, items[last].y)
     assert math.hypot(n - gn, e - ge) < 20.0 and pos.relative_alt > 10_000  # over the goal, in the air (mm)
+

@@ -204,3 +204,68 @@ def test_the_reports_mission_plan_fences_what_export_fences(tmp_path) -> None:
     flown, exported = (json.loads((tmp_path / n).read_text())["geoFence"] for n in ("mission.plan", "export.plan"))
     assert len(flown["circles"]) == len(scenario.environment.cylinders)  # the spheres left out
     assert flown == exported
+
+
+def _polygon_toml(cx: float, cy: float, n: int, r: float = 30.0) -> str:
+    import math
+
+    xy = ", ".join(f"[{cx + r * math.cos(2 * math.pi * k / n):.2f}, {cy + r * math.sin(2 * math.pi * k / n):.2f}]"
+                   for k in range(n))
+    return f"\n[[prisms]]\nxy = [{xy}]\n"
+
+
+def test_fly_with_a_fence_too_large_for_the_autopilot_exits_2_before_anything_is_sent(tmp_path, capsys) -> None:
+    """Two polygons of 60 and 30 vertices besides the six cylinders make 96 fence items, more than ArduPlane's 84
+    (the simulator imitates its storage): `fuseplan fly` says so in one line naming the zone to drop and exits 2;
+    the vehicle's fence (a triangle a ground station put there) and its mission are as they were, nothing uploaded."""
+    import asyncio
+    import threading
+
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from companion.mavlink.items import FENCE, FRAME_GLOBAL_INT, MissionItem
+    from companion.mavlink.link import Link
+    from companion.mavlink.protocol import MissionClient
+    from companion.sim import SimAutopilot
+    from planner.world.scenario import load_scenario
+
+    zones = tmp_path / "zones.toml"
+    zones.write_text(STATIC.read_text() + _polygon_toml(940.0, 60.0, 60) + _polygon_toml(60.0, 940.0, 30))
+    triangle = [MissionItem(k, FRAME_GLOBAL_INT, mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, param1=3.0,
+                            x=-353600000 + 1000 * k, y=1491600000 + 500 * (k % 2), mission_type=FENCE)
+                for k in range(3)]
+    ready, stop, port, left = threading.Event(), threading.Event(), [0], []
+
+    async def autopilot() -> None:
+        async with SimAutopilot(load_scenario(STATIC), "tcp:127.0.0.1:0", speedup=20.0) as sim:
+            async with Link(f"tcp:127.0.0.1:{sim.port}", source_system=255, open_timeout=5.0) as gcs:
+                await gcs.wait_heartbeat(10.0)
+                await MissionClient(gcs).upload_verified(triangle, FENCE)
+            before = sim.fence
+            port[0] = sim.port
+            ready.set()
+            while not stop.is_set():
+                await asyncio.sleep(0.05)
+            left.append((before, sim.fence, sim.mission))
+
+    thread = threading.Thread(target=asyncio.run, args=(autopilot(),), name="sim")
+    thread.start()
+    try:
+        assert ready.wait(20.0)
+        report = tmp_path / "r"
+        code = main(["fly", str(zones), "--connect", f"tcp:127.0.0.1:{port[0]}", "--report", str(report), "-q",
+                     *FAST])
+    finally:
+        stop.set()
+        thread.join(10.0)
+    before, fence, mission = left[0]
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1, err
+    assert err[0].startswith("fuseplan: error: the fence does not fit the autopilot: 96 fence items, ArduPlane "
+                             "stores at most 84"), err
+    assert "drop or simplify prisms[0] (60 items)," in err[0] and err[0].endswith("nothing was uploaded")
+    assert len(before) == 3 and fence == before and len(mission) == 1  # the triangle, and home only
+    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    assert not [e for e in events if e["event"] in ("upload_start", "backup")]
+    assert [e["fits"] for e in events if e["event"] == "fence_capacity"] == [False]
+    assert "does not fit" in _flight(report)["reason"]

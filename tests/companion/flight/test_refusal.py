@@ -115,3 +115,53 @@ def test_an_armed_vehicle_gets_no_upload(static_doc: dict) -> None:
     text, mission, armed = asyncio.run(run())
     assert text.startswith("the vehicle is armed (mode MANUAL)") and "nothing was uploaded" in text
     assert len(mission) == 1 and armed  # untouched
+
+
+def _fence_ring(vertices: int) -> list:
+    """One exclusion polygon of ``vertices`` vertices, 3 km north of home."""
+    import math
+
+    from pymavlink.dialects.v20 import common as mavlink
+
+    from companion.mavlink.items import FENCE, FRAME_GLOBAL_INT, MissionItem
+
+    home = load_scenario(STATIC).home
+    return [MissionItem(k, FRAME_GLOBAL_INT, mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION, param1=float(vertices),
+                        x=round((home.lat + 0.027 + 0.003 * math.sin(2 * math.pi * k / vertices)) * 1e7),
+                        y=round((home.lon + 0.003 * math.cos(2 * math.pi * k / vertices)) * 1e7), mission_type=FENCE)
+            for k in range(vertices)]
+
+
+@pytest.mark.parametrize("vertices, answer", [(85, "MAV_MISSION_NO_SPACE"), (84, "MAV_MISSION_ERROR")])
+def test_a_fence_the_autopilot_has_no_room_for_leaves_mission_and_fence_as_they_were(
+        static_doc: dict, vertices: int, answer: str) -> None:
+    """A fence larger than the autopilot's storage, sent anyway (the pre-upload check had the wrong limit, e.g. a
+    board with less storage): refused at MISSION_COUNT (NO_SPACE; right after boot, not taken for the boot's
+    refusal and not retried) or after the last item ("Fence exceeds storage size"). One line says so; the fence
+    stored before is kept and the mission uploaded just before it is put back, so nothing is half-uploaded."""
+    from companion.mavlink.items import FENCE
+
+    async def run() -> tuple:
+        async with _on_sim() as (sim, link, client):
+            items = mission_from_plan_json(static_doc, load_scenario(STATIC), "ardupilot")
+            previous = [items[0]] + [replace(it, z=it.z + 10.0) for it in items[1:]]
+            await client.upload_verified(previous)
+            old_fence = await client.upload_verified(_fence_ring(5), FENCE)
+            events = EventLog()
+            sup = FlightSupervisor(link, client, events, arm=True)
+            await sup.wait_booted()  # as `fuseplan fly` does: a NO_SPACE now is within the boot grace
+            with pytest.raises(UploadAborted) as err:
+                await sup.upload(items, _fence_ring(vertices))
+            return (err.value, await client.download(), await client.download(FENCE), previous, old_fence,
+                    events.records, sup.verified)
+
+    error, mission, fence, previous, old_fence, records, verified = asyncio.run(run())
+    text = str(error)
+    where = "" if answer.endswith("NO_SPACE") else f" at item {vertices - 1}"  # at MISSION_COUNT, or the last item
+    assert "\n" not in text and text.startswith(f"mission upload refused{where}: {answer}; "), text
+    assert "previous verified fence (5 items) was restored" in text and "previous verified mission" in text
+    assert same_mission(mission, previous) and [f.seq for f in fence] == [f.seq for f in old_fence]
+    failed = [r for r in records if r["event"] == "upload_failed"]
+    assert [(r["mission_type"], r["retrying"]) for r in failed] == [(FENCE, False)]
+    assert [r["mission_type"] for r in records if r["event"] == "mission_restored"] == [FENCE, 0]
+    assert same_mission(verified, previous)  # what the supervisor knows to be on the vehicle

@@ -1,0 +1,74 @@
+"""Does the plan's fence fit the autopilot, and if not, which zones to drop or simplify (docs/autopilots.md §5.9).
+
+:func:`companion.mission.builder.build_fence` turns a scenario's prisms and cylinders into fence items; an operator's
+zones file with many polygons can make more than the autopilot stores. :func:`fence_refusal` says so in one line
+before anything is sent, naming the zones as the scenario file numbers them, largest first, until the rest would fit.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from companion.mavlink.fence_capacity import FenceCapacity
+from companion.mavlink.items import MissionItem
+from companion.mission.builder import build_fence
+from planner.world.environment import Cylinders, Environment, Prisms
+from planner.world.home import Home
+
+
+@dataclass(frozen=True)
+class FencedZone:
+    """One zone of the scenario as it goes into the fence: ``label`` as the scenario file numbers it
+    (``prisms[2]``, ``cylinders[0]``) and its fence ``items``."""
+
+    label: str
+    items: tuple[MissionItem, ...]
+
+    def describe(self) -> str:
+        n = len(self.items)
+        return f"{self.label} ({n} item{'' if n == 1 else 's'})"
+
+
+def fenced_zones(env: Environment, home: Home, max_route_alt: float | None,
+                 min_route_alt: float | None) -> list[FencedZone]:
+    """Each prism and cylinder that :func:`build_fence` fences with these route heights, with its items (built one
+    zone at a time, so a zone left out of the fence is left out here too)."""
+    zones: list[FencedZone] = []
+    prisms = env.prisms
+    for k in range(len(prisms)):
+        ring = prisms.vertices[int(prisms.start[k]):int(prisms.start[k + 1])]
+        keep_in = bool(prisms.keep_in[k]) if prisms.keep_in is not None else False
+        one = Prisms.from_polygons([ring], [prisms.floor[k]], [prisms.ceiling[k]], [keep_in])
+        items = build_fence(Cylinders.empty(), home, max_route_alt, prisms=one, min_route_alt=min_route_alt)
+        if items:
+            zones.append(FencedZone(f"prisms[{k}]{' (keep-in)' if keep_in else ''}", tuple(items)))
+    cyl = env.cylinders
+    for k in range(len(cyl)):
+        one_c = Cylinders([cyl.x[k]], [cyl.y[k]], [cyl.radius[k]], [cyl.top[k]], [cyl.z_ref[k]])
+        items = build_fence(one_c, home, max_route_alt, min_route_alt=min_route_alt)
+        if items:
+            zones.append(FencedZone(f"cylinders[{k}]", tuple(items)))
+    return zones
+
+
+def fence_refusal(fence: Sequence[MissionItem], zones: Sequence[FencedZone], capacity: FenceCapacity) -> str | None:
+    """One line when ``fence`` does not fit ``capacity`` (None when it does): what it needs, the limit, and the
+    zones to drop or simplify, the largest first until the rest would fit."""
+    problem = capacity.problem(fence)
+    if problem is None:
+        return None
+    dropped: list[FencedZone] = []
+    for zone in sorted(zones, key=lambda z: len(z.items), reverse=True):
+        dropped.append(zone)
+        rest = [it for z in zones if all(z is not d for d in dropped) for it in z.items]
+        if capacity.fits(rest):
+            break
+    where = f" ({capacity.source})" if capacity.source else ""
+    names = ", ".join(z.describe() for z in dropped)
+    advice = f"drop or simplify {names}" if dropped else "drop or simplify zones"
+    return (f"the fence does not fit the autopilot: {problem}{where}; {advice}, or fly with --no-fence; "
+            "nothing was uploaded")
+
+
+__all__ = ["FencedZone", "fence_refusal", "fenced_zones"]
