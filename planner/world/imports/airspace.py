@@ -74,15 +74,21 @@ def openaip_limit(file: str, where: str, limit: Any) -> Altitude:
         raise ScenarioError(file, where, f"expected an object {{value, unit, referenceDatum}}, got {kind(limit)}")
     value = number(file, f"{where}.value", limit.get("value"))
     unit, datum = limit.get("unit"), limit.get("referenceDatum")
-    if isinstance(unit, bool) or unit not in OPENAIP_UNITS:
+    if not _code(unit, OPENAIP_UNITS):
         raise ScenarioError(file, where, f"unit {unit!r} is not metres (0), feet (1) or a flight level (6)")
-    if isinstance(datum, bool) or datum not in OPENAIP_DATUMS:
+    if not _code(datum, OPENAIP_DATUMS):
         raise ScenarioError(file, where, f"referenceDatum {datum!r} is not GND (0), MSL (1) or STD (2)")
     if unit == OPENAIP_FLIGHT_LEVEL and datum != OPENAIP_STD:
         raise ScenarioError(file, where, f"a flight level is on the standard pressure datum (STD, 2), not "
                             f"{OPENAIP_DATUMS[datum][0]} ({datum})")
     _, multiplier, metres = OPENAIP_UNITS[unit]
     return Altitude(value * multiplier * metres, OPENAIP_DATUMS[datum][1])
+
+
+def _code(value: Any, codes: dict[int, Any]) -> bool:
+    """Whether ``value`` is one of OpenAIP's integer ``codes`` (not a boolean, a string or a list that looks like
+    one)."""
+    return isinstance(value, int) and not isinstance(value, bool) and value in codes
 
 
 # --- ED-269 ----------------------------------------------------------------------------------------------------

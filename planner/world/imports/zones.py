@@ -44,7 +44,9 @@ def zones_of(file: str, doc: Any) -> list[Zone]:
         return _geojson_feature(file, "feature", doc)
     for key in ED269_LISTS:
         zones = doc.get(key)
-        if isinstance(zones, list) and _ed269(zones):
+        # UASZoneList is ED-269's alone; features are ED-269's when a zone has a geometry array, or when the list is
+        # empty in an object that is not GeoJSON (a zone file with no zones left in it)
+        if isinstance(zones, list) and (key == "UASZoneList" or _ed269(zones) or (not zones and "type" not in doc)):
             return [z for i, zone in enumerate(zones) for z in ed269_zones(file, f"{key}[{i}]", zone)]
     if doc.get("type") == "FeatureCollection":
         features = doc.get("features")
@@ -56,8 +58,9 @@ def zones_of(file: str, doc: Any) -> list[Zone]:
         if not isinstance(items, list):
             raise ScenarioError(file, "items", f"expected an array of OpenAIP airspaces, got {kind(items)}")
         return [z for i, item in enumerate(items) for z in _openaip_item(file, f"items[{i}]", item)]
-    got = repr(doc["type"]) if "type" in doc else "an object with none of type, features, UASZoneList or items"
-    raise ScenarioError(file, "type", f"{got} is not {FORMATS}")
+    if "type" in doc:
+        raise ScenarioError(file, "type", f"{doc['type']!r} is not {FORMATS}")
+    raise ScenarioError(file, "", f"an object without a GeoJSON type, ED-269 zones or OpenAIP items is not {FORMATS}")
 
 
 def _ed269(zones: list[Any]) -> bool:

@@ -8,6 +8,7 @@ from __future__ import annotations
 import copy
 import json
 import logging
+import re
 from pathlib import Path
 from typing import Any, Callable
 
@@ -89,6 +90,11 @@ OPENAIP_ERRORS = [
     (_openaip_item(0, lowerLimit={"value": "0"}), "items[0] 'CMAC CTR' lowerLimit.value",
      "expected a number, got a string"),
     (_openaip_item(0, lowerLimit={"unit": True}), "items[0] 'CMAC CTR' lowerLimit", "unit True is not metres"),
+    (_openaip_item(0, lowerLimit={"unit": [1]}), "items[0] 'CMAC CTR' lowerLimit", "unit [1] is not metres"),
+    (_openaip_item(0, lowerLimit={"referenceDatum": "GND"}), "items[0] 'CMAC CTR' lowerLimit",
+     "referenceDatum 'GND' is not GND (0)"),
+    (_openaip_item(0, upperLimit={"referenceDatum": {}}), "items[0] 'CMAC CTR' upperLimit",
+     "referenceDatum {} is not GND (0)"),
     (_openaip_item(2, lowerLimit={"value": 4000}), "items[2] 'D510 RANGE'",
      "lowerLimit 4000 m is not below upperLimit 3810 m (both above amsl)"),
     (_openaip_item(0, geometry={"type": "Point", "coordinates": [149.16, -35.36]}), "items[0] 'CMAC CTR' geometry",
@@ -162,6 +168,12 @@ def test_ed269_containers_read_alike(tmp_path: Path, shape: str):
     assert [z.name for z in zones] == [z.name.replace("features", prefix, 1) for z in reference]
     assert [(z.polygon, z.centre, z.radius_m, z.floor, z.ceiling) for z in zones] == \
         [(z.polygon, z.centre, z.radius_m, z.floor, z.ceiling) for z in reference]
+
+
+@pytest.mark.parametrize("doc", [{"features": []}, {"UASZoneList": []}, {"type": "FeatureCollection", "features": []},
+                                 {"items": []}, []])
+def test_a_zones_file_with_no_zones_gives_none(tmp_path: Path, doc: Any):
+    assert read_zones(_write(tmp_path, doc)) == ()
 
 
 def test_ed318_spelling_of_req_authorisation_is_no_fly_too(tmp_path: Path):
@@ -245,7 +257,9 @@ def test_ed269_refusals_name_file_zone_volume_and_reason(tmp_path: Path, edit: C
 
 @pytest.mark.parametrize(("doc", "where", "reason"), [
     (42, "", "a number is not a GeoJSON FeatureCollection or Feature, ED-269 UAS zones"),
-    ({"zones": []}, "type", "an object with none of type, features, UASZoneList or items is not"),
+    ({"zones": []}, "", "an object without a GeoJSON type, ED-269 zones or OpenAIP items is not"),
+    ({"features": [{"type": "Feature", "geometry": None}]}, "", "an object without a GeoJSON type"),
+    ({"type": "Topology", "features": []}, "type", "'Topology' is not a GeoJSON FeatureCollection"),
     ({"items": {}}, "items", "expected an array of OpenAIP airspaces, got an object"),
     ([{"name": "x", "geometry": [], "restriction": "PROHIBITED"}], "[0] 'x' geometry", "got an empty array"),
     ([3], "[0]", "expected an OpenAIP airspace (an object), got a number"),
@@ -255,3 +269,15 @@ def test_what_is_no_zones_file_is_refused(tmp_path: Path, doc: Any, where: str, 
     with pytest.raises(ScenarioError) as err:
         read_zones(path)
     assert err.value.field == where and reason in err.value.reason, str(err.value)
+
+
+def test_the_examples_in_docs_imports_read_as_the_doc_says(tmp_path: Path):
+    """docs/imports.md's OpenAIP and ED-269 examples, read from the doc itself, give the zones it states."""
+    doc = (Path(__file__).parents[4] / "docs" / "imports.md").read_text()
+    openaip, ed269 = (json.loads(b) for b in re.findall(r"```json\n(.*?)```", doc, re.S))
+    (restricted,) = read_zones(_write(tmp_path, openaip, "openaip.json"))
+    assert (restricted.name, restricted.floor, restricted.ceiling) == (
+        "items[0] 'R405 MAJURA'", Altitude(152.4, "ground"), Altitude(1981.2, "amsl"))
+    (hospital,) = read_zones(_write(tmp_path, ed269, "ed269.json"))
+    assert (hospital.name, hospital.centre, hospital.radius_m, hospital.floor, hospital.ceiling) == (
+        "features[0] 'Hospital'", (-35.3605, 149.166), 152.4, None, Altitude(121.92, "ground"))
