@@ -47,9 +47,10 @@ def mode_overrides(args: argparse.Namespace) -> list[str]:
 def add_source_options(parser: argparse.ArgumentParser) -> None:
     """``--zones``, ``--base``, ``--fence``, ``--rally``: what a mission or a scenario is planned with besides
     itself (docs/scenario_format.md, "Missions and zones from ground stations")."""
-    parser.add_argument("--zones", action="append", default=[], type=Path, metavar="FILE.geojson",
-                        help="add the no-fly zones of a GeoJSON file (Polygon, MultiPolygon, or Point with "
-                             "radius_m; floor and ceiling with their reference; docs/imports.md); repeatable")
+    parser.add_argument("--zones", action="append", default=[], type=Path, metavar="FILE",
+                        help="add the no-fly zones of a zones file: our GeoJSON (Polygon, MultiPolygon, or Point "
+                             "with radius_m; floor and ceiling with their reference), OpenAIP airspace or ED-269 UAS "
+                             "geographical zones, told apart by their structure (docs/imports.md); repeatable")
     parser.add_argument("--base", type=Path, metavar="SCENARIO.toml",
                         help="a mission's vehicle, altitude band, clearances and planner settings from this "
                              "scenario (default: the band around the mission's heights)")

@@ -1,7 +1,8 @@
 """What ``plan``, ``export`` and ``fly`` take as their source: a scenario TOML, or a ground station's mission
-(QGroundControl ``.plan``, Mission Planner ``.waypoints``), with airspace zones (``--zones FILE.geojson``) added
-to either. A mission, or a scenario with zones, becomes a scenario file written beside the output, so the rest
-loads, checks and names it as any scenario (docs/scenario_format.md, "Missions and zones from ground stations").
+(QGroundControl ``.plan``, Mission Planner ``.waypoints``), with airspace zones (``--zones FILE``: our GeoJSON,
+OpenAIP airspace or ED-269 UAS zones) added to either. A mission, or a scenario with zones, becomes a scenario
+file written beside the output, so the rest loads, checks and names it as any scenario (docs/scenario_format.md,
+"Missions and zones from ground stations").
 """
 
 from __future__ import annotations
@@ -41,7 +42,7 @@ def read_mission(path: Path, fence: Path | None = None, rally: Path | None = Non
 
 
 def read_zone_files(paths: Sequence[Path]) -> tuple[Zone, ...]:
-    """Every zone of the GeoJSON files, each named by its file and feature."""
+    """Every zone of the zones files (planner/world/imports/zones.py), each named by its file and zone."""
     from planner.world.imports import read_zones
 
     return tuple(z for p in paths for z in read_zones(p))

@@ -145,6 +145,15 @@ def altitude(file: str, where: str, frame: int, value: float) -> Altitude:
     return Altitude(value, FRAME_REFS[frame])
 
 
+def check_band(file: str, where: str, floor: Altitude | None, ceiling: Altitude | None,
+               names: tuple[str, str] = ("floor_m", "ceiling_m"), unit: str = "") -> None:
+    """Refuse a zone whose floor is not below its ceiling when both use one reference (with different references
+    only the scenario, knowing home and terrain, can compare them). ``names`` say the two in the file's words."""
+    if floor is not None and ceiling is not None and floor.ref == ceiling.ref and floor.value >= ceiling.value:
+        raise ScenarioError(file, where, f"{names[0]} {floor.value:g}{unit} is not below {names[1]} "
+                            f"{ceiling.value:g}{unit} (both above {floor.ref})")
+
+
 def located(lat: float, lon: float) -> bool:
     """Whether an item's latitude and longitude are a place: 0, 0 means "here" to ArduPilot (a LAND or a
     LOITER without a position acts where the vehicle is)."""

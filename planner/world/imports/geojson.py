@@ -1,18 +1,19 @@
-"""GeoJSON airspace zones → :class:`Zone` values (docs/imports.md, "GeoJSON zones").
+"""Our GeoJSON zones → :class:`Zone` values (docs/imports.md, "GeoJSON zones"), and the GeoJSON geometry the
+airspace readers share (planner/world/imports/airspace.py).
 
-A FeatureCollection (or one Feature) of Polygon and MultiPolygon features (outer rings; holes are refused) and
-Point features with a ``radius_m``. Coordinates are RFC 7946 ``[lon, lat]``. Each feature's properties say its
-vertical extent (:data:`PROPERTIES`); companion/mission/exports.py writes the same names, so a round trip holds.
+Polygon and MultiPolygon features (outer rings; holes are refused) and Point features with a ``radius_m``.
+Coordinates are RFC 7946 ``[lon, lat]``. Each feature's properties say its vertical extent (:data:`PROPERTIES`);
+companion/mission/exports.py writes the same names, so a round trip holds. Which format a file is in is decided in
+planner/world/imports/zones.py.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
 from typing import Any
 
 from planner.errors import ScenarioError
 from planner.world.geo_inputs import ALTITUDE_REFS, Altitude, Zone
-from planner.world.imports.common import kind, lat_lon, load_json, number, read_text, ring
+from planner.world.imports.common import check_band, kind, lat_lon, number, ring
 
 # the feature properties read (anything else is kept out of the way: airspace files carry many)
 PROPERTIES = {
@@ -25,45 +26,43 @@ PROPERTIES = {
     "radius_m": "a Point zone's radius in metres (required for a Point)",
 }
 DEFAULT_REF = "home"
+Ring = tuple[tuple[float, float], ...]  # a polygon's (lat, lon) vertices, not closed
 
 
-def read_zones(path: str | Path) -> tuple[Zone, ...]:
-    """The zones in a GeoJSON file: one per Polygon, one per part of a MultiPolygon, one per Point with a
-    ``radius_m``; anything else is refused in one line naming the feature."""
-    path, file, text = read_text(path, "GeoJSON")
-    doc = load_json(file, text)
-    if isinstance(doc, dict) and doc.get("type") == "Feature":
-        features, prefix = [doc], ""
-    elif isinstance(doc, dict) and doc.get("type") == "FeatureCollection":
-        features, prefix = doc.get("features"), "features"
-        if not isinstance(features, list):
-            raise ScenarioError(file, "features", f"expected an array of features, got {kind(features)}")
-    else:
-        got = repr(doc.get("type")) if isinstance(doc, dict) else kind(doc)
-        raise ScenarioError(file, "type", f"{got} is not a GeoJSON FeatureCollection or Feature")
-    zones: list[Zone] = []
-    for i, feature in enumerate(features):
-        zones += _feature(file, f"{prefix}[{i}]" if prefix else "feature", feature)
-    return tuple(zones)
+def labelled(where: str, name: Any) -> str:
+    """How a zone is named in messages and values: ``features[3] 'Danger area D123'`` (``where`` alone without a
+    name)."""
+    return f"{where} {name!r}" if name else where
 
 
-def _feature(file: str, where: str, feature: Any) -> list[Zone]:
+def name_of(file: str, where: str, obj: dict[str, Any], key: str = "name") -> str | None:
+    """``obj[key]`` when it is a string, None when absent or null; anything else is refused."""
+    name = obj.get(key)
+    if name is not None and not isinstance(name, str):
+        raise ScenarioError(file, f"{where}.{key}", f"expected a string, got {kind(name)}")
+    return name
+
+
+def properties(file: str, where: str, feature: Any) -> dict[str, Any]:
+    """A GeoJSON Feature's properties (null: none); anything but a Feature is refused."""
     if not isinstance(feature, dict) or feature.get("type") != "Feature":
         raise ScenarioError(file, where, "not a GeoJSON Feature (an object with \"type\": \"Feature\")")
     props = feature.get("properties") or {}
     if not isinstance(props, dict):
         raise ScenarioError(file, f"{where}.properties", f"expected an object or null, got {kind(props)}")
-    name = props.get("name")
-    if name is not None and not isinstance(name, str):
-        raise ScenarioError(file, f"{where}.properties.name", f"expected a string, got {kind(name)}")
-    label = f"{where} {name!r}" if name else where
+    return props
+
+
+def feature_zones(file: str, where: str, feature: Any) -> list[Zone]:
+    """The zones of one feature in our property names: one per Polygon, one per part of a MultiPolygon, one per
+    Point with a ``radius_m``; anything else is refused in one line naming the feature."""
+    props = properties(file, where, feature)
+    label = labelled(where, name_of(file, f"{where}.properties", props))
     inclusion = props.get("inclusion", False)
     if not isinstance(inclusion, bool):
         raise ScenarioError(file, f"{where}.properties.inclusion", f"expected true or false, got {kind(inclusion)}")
     floor, ceiling = (_height(file, f"{where}.properties", props, h) for h in ("floor", "ceiling"))
-    if floor is not None and ceiling is not None and floor.ref == ceiling.ref and floor.value >= ceiling.value:
-        raise ScenarioError(file, f"{where}.properties", f"floor_m {floor.value:g} is not below ceiling_m "
-                            f"{ceiling.value:g} (both above {floor.ref})")
+    check_band(file, f"{where}.properties", floor, ceiling)
     if inclusion and (floor is not None or ceiling is not None):
         raise ScenarioError(file, f"{where}.properties", "an inclusion zone holds at every height: give it no "
                             "floor_m or ceiling_m")
@@ -71,7 +70,7 @@ def _feature(file: str, where: str, feature: Any) -> list[Zone]:
     gtype = geometry.get("type") if isinstance(geometry, dict) else None
     here = f"{where}.geometry"
     if gtype == "Point":
-        lat, lon = _position(file, f"{here}.coordinates", geometry.get("coordinates"))
+        lat, lon = position(file, f"{here}.coordinates", geometry.get("coordinates"))
         if "radius_m" not in props or props["radius_m"] is None:
             raise ScenarioError(file, f"{where}.properties.radius_m", "missing (a Point zone needs a radius in "
                                 "metres)")
@@ -79,18 +78,31 @@ def _feature(file: str, where: str, feature: Any) -> list[Zone]:
         if radius <= 0.0:
             raise ScenarioError(file, f"{where}.properties.radius_m", f"{radius:g} m (a radius must be > 0)")
         return [Zone(label, inclusion, centre=(lat, lon), radius_m=radius, floor=floor, ceiling=ceiling)]
+    parts = polygon_parts(file, here, label, geometry)
+    if parts is None:
+        raise ScenarioError(file, here, f"{what_geometry(geometry)} is not a zone (a Polygon, MultiPolygon or Point "
+                            "with radius_m)")
+    return [Zone(lbl, inclusion, polygon=vertices, floor=floor, ceiling=ceiling) for lbl, vertices in parts]
+
+
+def what_geometry(geometry: Any) -> str:
+    """A geometry's type for messages: ``'LineString'``, ``no geometry``, ``an array`` …"""
+    gtype = geometry.get("type") if isinstance(geometry, dict) else None
+    return repr(gtype) if gtype else ("no geometry" if geometry is None else kind(geometry))
+
+
+def polygon_parts(file: str, here: str, label: str, geometry: Any) -> list[tuple[str, Ring]] | None:
+    """A Polygon's or MultiPolygon's zones as (name, outer ring (lat, lon)) pairs (a MultiPolygon's parts named
+    ``label part j``); None when ``geometry`` is neither."""
+    gtype = geometry.get("type") if isinstance(geometry, dict) else None
     if gtype == "Polygon":
-        parts = [(f"{here}.coordinates", label, geometry.get("coordinates"))]
-    elif gtype == "MultiPolygon":
+        return [(label, outer_ring(file, f"{here}.coordinates", geometry.get("coordinates")))]
+    if gtype == "MultiPolygon":
         polygons = geometry.get("coordinates")
         if not isinstance(polygons, list):
             raise ScenarioError(file, f"{here}.coordinates", f"expected an array of polygons, got {kind(polygons)}")
-        parts = [(f"{here}.coordinates[{j}]", f"{label} part {j}", p) for j, p in enumerate(polygons)]
-    else:
-        what = repr(gtype) if gtype else ("no geometry" if geometry is None else kind(geometry))
-        raise ScenarioError(file, here, f"{what} is not a zone (a Polygon, MultiPolygon or Point with radius_m)")
-    return [Zone(lbl, inclusion, polygon=_outer_ring(file, at, rings), floor=floor, ceiling=ceiling)
-            for at, lbl, rings in parts]
+        return [(f"{label} part {j}", outer_ring(file, f"{here}.coordinates[{j}]", p)) for j, p in enumerate(polygons)]
+    return None
 
 
 def _height(file: str, where: str, props: dict[str, Any], which: str) -> Altitude | None:
@@ -106,7 +118,7 @@ def _height(file: str, where: str, props: dict[str, Any], which: str) -> Altitud
     return Altitude(number(file, f"{where}.{which}_m", value), ref)
 
 
-def _position(file: str, where: str, value: Any) -> tuple[float, float]:
+def position(file: str, where: str, value: Any) -> tuple[float, float]:
     """A GeoJSON position [lon, lat] or [lon, lat, alt] → (lat, lon)."""
     if not isinstance(value, list) or len(value) not in (2, 3):
         raise ScenarioError(file, where, f"expected a position [lon, lat], got {kind(value)}"
@@ -115,12 +127,12 @@ def _position(file: str, where: str, value: Any) -> tuple[float, float]:
     return lat_lon(file, where, lat, lon)
 
 
-def _outer_ring(file: str, where: str, rings: Any) -> tuple[tuple[float, float], ...]:
+def outer_ring(file: str, where: str, rings: Any) -> Ring:
     """A Polygon's coordinates → its outer ring as (lat, lon) vertices; a hole is refused."""
     if not isinstance(rings, list) or not rings or not isinstance(rings[0], list):
         raise ScenarioError(file, where, f"expected an array of linear rings, got {kind(rings)}")
     if len(rings) > 1:
         raise ScenarioError(file, where, f"{len(rings) - 1} hole(s): holes are not supported (split the zone "
                             "into polygons without holes)")
-    points = [_position(file, f"{where}[0][{i}]", p) for i, p in enumerate(rings[0])]
+    points = [position(file, f"{where}[0][{i}]", p) for i, p in enumerate(rings[0])]
     return ring(file, f"{where}[0]", points)
