@@ -148,7 +148,7 @@ def _ed269_limit(file: str, at: str, volume: dict[str, Any], which: str, scale: 
     value = volume.get(f"{which}Limit")
     if value is None:
         return None
-    value = number(file, f"{at}.{which}Limit", value) * scale
+    value = number(file, f"{at}.{which}Limit", _numeral(value)) * scale
     key = f"{which}VerticalReference"
     ref = volume.get(key)
     if ref == "WGS84":
@@ -158,6 +158,17 @@ def _ed269_limit(file: str, at: str, volume: dict[str, Any], which: str, scale: 
     if not isinstance(ref, str) or ref not in ED269_REFS:
         raise ScenarioError(file, f"{at}.{key}", _not_one_of(ref, "AGL or AMSL"))
     return Altitude(value, ED269_REFS[ref])
+
+
+def _numeral(value: Any) -> Any:
+    """A limit written as a decimal string (some ED-269 producers do: InterUSS's sample has ``"lowerLimit": "0"``)
+    as its number; anything else as it is, for :func:`number` to judge."""
+    if isinstance(value, str):
+        try:
+            return float(value.strip())
+        except ValueError:
+            return value
+    return value
 
 
 def _not_one_of(value: Any, allowed: str) -> str:

@@ -182,6 +182,16 @@ def test_ed318_spelling_of_req_authorisation_is_no_fly_too(tmp_path: Path):
     assert [z.name for z in read_zones(_write(tmp_path, doc))][1] == "features[1] 'Hospital'"
 
 
+def test_ed269_limits_written_as_decimal_strings_read_as_numbers(tmp_path: Path):
+    """InterUSS's ED-269 sample writes ``"lowerLimit": "0"``: a decimal string is its number."""
+    doc = _doc(ED269)
+    want = read_zones(_write(tmp_path, doc))[0]
+    volume = doc["features"][0]["geometry"][0]
+    volume["lowerLimit"], volume["upperLimit"] = str(volume["lowerLimit"]), f" {volume['upperLimit']} "
+    got = read_zones(_write(tmp_path, doc))[0]
+    assert (got.floor, got.ceiling) == (want.floor, want.ceiling)
+
+
 def _ed269_volume(k: int, j: int = 0, **changes: Any) -> Callable[[Any], None]:
     def edit(doc: Any) -> None:
         volume = doc["features"][k]["geometry"][j]
@@ -216,7 +226,7 @@ ED269_ERRORS = [
      "missing (expected M or FT)"),
     (_ed269_volume(0, lowerVerticalReference="MSL"),
      "features[0] 'Field prohibited' geometry[0].lowerVerticalReference", "'MSL' is not AGL or AMSL"),
-    (_ed269_volume(0, lowerLimit="0"), "features[0] 'Field prohibited' geometry[0].lowerLimit",
+    (_ed269_volume(0, lowerLimit="ground"), "features[0] 'Field prohibited' geometry[0].lowerLimit",
      "expected a number, got a string"),
     (_ed269_volume(0, lowerLimit=150), "features[0] 'Field prohibited' geometry[0]",
      "lowerLimit 150 m is not below upperLimit 120 m (both above ground)"),
