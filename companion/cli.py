@@ -411,6 +411,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     import os
 
     from companion.mission.exports import export_from_plan_json
+    from companion.mission.fence_fit import export_fence_warning
 
     check_writable(args.output)
     args.source = planner_cli.source_scenario(args, args.source, args.output)
@@ -429,6 +430,8 @@ def cmd_export(args: argparse.Namespace) -> int:
     if doc.get("unchecked"):
         print(f"fuseplan: warning: {args.output} was written UNCHECKED (--force), and says so inside: "
               f"{doc['unchecked']}", file=sys.stderr)
+    if args.format == "plan" and (too_big := export_fence_warning(doc, sc, args.autopilot)):
+        print(f"fuseplan: warning: {args.output}: {too_big}", file=sys.stderr)
     print(f"wrote {args.output} ({args.format}, {args.autopilot})")
     return EXIT_OK
 

@@ -7,14 +7,19 @@ before anything is sent, naming the zones as the scenario file numbers them, lar
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from typing import Any
 
-from companion.mavlink.fence_capacity import FenceCapacity
+import numpy as np
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.mavlink.fence_capacity import FenceCapacity, fence_capacity
 from companion.mavlink.items import MissionItem
 from companion.mission.builder import build_fence
 from planner.world.environment import Cylinders, Environment, Prisms
 from planner.world.home import Home
+from planner.world.scenario import Scenario
 
 
 @dataclass(frozen=True)
@@ -58,17 +63,43 @@ def fence_refusal(fence: Sequence[MissionItem], zones: Sequence[FencedZone], cap
     problem = capacity.problem(fence)
     if problem is None:
         return None
+    return (f"the fence does not fit the autopilot: {problem}{_source(capacity)}; {_advice(zones, capacity)}, or fly "
+            "with --no-fence; nothing was uploaded")
+
+
+def export_fence_warning(plan_doc: Mapping[str, Any], scenario: Scenario, autopilot: str) -> str | None:
+    """For ``fuseplan export``: a line when the fence written into a ``.plan`` (built as ``fly`` builds it) is larger
+    than the autopilot ``autopilot`` (ardupilot | px4 | px4-vtol) stores for the scenario's vehicle, without an SD
+    card's widening; a ground station's upload of it would be refused. None when it fits."""
+    points = plan_doc.get("trajectory", {}).get("points") or plan_doc["waypoints"]
+    top = float(np.max(np.asarray(points, dtype=float)[:, 2]))
+    env = scenario.environment
+    fence = build_fence(env.cylinders, scenario.home, max_route_alt=top, prisms=env.prisms, min_route_alt=0.0)
+    firmware = mavlink.MAV_AUTOPILOT_PX4 if autopilot.startswith("px4") else mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA
+    frame = mavlink.MAV_TYPE_FIXED_WING if scenario.vehicle.type == "plane" else mavlink.MAV_TYPE_QUADROTOR
+    capacity = fence_capacity(firmware, frame)
+    problem = capacity.problem(fence) if capacity is not None and fence else None
+    if problem is None:
+        return None
+    zones = fenced_zones(env, scenario.home, top, 0.0)
+    return (f"its fence will not fit the vehicle: {problem}{_source(capacity)}; a ground station's upload of it will "
+            f"be refused; {_advice(zones, capacity)}")
+
+
+def _source(capacity: FenceCapacity) -> str:
+    return f" ({capacity.source})" if capacity.source else ""
+
+
+def _advice(zones: Sequence[FencedZone], capacity: FenceCapacity) -> str:
+    """The zones to drop or simplify, the largest first until the rest would fit."""
     dropped: list[FencedZone] = []
     for zone in sorted(zones, key=lambda z: len(z.items), reverse=True):
         dropped.append(zone)
         rest = [it for z in zones if all(z is not d for d in dropped) for it in z.items]
         if capacity.fits(rest):
             break
-    where = f" ({capacity.source})" if capacity.source else ""
     names = ", ".join(z.describe() for z in dropped)
-    advice = f"drop or simplify {names}" if dropped else "drop or simplify zones"
-    return (f"the fence does not fit the autopilot: {problem}{where}; {advice}, or fly with --no-fence; "
-            "nothing was uploaded")
+    return f"drop or simplify {names}" if dropped else "drop or simplify zones"
 
 
-__all__ = ["FencedZone", "fence_refusal", "fenced_zones"]
+__all__ = ["FencedZone", "export_fence_warning", "fence_refusal", "fenced_zones"]

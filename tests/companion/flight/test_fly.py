@@ -269,3 +269,18 @@ def test_fly_with_a_fence_too_large_for_the_autopilot_exits_2_before_anything_is
     assert not [e for e in events if e["event"] in ("upload_start", "backup")]
     assert [e["fits"] for e in events if e["event"] == "fence_capacity"] == [False]
     assert "does not fit" in _flight(report)["reason"]
+
+
+def test_export_warns_when_the_plans_fence_will_not_fit_the_vehicle(tmp_path, capsys) -> None:
+    """`fuseplan export --format plan` of a scenario whose fence (96 items, as above) is larger than ArduPlane's 84
+    writes the file (a ground station may still fly the route without the fence) and warns in one line naming the
+    zone to drop; with the polygons simplified away, no warning."""
+    big = tmp_path / "zones.toml"
+    big.write_text(STATIC.read_text() + _polygon_toml(940.0, 60.0, 60) + _polygon_toml(60.0, 940.0, 30))
+    out = tmp_path / "big.plan"
+    assert main(["export", str(big), "--format", "plan", "-o", str(out), *FAST]) == 0
+    warning = [line for line in capsys.readouterr().err.splitlines() if "warning" in line]
+    assert out.stat().st_size > 0 and len(warning) == 1
+    assert "96 fence items, ArduPlane stores at most 84" in warning[0] and "prisms[0] (60 items)" in warning[0]
+    assert main(["export", str(STATIC), "--format", "plan", "-o", str(tmp_path / "ok.plan"), *FAST]) == 0
+    assert "warning" not in capsys.readouterr().err
