@@ -52,7 +52,13 @@ def _steps_into_unverified_items(events: list[dict]) -> list[dict]:
     return bad
 
 
-@pytest.mark.parametrize("name", ["rescue_static", "large_obstacle_field", pytest.param(
+@pytest.mark.parametrize("name", ["rescue_static", pytest.param(
+    # a booting ArduPlane's SERIAL0, the fence verified as stored and every waypoint reached: by rescue_static; a
+    # larger fence (polygons and a circle) flown round to its end on ArduPlane by the operator-world flight
+    "large_obstacle_field", marks=pytest.mark.slow(covered_by=(
+        "test_plane_scenarios_fly_on_arduplane_with_default_options[rescue_static]",
+        "sitl/test_operator_world_flight.py::"
+        "test_arduplane_flies_round_the_fence_and_to_the_goal_the_operator_uploaded"))), pytest.param(
     # a booting ArduPlane's SERIAL0 by the two above; rescue_dynamic flown on ArduPlane to its end with defaults, its
     # intruder reported, by test_vehicle_facts.py (ROLL_LIMIT_DEG / WP_LOITER_RAD) and crossing_traffic below
     "rescue_dynamic", marks=pytest.mark.slow(covered_by=(
