@@ -51,13 +51,16 @@ def check_legs_workload(problem: PlanningProblem, vias: np.ndarray, settings: Pl
 
 def plan_through(problem: PlanningProblem, vias: np.ndarray, settings: PlannerSettings, rng: np.random.Generator,
                  deadline: Deadline = NEVER, seed: int | None = None,
-                 progress: Callable[[int, int, float], None] | None = None) -> PlanResult:
+                 progress: Callable[[int, int, float], None] | None = None,
+                 initial_paths: np.ndarray | None = None) -> PlanResult:
     """The route from ``problem.start`` through every via (k, 3) in order to ``problem.goal``, as one
     :class:`PlanResult`: the legs' waypoints joined (each via once), the whole route's cost, smoothed trajectory and
-    check, and the status the worst of the legs' and the whole check's. Without vias this is :func:`plan` itself."""
+    check, and the status the worst of the legs' and the whole check's. ``initial_paths`` seed the first leg's
+    search (they end at the first via). Without vias this is :func:`plan` itself."""
     vias = np.asarray(vias, dtype=float).reshape(-1, 3)
     if not len(vias):
-        return plan(problem, settings, rng, deadline=deadline, seed=seed, progress=progress)
+        return plan(problem, settings, rng, initial_paths=initial_paths, deadline=deadline, seed=seed,
+                    progress=progress)
     t0 = time.perf_counter()
     legs = leg_problems(problem, vias)
     chords = np.array([leg.direct_distance for leg in legs])
@@ -70,7 +73,8 @@ def plan_through(problem: PlanningProblem, vias: np.ndarray, settings: PlannerSe
                                       start_time=None if problem.start_time is None
                                       else float(before.trajectory.times[-1]))
         share = search.share(float(chords[k] / chords[k:].sum()))
-        results.append(plan(leg, settings, child, deadline=share, seed=seed, progress=progress))
+        results.append(plan(leg, settings, child, initial_paths=None if k else initial_paths, deadline=share,
+                            seed=seed, progress=progress))
     return _joined(problem, settings, results, seed, t0)
 
 
