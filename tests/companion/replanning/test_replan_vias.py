@@ -73,3 +73,30 @@ def test_a_replan_before_a_via_still_flies_through_it(scenario: Path) -> None:
     assert miss < 8.0, (miss, events)  # without keeping it, the replanned plane passed 35-40 m from it
     assert truth_separations(sim, sc, math.inf)["crossing"].separation >= sc.hazard.d_coll
     assert load_scenario(scenario).vias.tolist() == [VIA]
+
+
+def test_a_plane_resumed_just_past_a_via_is_sent_back_to_it_not_beyond(scenario: Path) -> None:
+    """RejoinChecks.ahead_seq skips items a plane has passed or cannot turn onto; never a via's (the join to it is
+    then checked, or refused and the plane replanned through it)."""
+    from types import SimpleNamespace
+
+    from companion.mission.events import EventLog
+    from companion.replanning.rejoin import RejoinChecks
+
+    doc, sc = _plan_doc_for(scenario, None, [], None, for_flight=True)
+    route = MissionRoute.of(mission_from_plan_json(doc, sc), sc.home)
+    k = int(np.flatnonzero(np.linalg.norm(route.points - VIA, axis=1) < 1.0)[0])
+    leg = route.points[k + 1] - route.points[k]
+    here = route.points[k] + 0.3 * leg  # past the via along the next leg, flying along it
+
+    def ahead(scenario_: object) -> int:
+        state = SimpleNamespace(position=here, velocity=18.0 * leg[:2] / np.linalg.norm(leg[:2]), groundspeed=18.0)
+        ctx = SimpleNamespace(state=state, profile=SimpleNamespace(hold_circles=True), events=EventLog(),
+                              scenario=scenario_)
+        swap = SimpleNamespace(route=route, goal_seq=route.goal_seq)
+        motion = SimpleNamespace(wide_turn_radius=lambda speed: 40.0)
+        return RejoinChecks(ctx, motion, None, None, swap).ahead_seq(int(route.seqs[k]))
+
+    assert ahead(sc) == int(route.seqs[k])
+    without = load_scenario(scenario, ["route.vias=[]"])
+    assert ahead(without) > int(route.seqs[k])  # the control: an ordinary item behind the plane is skipped
