@@ -289,7 +289,8 @@ def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str]
     takeoff), as the companion sees them in flight. A PLAN.json is checked again against its scenario and its
     derived parts rebuilt (:mod:`planner.plan_file`); one that fails is refused (exit 3) unless ``force``, when
     the document carries the fault under ``unchecked``."""
-    from planner.plan import plan, plan_to_json, problem_from_scenario
+    from planner.legs import plan_scenario
+    from planner.plan import plan_to_json
     from planner.world.scenario import load_scenario
 
     if source.suffix.lower() == ".json":
@@ -314,8 +315,7 @@ def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str]
         from companion.mission.builder import time_to_start
 
         start_time = time_to_start(sc) if for_flight else 0.0
-    res = plan(problem_from_scenario(sc, start_time), sc.planner, np.random.default_rng(sc.planner.seed),
-               seed=sc.planner.seed)
+    res = plan_scenario(sc, sc.planner, np.random.default_rng(sc.planner.seed), start_time, seed=sc.planner.seed)
     if feasible_only and not res.feasible:
         raise PlanRefused(f"{source}: no feasible plan ({res.status.value}); nothing exported")
     return plan_to_json(res, sc, start_time), sc
@@ -346,7 +346,8 @@ def with_flight_margins(source: Path, overrides: list[str]) -> list[str]:
 
 
 def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
-    """A PLAN.json is only flown or exported with its own scenario: same name, home, start and goal."""
+    """A PLAN.json is only flown or exported with its own scenario: same name, home, start and goal, and every via
+    of the scenario a waypoint of the route, in order."""
     home = doc["home"]  # shape checked: finite numbers
     same = (doc["scenario"] == sc.name
             and all(abs(float(home[k]) - getattr(sc.home, k)) < 1e-9 for k in ("lat", "lon", "alt"))
@@ -354,6 +355,13 @@ def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
     if not same:
         raise FuseplanError(f"{source}: planned for scenario {doc.get('scenario')!r}, not {sc.name!r} "
                             f"({sc.source}): home, start or goal differ; plan again for this scenario")
+    waypoints, at = np.asarray(doc["waypoints"], dtype=float), 0
+    for i, via in enumerate(sc.vias):
+        hits = np.flatnonzero(np.all(np.isclose(waypoints[at:], via), axis=1))
+        if not len(hits):
+            raise FuseplanError(f"{source}: the route does not pass through route.vias[{i}] of {sc.source} "
+                                f"({', '.join(f'{v:g}' for v in via)}); plan again for this scenario")
+        at += int(hits[0]) + 1
 
 
 def cmd_plan(args: argparse.Namespace) -> int:

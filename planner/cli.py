@@ -157,8 +157,8 @@ def executor_from(args: argparse.Namespace) -> typing.Any:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from planner.plan import plan, plan_to_json, problem_from_scenario
-    from planner.workload import check_workload
+    from planner.legs import check_legs_workload, plan_scenario
+    from planner.plan import plan_to_json, problem_from_scenario
     from planner.world.scenario import load_scenario
 
     overrides = list(args.overrides) + mode_overrides(args)
@@ -175,15 +175,18 @@ def cmd_plan(args: argparse.Namespace) -> int:
         check_writable(out)
     settings = scenario.planner
     problem = problem_from_scenario(scenario)
-    check_workload(problem, settings, source=str(args.scenario))  # before the "planning" line: one line
+    # before the "planning" line: one line
+    check_legs_workload(problem, scenario.vias, settings, source=str(args.scenario))
     if not args.quiet:
         print(f"planning {scenario.name} with {settings.algorithm}, seed {settings.seed}, "
               f"{settings.pso.n_pop} particles × {settings.pso.max_iter} iterations", file=sys.stderr)
     with console.iteration_progress(args.quiet) as show:
-        result = plan(problem, settings, np.random.default_rng(settings.seed), seed=settings.seed, progress=show)
+        result = plan_scenario(scenario, settings, np.random.default_rng(settings.seed), seed=settings.seed,
+                               progress=show)
     doc = plan_to_json(result, scenario)
     m = doc["metrics"]
-    direct = problem.direct_distance
+    through = np.vstack([scenario.start, scenario.vias, scenario.goal])
+    direct = float(np.linalg.norm(np.diff(through, axis=0), axis=1).sum())
     viol = ", ".join(f"{k} {v}" for k, v in doc["violations"].items())
     extra = {k: v for k, v in doc["cost_violations"].items() if v}
     if extra:
@@ -191,12 +194,16 @@ def cmd_plan(args: argparse.Namespace) -> int:
     print(f"{scenario.name}: {result.algorithm} seed {result.seed} -> {result.status.value}")
     clearance = m["min_clearance_m"]
     print(f"  cost      {result.cost:.1f}  (penalty {doc['cost_terms']['penalty']:.1f})")
-    print(f"  length    {m['length_m']:.1f} m  ({m['length_m'] / direct:.3f} x direct {direct:.1f} m), "
+    print(f"  length    {m['length_m']:.1f} m  ({m['length_m'] / direct:.3f} x direct {direct:.1f} m"
+          + (f" through {len(scenario.vias)} vias" if len(scenario.vias) else "") + "), "
           f"smoothness {m['smoothness']:.2f} rad, min clearance "
           + ("n/a (no obstacles)" if clearance is None else f"{clearance:.1f} m"))
     print(f"  violations {viol}")
     print(f"  time      {m['plan_time_s']:.2f} s, {m['iterations']} iterations "
           f"({result.optimiser.stop_reason}), converged at iteration {m['convergence_iteration']}")
+    if result.legs:
+        print("  legs      " + ", ".join(f"{r.status.value} {r.cost:.1f} ({r.iterations} it, {r.time_s:.2f} s)"
+                                        for r in result.legs) + " (the whole route checked as one)")
     if "phases" in doc:
         ph = dict(doc["phases"])
         winner = ph.pop("winner")

@@ -14,6 +14,7 @@ from dataclasses import dataclass, replace
 from typing import Any, Protocol
 
 import numpy as np
+import pymap3d
 
 from planner.deadline import NEVER, Deadline
 from planner.problem import Evaluation, PlanningProblem
@@ -44,6 +45,17 @@ class PlanStatus(str, enum.Enum):
     TIMEOUT = "timeout"  # budget ran out before any feasible path was found
 
 
+@dataclass(frozen=True)
+class LegRecord:
+    """How one leg of a route through vias was planned (:mod:`planner.legs`)."""
+
+    status: PlanStatus
+    cost: float
+    iterations: int
+    time_s: float
+    stop_reason: str
+
+
 @dataclass
 class PlanResult:
     status: PlanStatus
@@ -55,6 +67,7 @@ class PlanResult:
     check: CheckResult
     optimiser: OptimiserResult
     plan_time_s: float
+    legs: tuple[LegRecord, ...] = ()  # a route through vias: its legs, in order (planner.legs); else none
 
     @property
     def feasible(self) -> bool:
@@ -290,4 +303,20 @@ def plan_to_json(result: PlanResult, scenario: Scenario, start_time: float | Non
                     "min_turn_radius_m": scenario.vehicle.min_turn_radius,
                     "turn_overshoot": scenario.vehicle.turn_overshoot},
         "hazard": {"d_safe": scenario.hazard.d_safe, "d_coll": scenario.hazard.d_coll},
+        **_vias(result, scenario),
     })
+
+
+def _vias(result: PlanResult, scenario: Scenario) -> dict[str, Any]:
+    """PLAN.json's ``vias`` (each in the frame's metres and in latitude, longitude and metres above home) and
+    ``legs`` records of a route through vias; nothing for a scenario without them."""
+    if not len(scenario.vias):
+        return {}
+    h = scenario.home
+    lat, lon, _ = pymap3d.enu2geodetic(scenario.vias[:, 0], scenario.vias[:, 1], 0.0, h.lat, h.lon, h.alt,
+                                       ell=pymap3d.Ellipsoid.from_name("wgs84"))
+    vias = [{"xyz": [float(v) for v in p], "lat": float(la), "lon": float(lo), "alt_above_home": float(p[2])}
+            for p, la, lo in zip(scenario.vias, np.atleast_1d(lat), np.atleast_1d(lon), strict=True)]
+    legs = [{"status": r.status.value, "cost": r.cost, "iterations": r.iterations, "time_s": r.time_s,
+             "stop_reason": r.stop_reason} for r in result.legs]
+    return {"vias": vias, **({"legs": legs} if legs else {})}

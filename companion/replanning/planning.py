@@ -19,6 +19,8 @@ from companion.replanning.replan import (
     ReplanRecord,
     commit_point,
     replan_settings,
+    tail_to,
+    vias_ahead,
     warm_starts,
 )
 from companion.replanning.swap import MissionSwap
@@ -29,6 +31,7 @@ from planner.problem import PlanningProblem
 from planner.replan import replan_problem
 from planner.world.config import PlannerSettings
 from planner.world.environment import Threats
+from planner.world.scenario import MIN_ROUTE_LENGTH
 
 BAND_INSET_M = 0.5  # a commit point is moved at least this far inside the altitude band
 GOOD = (PlanStatus.EXACT.value, PlanStatus.APPROXIMATE.value)
@@ -129,7 +132,8 @@ class ReplanPlanning:
                              int(route.seqs[0]) + 1, route.points.copy())
         else:
             cp = commit_point(ahead, seqs, max(state.current_seq, int(route.seqs[0])), lead_m, speed, now)
-        exit_ = self.modes.hold_exit(budget_s, route.goal, self.swap.upload_wall_s) \
+        ahead = self.vias_ahead(cp)  # the plane leaves its hold towards the first via it must still pass
+        exit_ = self.modes.hold_exit(budget_s, ahead[0] if len(ahead) else route.goal, self.swap.upload_wall_s) \
             if self.modes.holding is not None and not departing else None
         self.modes.planning_exit = None
         if exit_ is not None:
@@ -160,6 +164,11 @@ class ReplanPlanning:
         n = float(np.linalg.norm(v))
         return v / n if n > 1e-6 else None
 
+    def vias_ahead(self, cp: CommitPoint) -> np.ndarray:
+        """The scenario's vias a route from ``cp`` must pass through (:func:`vias_ahead`): not yet passed, nor in
+        the items kept before it."""
+        return vias_ahead(self.swap.route, self.ctx.scenario.vias, cp.first_new_seq, cp.point, MIN_ROUTE_LENGTH)
+
     # -- the plan -----------------------------------------------------------------------------------
     def problem(self, cp: CommitPoint, threats: Threats) -> tuple[PlanningProblem, PlannerSettings]:
         """The replan from ``cp`` to the goal around ``threats``, and the settings it is planned with."""
@@ -177,12 +186,14 @@ class ReplanPlanning:
 
     def plan(self, problem: PlanningProblem, settings: PlannerSettings, cp: CommitPoint, budget_s: float,
              rec: ReplanRecord) -> asyncio.Task:
-        """``problem`` planned within ``budget_s`` as a task in the planner process, warm-started from the old route
-        and its bent copies."""
-        seeds = warm_starts(cp.old_tail, self.ctx.cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
+        """``problem`` planned within ``budget_s`` as a task in the planner process, through the vias still ahead
+        (planner.legs), warm-started from the old route (to the first of them) and its bent copies."""
+        vias = self.vias_ahead(cp)
+        tail = tail_to(cp.old_tail, vias[0]) if len(vias) else cp.old_tail
+        seeds = warm_starts(tail, self.ctx.cfg.detour_offsets_m, settings.pso.n_waypoints + 2)
         worker = self.start_worker()
-        return asyncio.create_task(worker.plan(problem, settings, [self.seed, rec.n], seeds, budget_s),
-                                   name="replan-plan")
+        return asyncio.create_task(worker.plan(problem, settings, [self.seed, rec.n], seeds, budget_s,
+                                               vias if len(vias) else None), name="replan-plan")
 
     def safe(self, job: WorkerPlan, cp: CommitPoint, conflict: Conflict, threats: Threats,
              rec: ReplanRecord) -> bool:

@@ -12,6 +12,7 @@ from companion.replanning.holds import HOLD_MARGIN_M
 from companion.replanning.modes import ModeControl
 from companion.replanning.motion import VehicleMotion
 from companion.replanning.prediction import Prediction
+from companion.replanning.replan import via_items
 from companion.replanning.swap import MissionSwap
 from planner.trajectory.checks import nearest_obstacle
 
@@ -82,16 +83,21 @@ class RejoinChecks:
         route (beyond it along the leg k -> k+1), not behind it (against its velocity) and not within two wide
         turns plus a second of flight (what it cannot turn onto without a loop). Resumed towards such an item,
         ArduPlane loops back round through whatever is beside it: on SITL, after a hold beside item 5, 33 m into a
-        cylinder. The goal is always kept. A copter keeps ``seq``."""
+        cylinder. The goal is always kept, and so is a via of the scenario (the route must pass through it: a join
+        that cannot fly to it safely is refused by :meth:`leg_blocked`, and the vehicle replanned through it). A
+        copter keeps ``seq``."""
         state = self.ctx.state
         if state.position is None or not self.ctx.profile.hold_circles:
             return seq
         seqs, pts = self.swap.route.seqs, self.swap.route.points
+        vias = {s for s, _ in via_items(self.swap.route, self.ctx.scenario.vias)}
         p, v = state.position[:2], state.velocity
         near = 2.0 * self.motion.wide_turn_radius(state.groundspeed) + max(state.groundspeed, 1.0) * JOIN_LATENCY_S
         moving = float(np.linalg.norm(v)) > 1.0
         target = seq
         for k in np.flatnonzero((seqs >= seq) & (seqs < self.swap.goal_seq)):
+            if int(seqs[k]) in vias:
+                break
             to = pts[k, :2] - p
             passed = k + 1 < len(seqs) and float(np.dot(p - pts[k, :2], pts[k + 1, :2] - pts[k, :2])) > 0
             behind = moving and float(np.dot(to, v)) <= 0.0

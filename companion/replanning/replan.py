@@ -162,6 +162,41 @@ def commit_point(route: np.ndarray, route_seqs: np.ndarray, current_seq: int, le
     return CommitPoint(p[0], lead, t_now + lead / max(speed, 1e-6), first_new, tail, route[k + 1] - route[k])
 
 
+VIA_MATCH_M = 1.0  # a route waypoint this close to one of the scenario's vias is that via (a plan puts it exactly)
+
+
+def via_items(route: MissionRoute, vias: np.ndarray) -> list[tuple[int, np.ndarray]]:
+    """(item seq, via) for each of the scenario's ``vias`` (k, 3) found, in order, among the route's waypoints
+    before the goal; a via not on the route (never flown through) is left out."""
+    out, at = [], 0
+    for via in np.asarray(vias, dtype=float).reshape(-1, 3):
+        near = np.flatnonzero(np.linalg.norm(route.points[at:] - via, axis=1) < VIA_MATCH_M)
+        if not len(near):
+            continue
+        at += int(near[0])
+        if int(route.seqs[at]) < route.goal_seq:
+            out.append((int(route.seqs[at]), via))
+        at += 1
+    return out
+
+
+def vias_ahead(route: MissionRoute, vias: np.ndarray, first_new_seq: int, start: np.ndarray,
+               min_leg_m: float) -> np.ndarray:
+    """The scenario's ``vias`` (k, 3) a replan from ``start`` must still pass through (:func:`via_items`): those at
+    item ``first_new_seq`` or later (the items before it stay as they are: the vehicle has passed them, or flies
+    them unchanged); one closer than ``min_leg_m`` to ``start`` is where the new route begins. (m, 3), m ≤ k."""
+    out = [via for seq, via in via_items(route, vias)
+           if seq >= first_new_seq and float(np.linalg.norm(via - start)) >= min_leg_m]
+    return np.array(out, dtype=float).reshape(-1, 3)
+
+
+def tail_to(tail: np.ndarray, point: np.ndarray) -> np.ndarray:
+    """The old route ``tail`` (J, 3) up to ``point`` on it (a via), for the warm start of the leg that ends there;
+    the straight line to it when it is not on the tail."""
+    near = np.flatnonzero(np.linalg.norm(tail - point, axis=1) < VIA_MATCH_M)
+    return tail[:int(near[0]) + 1] if len(near) and near[0] > 0 else np.vstack([tail[0], point])
+
+
 def warm_starts(tail: np.ndarray, offsets_m: Sequence[float], n_points: int = 10) -> np.ndarray:
     """Seeds for the replanning swarm (k, n_points, 3): the old route from the commit point, resampled
     evenly along its length, and copies bent sideways by each offset (a half-sine bulge perpendicular to

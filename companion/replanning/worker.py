@@ -18,7 +18,7 @@ import numpy as np
 
 from planner import kernel
 from planner.deadline import Deadline
-from planner.plan import plan
+from planner.legs import plan_through
 from planner.world.scenario import Scenario
 
 log = logging.getLogger(__name__)
@@ -34,10 +34,12 @@ class WorkerPlan:
     optimiser_s: float
 
 
-def _plan_job(problem: Any, settings: Any, seed: list[int], initial: np.ndarray, budget_s: float) -> WorkerPlan:
-    """One replan in the worker process."""
+def _plan_job(problem: Any, settings: Any, seed: list[int], initial: np.ndarray, budget_s: float,
+              vias: np.ndarray | None = None) -> WorkerPlan:
+    """One replan in the worker process, through ``vias`` (k, 3) when given (``initial``: the first leg's seeds)."""
     # the deadline starts here, in the worker process, when the job does
-    result = plan(problem, settings, np.random.default_rng(seed), initial, Deadline.after(budget_s))
+    result = plan_through(problem, np.zeros((0, 3)) if vias is None else vias, settings, np.random.default_rng(seed),
+                          Deadline.after(budget_s), initial_paths=initial)
     violations = {k: int(v[0]) for k, v in result.evaluation.violations.items() if int(v[0])}
     return WorkerPlan(result.status.value, np.asarray(result.waypoints), violations, result.optimiser.time_s)
 
@@ -92,14 +94,15 @@ class PlanWorker:
         return time.monotonic() - t0
 
     async def plan(self, problem: Any, settings: Any, seed: list[int], initial: np.ndarray,
-                   budget_s: float) -> WorkerPlan:
-        """Plan within ``budget_s`` of wall time in all: the search gets what the smoothing, the checks and
-        the hand-over to and from the process (measured on earlier jobs) leave of it. If the process cannot
-        be started or has died, plans in a thread instead (slower: it shares the interpreter)."""
+                   budget_s: float, vias: np.ndarray | None = None) -> WorkerPlan:
+        """Plan within ``budget_s`` of wall time in all, through ``vias`` when given (planner.legs): the search gets
+        what the smoothing, the checks and the hand-over to and from the process (measured on earlier jobs) leave of
+        it. If the process cannot be started or has died, plans in a thread instead (slower: it shares the
+        interpreter)."""
         loop = asyncio.get_running_loop()
         t0 = time.monotonic()
         search = max(budget_s - self._overhead_s, 0.2 * budget_s)
-        args = (problem, settings, seed, initial, search)
+        args = (problem, settings, seed, initial, search, vias)
         if self._pool is not None:
             try:
                 await self._warm

@@ -108,7 +108,7 @@ class _Reader:
 # every place a point may stand: (list key or None, key in the entry, kind); kind "vec3" is [x, y, z] or a point
 # table {lat, lon, alt, ref}; "xy" is keys x, y or lat, lon in the entry; "xyz" keys x, y, z or lat, lon, alt, ref
 _POINTS = (
-    ("route", "start", "vec3"), ("route", "goal", "vec3"),
+    ("route", "start", "vec3"), ("route", "goal", "vec3"), ("route", "vias", "vec3 list"),
     ("cylinders", None, "xy"), ("hemispheres", None, "xy"), ("spheres", None, "xyz"), ("radars", None, "xyz"),
     ("threats", "center", "vec3"), ("threats", "a", "vec3"), ("threats", "b", "vec3"),
     ("intruders", "meet", "vec3"), ("intruders", "waypoints", "vec3 list"),

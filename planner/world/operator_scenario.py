@@ -95,7 +95,7 @@ def operator_raw(mission: OperatorMission, base: Mapping[str, Any] | None = None
     """The raw scenario (geographic form) for ``mission`` with its fence and ``zones`` added, on ``base``'s
     vehicle, hazard, planner, altitude and terrain tables (a base scenario's raw TOML; None: defaults, the band
     around the mission's heights; a relative terrain path is taken from ``base_dir``). The start is home at the height
-    of the mission's first position item."""
+    of the mission's first position item; the positions between it and the goal are ``route.vias``."""
     source = str(mission.source)
     home = mission.home or mission.start
     if home is None or home.alt is None or home.alt.ref != "amsl":
@@ -127,10 +127,11 @@ def operator_raw(mission: OperatorMission, base: Mapping[str, Any] | None = None
             raw["vehicle"] = {"type": "copter"}
         elif vehicle_type in QGC_PLANE_TYPES:
             raw["vehicle"] = {"type": "plane"}
-    raw["route"] = {"start": point_table(start, first.alt if first is not None else Altitude(60.0)),
-                    "goal": point_table(mission.goal)}
-    if mission.goal.alt is None:
-        raw["route"]["goal"] = point_table(mission.goal, first.alt if first is not None else Altitude(60.0))
+    height = first.alt if first is not None else Altitude(60.0)  # for the start, and any place without its own
+    raw["route"] = {"start": point_table(start, height),
+                    "goal": point_table(mission.goal, None if mission.goal.alt is not None else height)}
+    if mission.vias:  # the operator's intermediate places: the route passes through each, in order
+        raw["route"]["vias"] = [point_table(v, None if v.alt is not None else height) for v in mission.vias]
     if prisms:
         raw["prisms"] = prisms
     if cylinders:

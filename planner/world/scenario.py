@@ -63,6 +63,13 @@ class Intruder:
     meet: tuple[float, float, float] | None = None  # on its path; timed to be there as the vehicle passes
 
 
+def _points(points: Sequence[Sequence[float]]) -> np.ndarray:
+    """``points`` as a read-only (k, 3) array of metres."""
+    out = np.array(points, dtype=float).reshape(-1, 3)
+    out.setflags(write=False)
+    return out
+
+
 @dataclass(frozen=True, eq=False)
 class Scenario:
     name: str
@@ -79,6 +86,8 @@ class Scenario:
     # where the vehicle's home is, m east and north in the frame: the origin, unless the scenario is geographic
     # with a region (its frame's origin is then the region's south-west corner, ``home`` that corner)
     launch: tuple[float, float] = (0.0, 0.0)
+    # (k, 3) ENU metres: points the route passes through in order between start and goal (route.vias)
+    vias: np.ndarray = field(default_factory=lambda: _points([]))
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -100,6 +109,9 @@ MAX_OBSTACLES = 100_000  # cylinders, spheres, hemispheres, radars and random on
 MAX_POLYGON_VERTICES = 10_000  # per prism: an airspace boundary digitised at 10 m around a 30 km zone
 MAX_MOVERS = 1000  # threats, and intruders: more aircraft than an ADS-B receiver tracks at once
 MAX_INTRUDER_WAYPOINTS = 10_000
+# route.vias: each is the end of a leg planned on its own; 64 legs of the default 8 waypoints are 576 mission items,
+# within the ~700 a mission holds on ArduPilot SITL
+MAX_VIAS = 64
 MAX_HILLS = 1000  # Gaussian hills of synthetic terrain (the shipped mountain map has 12)
 MAX_TERRAIN_NODES = 2**24  # a 100 km map at 25 m (4001², finer than SRTM1's 30 m): 134 MB of heights
 MAX_TERRAIN_HEIGHT = 9000.0  # m above home: Everest's summit stands 8849 m above the sea
@@ -172,6 +184,7 @@ class _Altitude(_Table):
 class _Route(_Table):
     start: _Vec3
     goal: _Vec3
+    vias: Annotated[list[_Vec3], Field(max_length=MAX_VIAS)] = []
 
 
 class _Cylinder(_Table):
@@ -575,12 +588,22 @@ def _build_terrain(spec: _FlatTerrain | _HillsTerrain | _FileTerrain | None, bou
     return terrain
 
 
-MIN_ROUTE_LENGTH = 10.0  # m between start and goal
+MIN_ROUTE_LENGTH = 10.0  # m between start and goal, and between consecutive points of the route through its vias
+
+
+def _check_leg_lengths(file: str, start: np.ndarray, vias: np.ndarray, goal: np.ndarray) -> None:
+    """Each leg (start → vias[0] → … → goal) at least MIN_ROUTE_LENGTH long: a leg is planned on its own."""
+    names = ["route.start", *(f"route.vias[{i}]" for i in range(len(vias))), "route.goal"]
+    points = np.vstack([start, vias, goal])
+    for k in range(1, len(points)):
+        if np.linalg.norm(points[k] - points[k - 1]) < MIN_ROUTE_LENGTH:
+            raise ScenarioError(file, names[k], f"must be at least {MIN_ROUTE_LENGTH:g} m from {names[k - 1]}")
 
 
 def _check_point(file: str, name: str, p: np.ndarray, env: Environment, obstacles: _Obstacles,
                  radar_labels: list[str], prism_labels: list[str]) -> None:
-    """A route end must lie inside the bounds, inside the altitude band over terrain and outside every obstacle."""
+    """A route point (start, via, goal) must lie inside the bounds, inside the altitude band over terrain and outside
+    every obstacle."""
     field_name = f"route.{name}"
     x, y, z = (float(v) for v in p)
     for axis, value, size in (("x", x, env.size_x), ("y", y, env.size_y)):
@@ -765,8 +788,8 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
 
     start = np.array(spec.route.start, dtype=float)
     goal = np.array(spec.route.goal, dtype=float)
-    if np.linalg.norm(goal - start) < MIN_ROUTE_LENGTH:
-        raise ScenarioError(file, "route.goal", f"must be at least {MIN_ROUTE_LENGTH:g} m from route.start")
+    vias = _points(spec.route.vias)
+    _check_leg_lengths(file, start, vias, goal)
     home = Home(spec.home.lat, spec.home.lon, spec.home.alt)
     obstacles = _Obstacles()
     for i, c in enumerate(spec.cylinders):
@@ -779,7 +802,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
         obstacles.sph.append((h.x, h.y, 0.0, h.radius))
         obstacles.sph_labels.append(f"hemispheres[{i}] (x={h.x:g}, y={h.y:g}, r={h.radius:g})")
     if spec.random_obstacles is not None:
-        _random_obstacles(spec.random_obstacles, (spec.bounds.x, spec.bounds.y), np.stack([start, goal]),
+        _random_obstacles(spec.random_obstacles, (spec.bounds.x, spec.bounds.y), np.vstack([start, goal, vias]),
                           obstacles, file)
     prisms, prism_labels = _prisms(file, spec)
     r_det = [r.detection_range() for r in spec.radars]
@@ -797,7 +820,8 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
         terrain=frame.terrain if frame is not None else _build_terrain(spec.terrain, spec.bounds, home, path, file),
         threats=Threats(tuple(t.to_threat() for t in spec.threats)),
     )
-    for name, point in (("start", start), ("goal", goal)):
+    named = [("start", start), *((f"vias[{i}]", v) for i, v in enumerate(vias)), ("goal", goal)]
+    for name, point in named:
         _check_point(file, name, point, environment, obstacles, radar_labels, prism_labels)
     start.setflags(write=False)
     goal.setflags(write=False)
@@ -806,7 +830,7 @@ def load_scenario(path: str | Path, overrides: Sequence[str] = ()) -> Scenario:
         name=spec.name or path.stem, source=path, home=home, environment=environment, start=start, goal=goal,
         vehicle=vehicle, hazard=hazard, planner=planner,
         intruders=tuple(i.to_intruder() for i in spec.intruders), **optional,
-        launch=(0.0, 0.0) if frame is None else frame.home_xy,
+        launch=(0.0, 0.0) if frame is None else frame.home_xy, vias=vias,
     )
     logger.info("loaded scenario %s from %s: %d cylinders, %d prisms, %d spheres, %d radars, %d threats, "
                 "%d intruders", scenario.name, file, len(environment.cylinders), len(environment.prisms),

@@ -101,8 +101,8 @@ def derived_scenario(source: Path, zone_files: Sequence[Path] = (), base: Path |
 
 def vehicle_scenario(base: Path, world: OperatorMission, fence: bool, goal: bool, beside: Path) -> Path:
     """``base`` with what the vehicle holds (docs/scenario_format.md, "The vehicle's own world"): its fence zones
-    (``fence``) and the last navigation item of its mission as the goal (``goal``), written as
-    ``<beside>.scenario.toml``."""
+    (``fence``) and the last navigation item of its mission as the goal, the places before it as the vias
+    (``goal``), written as ``<beside>.scenario.toml``."""
     raw = _toml_of(base)
     what = []
     if fence:
@@ -116,8 +116,11 @@ def vehicle_scenario(base: Path, world: OperatorMission, fence: bool, goal: bool
         old = route.get("goal")
         alt = old[2] if isinstance(old, list) and len(old) == 3 else None
         route["goal"] = point_table(world.goal, None if world.goal.alt is not None or alt is None else alt)
+        route.pop("vias", None)  # the vehicle's mission says where to pass, not the base scenario
+        if world.vias:
+            route["vias"] = [point_table(v, None if v.alt is not None or alt is None else alt) for v in world.vias]
         raw["route"] = route
-        what.append("the goal")
+        what.append(f"the goal{f' and {len(world.vias)} vias' if world.vias else ''}")
     return _write(raw, f"{base} with {' and '.join(what)} read from the vehicle at {world.source}", beside)
 
 

@@ -7,6 +7,7 @@ import tomllib
 from pathlib import Path
 
 import numpy as np
+import pymap3d
 import pytest
 
 from planner.errors import ScenarioError
@@ -87,3 +88,33 @@ def test_toml_text_round_trips_what_scenarios_hold() -> None:
     assert back == raw
     with pytest.raises(ValueError, match="no TOML form"):
         toml_text.dumps({"top": math.inf})
+
+
+def test_the_missions_intermediate_places_are_vias_in_order(tmp_path: Path) -> None:
+    """Each position between the start and the goal is a via where the operator set it; one without an altitude is
+    flown at the start's height."""
+    vias = (GeoPoint(47.398, 8.55, Altitude(50.0)), GeoPoint(47.4, 8.556), GeoPoint(47.3995, 8.545,
+                                                                                       Altitude(550.0, "amsl")))
+    sc = _load(tmp_path, scenario_text(_mission(vias=vias)))
+    e, n, _ = pymap3d.geodetic2enu([47.398, 47.4, 47.3995], [8.55, 8.556, 8.545], sc.home.alt, sc.home.lat,
+                                   sc.home.lon, sc.home.alt)
+    assert np.allclose(sc.vias, np.column_stack([e, n, [50.0, 50.0, 62.0]]), atol=0.01)
+    assert len(_load(tmp_path, scenario_text(_mission(vias=()))).vias) == 0
+
+
+def test_the_vehicles_mission_gives_the_goal_and_the_vias(tmp_path: Path) -> None:
+    """--goal-from-vehicle: the last place of the vehicle's mission is the goal, the places before it the vias (in
+    place of the base scenario's own)."""
+    from planner.world.sources import vehicle_scenario
+
+    base = tmp_path / "base.toml"
+    static = Path(__file__).resolve().parents[3] / "sitl_scenarios" / "rescue_static.toml"
+    base.write_text(static.read_text().replace("goal = [800.0, 800.0, 50.0]",
+                                               "goal = [800.0, 800.0, 50.0]\nvias = [[900.0, 100.0, 60.0]]"))
+    home = load_scenario(static).home
+    places = [(250.0, 550.0, 60.0), (550.0, 850.0, 70.0), (800.0, 800.0, 55.0)]
+    lat, lon, _ = pymap3d.enu2geodetic(*np.array(places).T[:2], 0.0, home.lat, home.lon, home.alt)
+    points = [GeoPoint(float(a), float(o), Altitude(p[2])) for a, o, p in zip(lat, lon, places, strict=True)]
+    world = OperatorMission(Path("udpin:vehicle"), home=None, goal=points[-1], vias=tuple(points[:-1]))
+    sc = load_scenario(vehicle_scenario(base, world, fence=False, goal=True, beside=tmp_path / "flight"))
+    assert np.allclose(sc.vias, places[:2], atol=0.01) and np.allclose(sc.goal, places[2], atol=0.01)
