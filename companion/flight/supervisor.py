@@ -46,6 +46,7 @@ REPLANNER_STOP_S = 5.0  # wall seconds a cancelled replanner may take to finish 
 UPLOAD_ATTEMPTS = 3  # whole verified uploads tried before the flight when the link breaks one
 BOOT_TIMEOUT_S = 60.0  # wall seconds an autopilot may take to finish booting
 VERDICT_S = 3.0  # wall seconds PX4's navigator may take to accept a verified mission (measured: ≤ 0.21 s)
+VERDICT_SETTLE_S = 0.5  # after a readback, wall seconds an old mission's MISSION_CURRENT may still come (> 2 × 0.21)
 POSITION_EVERY_S = 0.1  # wall seconds between two ``position`` records (the status page's vehicle and track)
 BOOT_GRACE_S = 10.0  # a MAV_MISSION_NO_SPACE this soon after boot is the boot's, not the mission's size
 FIX_TIMEOUT_S = 5.0  # wall seconds for the vehicle's position (GLOBAL_POSITION_INT) before the upload
@@ -318,7 +319,7 @@ class FlightSupervisor:
             if kind == MISSION:
                 self.verified, self._outages_checked = list(payload), self.link.outages
             if kind == MISSION and self.link.profile.awaits_mission_verdict:
-                await self._mission_verdict(len(payload))
+                await self._mission_verdict(len(payload), settle=previous is None or len(previous) == len(payload))
         self.events.log("upload_verified", seconds=round(dt, 3))
         return dt
 
@@ -354,19 +355,25 @@ class FlightSupervisor:
             self._outages_checked = outages
         return ok
 
-    async def _mission_verdict(self, count: int, timeout: float = VERDICT_S) -> None:
+    async def _mission_verdict(self, count: int, timeout: float = VERDICT_S, settle: bool = False) -> None:
         """Wait for the navigator's verdict on a verified mission (the profile's ``awaits_mission_verdict``: PX4):
         MISSION_CURRENT with the new total and mission_state NOT_STARTED/ACTIVE (valid) or NO_MISSION (rejected,
-        the reason only in PX4's EVENT messages). Starting before it is DENIED."""
+        the reason only in PX4's EVENT messages). Starting before it is DENIED. With ``settle`` (the mission before
+        had as many items, or is unknown) the total cannot tell the new mission's report from the old one's, which
+        the navigator sends until it has taken the new one: a report is believed only VERDICT_SETTLE_S after the
+        readback (in CI, a rejected mission once passed on the old one's valid report)."""
         valid = (mavlink.MISSION_STATE_NOT_STARTED, mavlink.MISSION_STATE_ACTIVE, mavlink.MISSION_STATE_PAUSED)
         with self.link.subscribe("MISSION_CURRENT", predicate=lambda m: m.total == count) as sub:
-            deadline = time.monotonic() + timeout
+            start = time.monotonic()
+            deadline = start + timeout
             state = None
             while (left := deadline - time.monotonic()) > 0:
                 try:
                     state = (await sub.get(left)).mission_state
                 except TimeoutError:
                     break
+                if settle and time.monotonic() - start < VERDICT_SETTLE_S:
+                    continue
                 if state in valid:
                     self.events.log("mission_valid", items=count, mission_state=state)
                     return
