@@ -66,6 +66,11 @@ def test_fly_sim_with_30_percent_loss_still_completes(tmp_path) -> None:
     assert _flight(report)["completed"] is True
 
 
+@pytest.mark.slow(covered_by=(  # the same scenario, flown to its end on ArduCopter (armed in GUIDED, started in
+    # AUTO), and the simulated copter's start sequence held to SITL's by the conformance tests
+    "sitl/test_flights.py::test_copter_scenario_flies_on_arducopter",
+    "conformance/test_flight.py::test_start_sequence_arms_and_takes_off[sim-copter]",
+    "conformance/test_flight.py::test_every_waypoint_is_reached_in_order[sim-copter]"))
 def test_fly_copter_scenario_on_sim(tmp_path) -> None:
     report = tmp_path / "copter"
     code = main(["fly", str(ROOT / "sitl_scenarios" / "mountain_rescue.toml"), "--sim", "--speedup", "30",

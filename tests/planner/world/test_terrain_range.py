@@ -22,8 +22,8 @@ def _sampled(terrain: Terrain, a: np.ndarray, b: np.ndarray, n: int) -> tuple[np
 def test_the_range_is_what_dense_sampling_finds_and_never_less(seed: int) -> None:
     rng = np.random.default_rng(seed)
     terrain = Terrain(-40.0, 25.0, 20.0, 30.0, rng.uniform(0.0, 6.0, (18, 22)))
-    a = rng.uniform(-100.0, 500.0, (400, 3))
-    b = a + rng.normal(0.0, 120.0, (400, 3))
+    a = rng.uniform(-100.0, 500.0, (200, 3))  # 165 random segments beside the special ones (400 took 14 s of CI)
+    b = a + rng.normal(0.0, 120.0, (200, 3))
     b[:20, 0] = a[:20, 0]  # along a grid axis
     b[20:30, :2] = a[20:30, :2]  # vertical
     b[30:35] = a[30:35]  # a point
