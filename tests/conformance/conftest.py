@@ -68,6 +68,11 @@ from planner.world.scenario import Scenario, load_scenario
 STATIC = Path(__file__).resolve().parents[2] / "sitl_scenarios" / "rescue_static.toml"
 HOME: Home = load_scenario(STATIC).home  # -35.363261, 149.165230, 584 m
 SPEEDUP = 10.0
+# the built-in simulated plane's flights (``launch``): it keeps to SITL's behaviour in simulated time at 20× as at
+# 10×, and the companion's own tests fly it at 20×. The copter stays at SPEEDUP (its telemetry, sent at most so
+# many times a wall second, is too sparse at 20× to place a waypoint reached within 2.5 m), and so do boots
+# (``fresh``), whose wall-clock window before ready the arming test needs
+SIM_PLANE_FLIGHT_SPEEDUP = 20.0
 BACKENDS = (
     pytest.param("sim-plane", id="sim-plane"),
     pytest.param("sim-copter", id="sim-copter"),
@@ -264,7 +269,8 @@ def _sim_scenario(vehicle: str) -> Scenario:
 
 @contextlib.asynccontextmanager
 async def connect(backend: str, sitl_factory: Callable[..., SitlInstance] | None, *,
-                  first_client: bool = False, mavsdk: bool = False) -> AsyncIterator[Vehicle]:
+                  first_client: bool = False, mavsdk: bool = False,
+                  sim_speedup: float = SPEEDUP) -> AsyncIterator[Vehicle]:
     """Start ``backend``'s autopilot, connect a companion and yield it; everything is stopped on exit. On SITL
     ``first_client`` puts the companion on SERIAL0 (its connection starts SITL's clock), else on SERIAL1 with a
     ground station holding SERIAL0. ``mavsdk``: the companion's MAVSDK backend instead of its own link."""
@@ -272,7 +278,7 @@ async def connect(backend: str, sitl_factory: Callable[..., SitlInstance] | None
     sim = sitl = None
     try:
         if kind == "sim":
-            sim = SimAutopilot(_sim_scenario(vehicle), "tcp:127.0.0.1:0", speedup=SPEEDUP, vehicle=vehicle,
+            sim = SimAutopilot(_sim_scenario(vehicle), "tcp:127.0.0.1:0", speedup=sim_speedup, vehicle=vehicle,
                                **_sim_as_sitl())
             await sim.start()
             url = f"tcp:127.0.0.1:{sim.port}"
@@ -343,7 +349,8 @@ def launch(request: pytest.FixtureRequest, backend: str) -> Callable[[], context
     """For module-scoped fixtures: ``async with launch() as v`` starts a new autopilot of the module's backend
     with a companion where a companion sits (SITL: SERIAL1), stopped on leaving the block."""
     factory = _sitl_factory(request, backend, "sitl_factory")
-    return lambda: connect(backend, factory)
+    return lambda: connect(backend, factory,
+                           sim_speedup=SIM_PLANE_FLIGHT_SPEEDUP if backend == "sim-plane" else SPEEDUP)
 
 
 # --------------------------------------------------------------------------------------------- leaks

@@ -1,10 +1,10 @@
-"""Soak (issue 7): 6 consecutive missions on the simulated autopilot with random seeds and packet-loss rates, in
+"""Soak (issue 7): 5 consecutive missions on the simulated autopilot with random seeds and packet-loss rates, in
 one process, with no leaked tasks or sockets and bounded memory growth. Each mission is the planned route's first
 legs (take-off, climb-out, three waypoints): what leaks or grows is per connection, upload and flight, not per
-kilometre flown. Marked slow; it runs in CI while it stays under a minute (20 missions took 106-114 s by 2026-12,
-12 took 80 s on 2026-12-02, 8 took 56-58 s, the lossy ones waiting out the protocol's wall-clock timeouts, so it
-flies 6 since the status page's tests came in; every other companion test checks its own leaks of tasks, threads
-and sockets)."""
+kilometre flown. Marked slow; it runs in CI while it stays well under a minute (20 missions took 106-114 s by
+2026-12, 12 took 80 s on 2026-12-02, 8 took 56-58 s, 6 took 30-37 s, the lossy ones waiting out the protocol's
+wall-clock timeouts, so it flies 5 with up to 20 % loss since the suite neared CI's 25 minutes; 30 % loss is
+test_faults' full flight, and every other companion test checks its own leaks of tasks, threads and sockets)."""
 
 from __future__ import annotations
 
@@ -26,7 +26,7 @@ from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
 STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
-FLIGHTS = 6
+FLIGHTS = 5
 LEGS = 4  # route points flown per mission: the start and three more (the last one as the goal)
 
 
@@ -41,7 +41,7 @@ def _sockets() -> int:
 
 
 @pytest.mark.slow
-def test_six_missions_in_a_row_without_leaks(static_plan_doc) -> None:
+def test_five_missions_in_a_row_without_leaks(static_plan_doc) -> None:
     doc = static_plan_doc()
     doc["waypoints"] = doc["waypoints"][:LEGS]
     sc = load_scenario(STATIC)
@@ -62,7 +62,7 @@ def test_six_missions_in_a_row_without_leaks(static_plan_doc) -> None:
 
     completed = 0
     for k in range(FLIGHTS):
-        seed, loss = int(rng.integers(1 << 30)), float(rng.uniform(0.0, 0.3))
+        seed, loss = int(rng.integers(1 << 30)), float(rng.uniform(0.0, 0.2))
         completed += asyncio.run(one(seed, loss))
         assert _sockets() <= sockets0, f"flight {k}: sockets left open"
         rss.append((rss_kib(os.getpid()) or 0) / 1024)

@@ -276,7 +276,7 @@ def test_link_outage_pauses_replanning_then_it_resumes_from_fresh_telemetry(dyna
             await asyncio.sleep(0.02)
         sim.inject_outage(6.0)
 
-    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 4.0, UPLOADS, during=cut))
+    out, records, verified, flown, sim = asyncio.run(_harness(sc, doc, 6.0, UPLOADS, during=cut))
     names = [r["event"] for r in records]
     assert out.completed, out.reason
     paused = next(i for i, r in enumerate(records) if r["event"] == "replanning_paused")
@@ -426,7 +426,7 @@ def test_whole_flight_bench_counts_replans_per_conflict(dynamic_plan: Path, tmp_
     from companion.flight.latency_bench import run_flight_bench
 
     runs = run_flight_bench([(json.loads(dynamic_plan.read_text()), load_scenario(DYNAMIC))], runs=1,
-                            speedup=10.0, output=tmp_path, cfg=UPLOADS)
+                            speedup=20.0, output=tmp_path, cfg=UPLOADS)
     run = runs[0]
     assert run.completed and run.conflicts >= 1  # the scripted intruder always conflicts with the first plan
     assert run.good <= run.replans and run.one_replan <= run.conflicts and run.live <= run.replans
