@@ -85,6 +85,9 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--backend", choices=("pymavlink", "mavsdk"), default="pymavlink",
                     help="how the companion talks to the autopilot: its own pymavlink link (default), or MAVSDK "
                     "(mission_raw, action, mavlink_direct); planning, replanning and the report stay the same")
+    fl.add_argument("--flight-timeout", type=float, default=None, metavar="S",
+                    help="wall seconds to supervise the flight before reporting it incomplete (exit 5; the vehicle "
+                         "flies on with its verified mission); default 120 s + 4 x the route's flying time")
     fl.add_argument("--heartbeat-timeout", type=float, default=None, metavar="S",
                     help=f"seconds to wait for the autopilot's first HEARTBEAT (default {HEARTBEAT_WAIT_S:g})")
     fl.add_argument("--target-system", type=int, default=None, metavar="N",
@@ -539,6 +542,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
                          getattr(args, "insecure_key_file", False))
     budget = _seconds(args, "replan_budget")  # every option is checked before any planning or writing
     heartbeat = _seconds(args, "heartbeat_timeout")
+    flight_timeout = _seconds(args, "flight_timeout")
     from companion.mavlink.link import check_url
 
     for option, url in (("--connect", args.connect), ("--traffic", getattr(args, "traffic", None))):
@@ -583,6 +587,7 @@ def cmd_fly(args: argparse.Namespace) -> int:
                       replan_config=_replan_config(budget, getattr(args, "paper", False)),
                       signing_key=key, traffic=getattr(args, "traffic", None), backend=backend,
                       heartbeat_timeout=HEARTBEAT_WAIT_S if heartbeat is None else heartbeat, target_system=target,
+                      flight_timeout=flight_timeout,
                       plan_again=None if args.scenario.suffix.lower() == ".json" else (
                           lambda extra: _plan_doc_for(args.scenario, args.scenario_file, overrides + extra, args.seed,
                                                       feasible_only=False, for_flight=True)))

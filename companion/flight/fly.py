@@ -93,6 +93,7 @@ class FlyOptions:
     traffic: str | None = None  # a real autopilot's spare port: fly the scenario's intruders there (TrafficFeed)
     backend: str = "pymavlink"  # or "mavsdk": the vehicle through MAVSDK (companion.mavlink.mavsdk_backend)
     heartbeat_timeout: float = HEARTBEAT_WAIT_S  # s to wait for the autopilot's first HEARTBEAT
+    flight_timeout: float | None = None  # wall s the flight is supervised; None: 120 s + 4 × its flying time
     target_system: int | None = None  # the autopilot's system id; None: the one heard, refused if several are
     # plans the scenario again with these extra --set overrides (the vehicle's own limits), or None: a PLAN.json
     # given by the user is flown as it is or refused
@@ -157,7 +158,8 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                 events.log("mission_room", items=len(items), spare=len(items) - planned)
             sup = FlightSupervisor(link, client, events, arm=opts.arm or opts.sim, home=scenario.home)
             length = float(plan_doc["metrics"]["length_m"])
-            timeout = 120.0 + 4.0 * length / scenario.vehicle.cruise_speed / max(opts.speedup, 1e-3)
+            timeout = opts.flight_timeout or 120.0 + 4.0 * length / scenario.vehicle.cruise_speed / max(
+                opts.speedup, 1e-3)
             replanner = feed = None
             async with contextlib.AsyncExitStack() as stack:
                 if opts.traffic and scenario.intruders:

@@ -164,6 +164,7 @@ def test_a_plan_file_that_is_a_fifo_or_dev_zero_is_refused_at_once(tmp_path, cap
 
 @pytest.mark.parametrize("option,value,words", [
     ("--heartbeat-timeout", "0", "--heartbeat-timeout must be"),
+    ("--flight-timeout", "-1", "--flight-timeout must be"),
     ("--replan-budget", "-1", "--replan-budget must be"),
     ("--connect", "tcp:127.0.0.1:notaport", "--connect 'tcp:127.0.0.1:notaport'"),
     ("--connect", "bogus", "unknown connection type"),

@@ -289,3 +289,14 @@ def test_export_warns_when_the_plans_fence_will_not_fit_the_vehicle(tmp_path, ca
     assert "96 fence items, ArduPlane stores at most 84" in warning[0] and "prisms[0] (60 items)" in warning[0]
     assert main(["export", str(STATIC), "--format", "plan", "-o", str(tmp_path / "ok.plan"), *FAST]) == 0
     assert "warning" not in capsys.readouterr().err
+
+
+def test_a_flight_supervised_past_its_flight_timeout_is_reported_not_completed(tmp_path, capsys) -> None:
+    """`--flight-timeout S`: the companion stops supervising after S wall seconds and says so (exit 5, the reason
+    in flight.json). (A bad value: test_plan_file.py::test_every_fly_option_is_checked_before_planning.)"""
+    report = tmp_path / "rep"
+    assert main(["fly", str(STATIC), "--sim", "--speedup", "20", "--flight-timeout", "3", "--report", str(report),
+                 "-q", *FAST]) == 5
+    flight = _flight(report)
+    assert flight["completed"] is False and flight["reason"] == "timeout after 3 s"
+    assert "flight NOT completed: timeout after 3 s" in capsys.readouterr().err
