@@ -98,6 +98,17 @@ def _edge_sq(px, py, ax, ay, ex, ey, l2):  # noqa: ANN001, ANN202
 
 
 @inline
+def _edge(v, j, i0, i1):  # noqa: ANN001, ANN202
+    """Edge j of the polygon v[i0:i1] (closed): its first end, its second, its vector and |E|² (1 if zero)."""
+    px, py = v[j, 0], v[j, 1]
+    nj = j + 1 if j + 1 < i1 else i0
+    qx, qy = v[nj, 0], v[nj, 1]
+    ex, ey = qx - px, qy - py
+    l2 = ex * ex + ey * ey
+    return px, py, qx, qy, ex, ey, l2 if l2 > 0.0 else 1.0
+
+
+@inline
 def _g(t, ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h):  # noqa: ANN001, ANN202
     """g_e(t) of docs/method.md §2.7: the squared distance of a + t·d to edge e's vertical strip [f, h]."""
     z = az + t * dz
@@ -162,12 +173,7 @@ def seg_prism(ax, ay, az, bx, by, bz, v, i0, i1, f, h, keep, limit, cross, knots
     dd = dx * dx + dy * dy
     dd = dd if dd > 0.0 else 1.0
     for j in range(i0, i1):
-        px0, py0 = v[j, 0], v[j, 1]
-        nj = j + 1 if j + 1 < i1 else i0
-        qx, qy = v[nj, 0], v[nj, 1]
-        ex, ey = qx - px0, qy - py0
-        l2 = ex * ex + ey * ey
-        l2 = l2 if l2 > 0.0 else 1.0
+        px0, py0, qx, qy, ex, ey, l2 = _edge(v, j, i0, i1)
         # containment of a (even-odd, polygons.contains) and the crossings of the segment with this edge
         if (py0 > ay) != (qy > ay):
             dye = qy - py0 if qy != py0 else 1.0
@@ -221,10 +227,8 @@ def seg_prism(ax, ay, az, bx, by, bz, v, i0, i1, f, h, keep, limit, cross, knots
             px, py, pz = ax + tm * dx, ay + tm * dy, az + tm * dz
             bd = math.inf
             for j in range(i0, i1):
-                nj = j + 1 if j + 1 < i1 else i0
-                ex, ey = v[nj, 0] - v[j, 0], v[nj, 1] - v[j, 1]
-                l2 = ex * ex + ey * ey
-                bd = min(bd, _edge_sq(px, py, v[j, 0], v[j, 1], ex, ey, l2 if l2 > 0.0 else 1.0))
+                ex0, ey0, _, _, ex, ey, l2 = _edge(v, j, i0, i1)
+                bd = min(bd, _edge_sq(px, py, ex0, ey0, ex, ey, l2))
             neg = min(neg, max(-math.sqrt(bd), max(f - pz, pz - h)))
     return neg if neg < math.inf else math.sqrt(best)
 
@@ -247,12 +251,7 @@ def prism_lanes(la, v, i0, i1, f, h, keep, m, ws, clr):  # noqa: ANN001, ANN202
         ncr[i] = 0.0
         ins[i] = 0.0
     for j in range(i0, i1):
-        px0, py0 = v[j, 0], v[j, 1]
-        nj = j + 1 if j + 1 < i1 else i0
-        qx, qy = v[nj, 0], v[nj, 1]
-        ex, ey = qx - px0, qy - py0
-        l2 = ex * ex + ey * ey
-        l2 = l2 if l2 > 0.0 else 1.0
+        px0, py0, qx, qy, ex, ey, l2 = _edge(v, j, i0, i1)
         dye = qy - py0 if qy != py0 else 1.0
         for i in range(m):  # branch-free: the SIMD pass
             ax, ay = la[0, i], la[1, i]
@@ -313,12 +312,9 @@ def prism_lanes(la, v, i0, i1, f, h, keep, m, ws, clr):  # noqa: ANN001, ANN202
         for q in range(n_q):
             qb[q] = math.inf
         for j in range(i0, i1):
-            nj = j + 1 if j + 1 < i1 else i0
-            ex, ey = v[nj, 0] - v[j, 0], v[nj, 1] - v[j, 1]
-            l2 = ex * ex + ey * ey
-            l2 = l2 if l2 > 0.0 else 1.0
+            px0, py0, _, _, ex, ey, l2 = _edge(v, j, i0, i1)
             for q in range(n_q):
-                qb[q] = min(qb[q], _edge_sq(qx_[q], qy_[q], v[j, 0], v[j, 1], ex, ey, l2))
+                qb[q] = min(qb[q], _edge_sq(qx_[q], qy_[q], px0, py0, ex, ey, l2))
         q = 0
         while q < n_q:  # a segment's queries are consecutive: the least of its parts' d_prism replaces sqrt(b)
             i = int(owner[q])
