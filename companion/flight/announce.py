@@ -11,7 +11,8 @@ look; a hold refused again) is sent at most once every :data:`REPEAT_S` wall sec
 
 While the link is down nothing can be sent: a lost link is announced when it is back, with the outage's length
 (``link lost 6 s, back``). The autopilot routes the companion's STATUSTEXT (a broadcast message) to its other
-ports, where the ground station listens (docs/autopilots.md, "STATUSTEXT to the ground station").
+ports, where the ground station listens (docs/autopilots.md, 9.4). A line is sent once, unacknowledged, as any
+STATUSTEXT: the event log and the report are the record.
 """
 
 from __future__ import annotations
@@ -82,7 +83,6 @@ LINES: dict[str, Callable[[dict[str, Any]], Line]] = {
     "mission_restore_failed": lambda r: (f"{r['mission_type']} restore failed: {r['error']}", Severity.CRITICAL, ""),
     "replanner_failed": lambda r: (f"replanner stopped: {r['error']}", Severity.CRITICAL, ""),
     "hold_failed": lambda r: (f"hold failed: {r['error']}", Severity.CRITICAL, ""),
-    "timeout": lambda r: (f"supervision over after {r['seconds']:.0f} s", Severity.WARNING, ""),
     "aborted": lambda r: (f"stopped supervising: {r['reason']}", Severity.CRITICAL, ""),
     "failed": lambda r: (f"failure: {r['error']}", Severity.CRITICAL, ""),
     "finished": _finished,

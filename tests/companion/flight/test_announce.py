@@ -38,20 +38,22 @@ DECISIONS = [
     ({"event": "replan_upload_failed", "n": 2, "attempt": 1, "error": "timeout"}, "replan 2 upload failed (try 1)",
      Severity.WARNING),
     ({"event": "link_restored", "outage_s": 6.2}, "link lost 6 s, back", Severity.WARNING),
-    ({"event": "timeout", "seconds": 60.0}, "supervision over after 60 s", Severity.WARNING),
+    ({"event": "finished", "completed": False, "reason": "timeout after 60 s", "reached": 3},
+     "flight not completed: timeout after 60 s", Severity.WARNING),
     ({"event": "finished", "completed": True, "reason": "goal waypoint reached", "reached": 9},
      "flight complete: goal reached", Severity.INFO),
 ]
 
 
-@pytest.mark.parametrize(("record", "text", "severity"), DECISIONS, ids=[d[0]["event"] for d in DECISIONS])
+@pytest.mark.parametrize(("record", "text", "severity"), DECISIONS, ids=[str(k) for k in range(len(DECISIONS))])
 def test_each_decision_has_one_short_line_at_its_severity(record, text, severity) -> None:
     assert line_for(record)[:2] == (text, severity)
     assert len(with_prefix(text)) <= TEXT_BYTES and with_prefix(text).startswith(PREFIX)
 
 
 def test_routine_and_malformed_records_are_not_announced() -> None:
-    for record in ({"event": "position", "x": 1}, {"event": "statustext", "text": "Mission: 3 WP"},
+    for record in ({"event": "position", "x": 1}, {"event": "timeout", "seconds": 60.0},
+                   {"event": "statustext", "text": "Mission: 3 WP"},
                    {"event": "link_lost", "age_s": 3.0}, {"event": "conflict", "threat": "x"}, {}):
         assert line_for(record) is None
 
@@ -149,7 +151,7 @@ async def test_a_replanning_flight_on_the_simulator_says_what_it_decides(tmp_pat
                         f"{doc['metrics']['min_clearance_m']:.1f} m"),
         (Severity.INFO, "fuseplan: mission uploaded and verified")]
     first = next(k for k, t in enumerate(texts) if t.startswith("fuseplan: conflict: "))
-    answer = [t for t in texts[first:] if " live: " in t or t.startswith("fuseplan: hold (")]
+    answer = [t for t in texts[first:] if " live, sep " in t or t.startswith("fuseplan: hold (")]
     assert answer and tap.lines[first][0] == Severity.WARNING, texts
     assert tap.lines[-1] == (Severity.INFO, "fuseplan: flight complete: goal reached")
     assert all(len(t) <= TEXT_BYTES for t in texts)
