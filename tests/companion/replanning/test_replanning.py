@@ -73,6 +73,9 @@ def _decisions(events: list[dict]) -> str:
     return "\n".join(str({k: e[k] for k in keys if k in e}) for e in events if e["event"] in kinds)
 
 
+# the same flight through fly --connect, held to the same (completed, every intruder kept at d_coll by the truth
+# track, a conflict answered), and what it told the ground station on top
+@pytest.mark.slow(covered_by="companion/flight/test_announce.py::test_a_replanning_flight_on_the_simulator_says_what_it_decides")
 def test_rescue_dynamic_replans_and_keeps_separation(dynamic_plan: Path, tmp_path: Path) -> None:
     code, fl, events = _fly(dynamic_plan, tmp_path / "rep")
     assert code == 0 and fl["completed"] is True, (fl.get("reason"), fl.get("min_separation_m"), _decisions(events))
