@@ -1,4 +1,4 @@
-"""What the installed fuseplan carries besides its code: its shipped scenarios (issue 36).
+"""What the installed fuseplan carries besides its code: its version and its shipped scenarios (issue 36).
 
 The distribution is named ``fuseplan``; its import packages are ``planner``, ``companion`` and ``sitl_scenarios``.
 The scenarios (``sitl_scenarios/*.toml`` and the terrain ``*.asc`` the hard maps name beside them) are package
@@ -8,10 +8,23 @@ site-packages as a source tree finds them in the repository. This is the one pla
 
 from __future__ import annotations
 
+import functools
+import importlib.metadata
 import importlib.resources
 from pathlib import Path
 
+DISTRIBUTION = "fuseplan"
 SCENARIO_PACKAGE = "sitl_scenarios"
+
+
+@functools.cache
+def fuseplan_version() -> str:
+    """The installed fuseplan's version (``"0.1.0"``), from its metadata; ``"unknown"`` when it is not installed
+    (the sources run from a checkout, never ``pip install``-ed)."""
+    try:
+        return importlib.metadata.version(DISTRIBUTION)
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
 
 
 def shipped_scenarios() -> Path:

@@ -1,19 +1,23 @@
 """What an install carries besides the code (planner.distribution, issue 36): the shipped scenarios found through
 importlib.resources, every one loading from there with the terrain it names; each file they need declared as
-package data, so a wheel carries it. (.ci/run builds and installs the wheel and flies ``fuseplan demo`` from an
-empty directory: too slow for a test.)"""
+package data, so a wheel carries it; and the version, in PLAN.json too. (.ci/run builds and installs the wheel and
+flies ``fuseplan demo`` from an empty directory: too slow for a test.)"""
 
 from __future__ import annotations
 
 import fnmatch
+import importlib.metadata
 import importlib.resources
 import subprocess
 import tomllib
 from pathlib import Path
 
+import numpy as np
 import pytest
 
-from planner.distribution import SCENARIO_PACKAGE, shipped_scenarios
+from planner import distribution
+from planner.distribution import SCENARIO_PACKAGE, fuseplan_version, shipped_scenarios
+from planner.plan import plan, plan_to_json, problem_from_scenario
 from planner.world.scenario import load_scenario
 
 REPO = Path(__file__).resolve().parents[2]
@@ -65,3 +69,28 @@ def test_every_file_of_the_folder_is_declared_package_data() -> None:
     data = [n for n in names if not n.endswith(".py") and not n.endswith(".pyc")]
     assert data and all(any(fnmatch.fnmatch(n, p) for p in patterns) for n in data), (data, patterns)
     assert (shipped_scenarios() / "__init__.py").is_file()  # a regular package: setuptools finds it by name
+
+
+def test_the_version_comes_from_the_installed_metadata(monkeypatch: pytest.MonkeyPatch) -> None:
+    try:
+        installed = importlib.metadata.version("fuseplan")
+    except importlib.metadata.PackageNotFoundError:
+        installed = "unknown"
+    assert fuseplan_version() == installed
+
+    def missing(name: str) -> str:
+        raise importlib.metadata.PackageNotFoundError(name)
+
+    monkeypatch.setattr(importlib.metadata, "version", missing)
+    distribution.fuseplan_version.cache_clear()
+    try:
+        assert fuseplan_version() == "unknown"  # sources run from a checkout that was never installed
+    finally:
+        distribution.fuseplan_version.cache_clear()
+
+
+def test_plan_json_records_the_version() -> None:
+    few = ['planner.algorithm="spso"', "planner.pso.max_iter=3"]
+    sc = load_scenario(shipped_scenarios() / "rescue_static.toml", few)
+    doc = plan_to_json(plan(problem_from_scenario(sc), sc.planner, np.random.default_rng(0), seed=0), sc)
+    assert doc["fuseplan_version"] == fuseplan_version() and doc["format"] == "fuseplan-plan/1"
