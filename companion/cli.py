@@ -30,13 +30,14 @@ from planner.cli import (
     mode_overrides,
     write_text,
 )
+from planner.distribution import shipped_scenarios
 from planner.errors import FuseplanError, PlanRefused
 from planner.world.config import ALGORITHM_NAMES, PAPER_MODE
 
 if TYPE_CHECKING:
     from companion.replanning.replan import ReplanConfig
 
-SCENARIOS = Path(__file__).resolve().parent.parent / "sitl_scenarios"
+SCENARIOS = shipped_scenarios()
 
 
 def _parser() -> argparse.ArgumentParser:

@@ -17,6 +17,7 @@ import numpy as np
 import pymap3d
 
 from planner.deadline import NEVER, Deadline
+from planner.distribution import fuseplan_version
 from planner.problem import Evaluation, PlanningProblem
 from planner.search.alloc import tune_allocator
 from planner.search.spso import SphericalPSO
@@ -271,6 +272,7 @@ def plan_to_json(result: PlanResult, scenario: Scenario, start_time: float | Non
     traj = result.trajectory
     return json_safe({
         "format": "fuseplan-plan/1",
+        "fuseplan_version": fuseplan_version(),  # the fuseplan that wrote it ("unknown" when not installed)
         "scenario": scenario.name,
         "scenario_file": str(scenario.source),
         "status": result.status.value,

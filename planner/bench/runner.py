@@ -27,6 +27,7 @@ import numpy as np
 
 from planner import kernel
 from planner.bench.executor import ExecutorSpec, Failed, open_pool
+from planner.distribution import shipped_scenarios
 from planner.errors import FuseplanError
 from planner.files import read_regular_file
 from planner.world.config import PAPER_MODE  # noqa: F401 - the paper benches' first override, imported from here
@@ -34,7 +35,7 @@ from planner.world.scenario_text import ScenarioText, materialise
 
 log = logging.getLogger(__name__)
 
-SCENARIO_DIR = Path(__file__).resolve().parent.parent.parent / "sitl_scenarios"
+SCENARIO_DIR = shipped_scenarios()
 ROADMAP_MODE = "planner.roadmap.enabled=true"  # fuseplan's roadmap pipeline, the default (docs/method.md §15)
 MAX_RECORDS_BYTES = 2**30  # a records file to resume from: 1e5 runs of a few kB each (a bench runs hundreds)
 
