@@ -69,6 +69,7 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 RATES_WAIT_S = 15.0  # wall seconds the first round of telemetry rate requests may delay the upload
 IDENTITY_WINDOW_S = 1.2  # wall seconds after the first HEARTBEAT: autopilots send theirs at 1 Hz
+TLOG = "flight.tlog"  # the report's telemetry log: every message of the companion's link (pymavlink backend)
 
 
 async def _rates_answered(rates: TelemetryRates) -> None:
@@ -254,11 +255,13 @@ def _check_fence_fits(fence: list, link: Link, params: dict[str, float], scenari
 
 
 def _link(url: str, opts: FlyOptions) -> Link:
-    """Our pymavlink link, or MAVSDK's (``opts.backend``)."""
+    """Our pymavlink link, recording the report's telemetry log, or MAVSDK's (``opts.backend``), which records none:
+    MAVSDK hands us decoded messages, not the bytes on the wire, and does the mission transfers out of our sight."""
     if opts.backend == "mavsdk":
+        (opts.report / TLOG).unlink(missing_ok=True)  # not an earlier flight's log beside this flight's report
         return MavsdkLink(url, source_system=opts.source_system, open_timeout=10.0)
     return Link(url, source_system=opts.source_system, open_timeout=10.0, signing_key=opts.signing_key,
-                target_system=opts.target_system)
+                target_system=opts.target_system, tlog=opts.report / TLOG)
 
 
 def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,
@@ -305,6 +308,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         "items_reached": sorted(out.items_reached),
         "mission_items": n_items[0],  # the planned mission, as in the mission files
         "room_items": n_items[1] - n_items[0],  # copies of its loiter end uploaded behind it (replan.with_room)
+        "tlog": TLOG if (opts.report / TLOG).exists() else None,
         "fence_items": out.fence_count,
         "min_clearance_m": safety.static_clearance_m,  # static obstacles (kept under its old name)
         "min_static_clearance_m": safety.static_clearance_m,
