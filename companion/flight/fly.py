@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib.metadata
 import logging
 import math
 from collections.abc import Callable
@@ -264,6 +265,14 @@ def _link(url: str, opts: FlyOptions) -> Link:
                 target_system=opts.target_system, tlog=opts.report / TLOG)
 
 
+def _fuseplan_version() -> str | None:
+    """The installed fuseplan's version (None when it is run from a source tree that was never installed)."""
+    try:
+        return importlib.metadata.version("fuseplan")
+    except importlib.metadata.PackageNotFoundError:
+        return None
+
+
 def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,
                          fence: list) -> None:
     write_waypoints(report / "mission.waypoints", items, spec.home)
@@ -302,6 +311,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     pace = replanner.prediction.pace if replanner is not None else None
     done = [r for r in records if r.latency_s is not None]
     doc = {
+        "fuseplan_version": _fuseplan_version(),
         "completed": out.completed,
         "reason": out.reason,
         "holding": out.holding,

@@ -55,7 +55,7 @@ def test_the_report_holds_a_tlog_of_the_link(tmp_path: Path) -> None:
     report = tmp_path / "rep"
     assert main(["fly", str(STATIC), "--sim", "--speedup", "20", "--report", str(report), "-q", *FAST]) == 0
     flight = json.loads((report / "flight.json").read_text())
-    assert flight["tlog"] == "flight.tlog"
+    assert flight["tlog"] == "flight.tlog" and flight["fuseplan_version"]
     mission = _waypoints(report / "mission.waypoints")[:flight["mission_items"]]  # the room behind it aside
 
     msgs = _tlog(report / "flight.tlog")
