@@ -15,13 +15,12 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from pymavlink import mavutil, mavwp
-from readback import same_item
+from pymavlink import mavutil
+from readback import first_difference, same_item, vehicle_mission, waypoints_file
 
 from companion.cli import main
 from companion.mavlink.items import MISSION, MissionItem
-from companion.mavlink.link import MAV_COMP_ID_ONBOARD_COMPUTER, Link
-from companion.mavlink.protocol import MissionClient
+from companion.mavlink.link import MAV_COMP_ID_ONBOARD_COMPUTER
 from companion.sim import SimAutopilot
 from planner.world.scenario import load_scenario
 
@@ -29,13 +28,6 @@ ROOT = Path(__file__).resolve().parents[3]
 STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
 DYNAMIC = ROOT / "sitl_scenarios" / "rescue_dynamic.toml"
 FAST = ["--set", "planner.pso.n_pop=200", "--set", "planner.pso.max_iter=80"]
-
-
-def _waypoints(path: Path) -> list[MissionItem]:
-    """A QGC WPL 110 file as MAVProxy loads it (pymavlink's mavwp), as mission items."""
-    loader = mavwp.MAVWPLoader()
-    loader.load(str(path))
-    return [MissionItem.from_message(loader.wp(k)) for k in range(loader.count())]
 
 
 def _tlog(path: Path) -> list:
@@ -66,8 +58,8 @@ def test_the_report_holds_a_tlog_of_the_link(tmp_path: Path) -> None:
     flight = json.loads((report / "flight.json").read_text())
     assert flight["tlog"] == "flight.tlog" and flight["fuseplan_version"]
     assert [m["reason"] for m in flight["missions"]] == ["initial"]  # nothing moves in this scenario
-    mission = _waypoints(report / "mission.waypoints")
-    assert mission == _waypoints(report / flight["missions"][0]["file"])
+    mission = waypoints_file(report / "mission.waypoints")
+    assert mission == waypoints_file(report / flight["missions"][0]["file"])
     assert len(mission) == flight["mission_items"] + flight["room_items"] == flight["missions"][0]["items"]
 
     msgs = _tlog(report / "flight.tlog")
@@ -129,13 +121,6 @@ def _simulator(scenario: Path, speedup: float) -> Iterator[int]:
         raise errors[0]
 
 
-async def _download(url: str) -> list[MissionItem]:
-    """The vehicle's mission, downloaded by a link of its own (another onboard component: not fly's)."""
-    async with Link(url, source_component=MAV_COMP_ID_ONBOARD_COMPUTER + 1, open_timeout=5.0) as link:
-        await link.wait_heartbeat(timeout=10.0)
-        return await MissionClient(link).download(MISSION)
-
-
 def test_the_reports_mission_is_the_one_the_vehicle_holds_after_a_replan(tmp_path: Path) -> None:
     """A flight with live replanning (the dynamic rescue's intruder; a 0.5 s replan budget, in which the planner
     finds a detour) against the simulator run apart from `fly`: after the flight, the vehicle's mission read back
@@ -146,7 +131,7 @@ def test_the_reports_mission_is_the_one_the_vehicle_holds_after_a_replan(tmp_pat
         url = f"udpout:127.0.0.1:{port}"
         code = main(["fly", str(DYNAMIC), "--connect", url, "--arm", "--replan-budget", "0.5", "--report",
                      str(report), "-q"])
-        got = asyncio.run(_download(url))
+        got = asyncio.run(vehicle_mission(url))
     flight = json.loads((report / "flight.json").read_text())
     events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
     assert code == 0 and flight["completed"], (flight.get("reason"), [e["event"] for e in events][-30:])
@@ -156,12 +141,10 @@ def test_the_reports_mission_is_the_one_the_vehicle_holds_after_a_replan(tmp_pat
     assert [m["reason"] for m in missions] == ["initial", *(f"replan {e['n']}" for e in replans)]
     assert [m["t"] for m in missions] == sorted(m["t"] for m in missions)
     assert [m["t"] for m in missions[1:]] == [e["t"] for e in replans]
-    last = _waypoints(report / "mission.waypoints")
-    assert len(got) == len(last), (len(got), len(last))
-    assert all(same_item(a, b) for a, b in zip(last[1:], got[1:])), next(
-        (a, b) for a, b in zip(last[1:], got[1:]) if not same_item(a, b))  # item 0: the autopilot's home
-    assert last == _waypoints(report / missions[-1]["file"]) and len(last) == missions[-1]["items"]
-    first = _waypoints(report / missions[0]["file"])
+    last = waypoints_file(report / "mission.waypoints")
+    assert first_difference(last, got) is None  # item 0 aside: the autopilot's home
+    assert last == waypoints_file(report / missions[-1]["file"]) and len(last) == missions[-1]["items"]
+    first = waypoints_file(report / missions[0]["file"])
     assert first != last  # the replan changed the route
     plan = json.loads((report / "mission.plan").read_text())
     assert len(plan["mission"]["items"]) == len(last) - 1  # QGC keeps home out of its items
