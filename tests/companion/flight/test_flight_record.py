@@ -28,6 +28,7 @@ ROOT = Path(__file__).resolve().parents[3]
 STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
 DYNAMIC = ROOT / "sitl_scenarios" / "rescue_dynamic.toml"
 FAST = ["--set", "planner.pso.n_pop=200", "--set", "planner.pso.max_iter=80"]
+RETRIES = 1  # flights flown again when no replan was made live
 
 
 def _tlog(path: Path) -> list:
@@ -125,19 +126,23 @@ def test_the_reports_mission_is_the_one_the_vehicle_holds_after_a_replan(tmp_pat
     """A flight with live replanning (the dynamic rescue's intruder; a 0.5 s replan budget, in which the planner
     finds a detour) against the simulator run apart from `fly`: after the flight, the vehicle's mission read back
     with the mission protocol is the report's mission.waypoints, item for item, and the last of missions/; the first
-    of missions/ is the planned mission uploaded before the take-off."""
-    report = tmp_path / "rep"
-    with _simulator(DYNAMIC, speedup=10.0) as port:
-        url = f"udpout:127.0.0.1:{port}"
-        code = main(["fly", str(DYNAMIC), "--connect", url, "--arm", "--replan-budget", "0.5", "--report",
-                     str(report), "-q"])
-        got = asyncio.run(vehicle_mission(url))
-    flight = json.loads((report / "flight.json").read_text())
-    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
-    assert code == 0 and flight["completed"], (flight.get("reason"), [e["event"] for e in events][-30:])
-    missions = flight["missions"]
-    replans = [e for e in events if e["event"] == "replan_verified"]
+    of missions/ is the planned mission uploaded before the take-off. On a loaded machine the planner may find no
+    detour in its budget and hold the vehicle instead, uploading nothing: then one more flight."""
+    for attempt in range(1, RETRIES + 2):
+        report = tmp_path / f"rep{attempt}"
+        with _simulator(DYNAMIC, speedup=10.0) as port:
+            url = f"udpout:127.0.0.1:{port}"
+            code = main(["fly", str(DYNAMIC), "--connect", url, "--arm", "--replan-budget", "0.5", "--report",
+                         str(report), "-q"])
+            got = asyncio.run(vehicle_mission(url))
+        flight = json.loads((report / "flight.json").read_text())
+        events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+        assert code == 0 and flight["completed"], (flight.get("reason"), [e["event"] for e in events][-30:])
+        replans = [e for e in events if e["event"] == "replan_verified"]
+        if replans:
+            break
     assert replans, "no replan was uploaded: nothing to tell the first mission from the last"
+    missions = flight["missions"]
     assert [m["reason"] for m in missions] == ["initial", *(f"replan {e['n']}" for e in replans)]
     assert [m["t"] for m in missions] == sorted(m["t"] for m in missions)
     assert [m["t"] for m in missions[1:]] == [e["t"] for e in replans]
