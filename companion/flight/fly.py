@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import importlib.metadata
 import logging
 import math
 from collections.abc import Callable
@@ -57,9 +58,10 @@ from companion.mission.exports import (
 )
 from companion.mission.fence_fit import fence_refusal, fenced_zones
 from companion.mission.geo import geodetic_to_enu, lonlatalt
-from companion.replanning.replan import ReplanConfig, with_room
+from companion.replanning.replan import MissionRoute, ReplanConfig, with_room
 from companion.replanning.replanner import LiveReplanner
 from companion.replanning.separation import min_separations
+from companion.replanning.swap import LiveMission
 from companion.replanning.worker import PlanWorker, expects_traffic
 from planner.plan_file import as_planned
 from planner.world.scenario import Scenario
@@ -70,6 +72,8 @@ if TYPE_CHECKING:
 log = logging.getLogger(__name__)
 RATES_WAIT_S = 15.0  # wall seconds the first round of telemetry rate requests may delay the upload
 IDENTITY_WINDOW_S = 1.2  # wall seconds after the first HEARTBEAT: autopilots send theirs at 1 Hz
+TLOG = "flight.tlog"  # the report's telemetry log: every message of the companion's link (pymavlink backend)
+MISSIONS = "missions"  # the report's folder of every mission stored on the vehicle, in order
 
 
 async def _rates_answered(rates: TelemetryRates) -> None:
@@ -188,8 +192,12 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
     finally:
         if sim is not None:
             await sim.stop()
+    missions = _flown_missions(sup, replanner, events)
+    if missions:  # the report's mission files: what was stored on the vehicle, the last one as mission.*
+        _write_mission_files(opts.report, plan_doc, scenario, list(missions[-1].items), spec, fence,
+                             replanned=len(missions) > 1)
     return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, (planned, len(items)), replanner,
-                                feed, limits)
+                                feed, limits, _write_missions(opts.report, missions, spec, replanner))
 
 
 async def _plan_within(plan_doc: dict[str, Any], scenario: Scenario, limits: AutopilotLimits, opts: FlyOptions,
@@ -259,15 +267,57 @@ def _check_fence_fits(fence: list, link: Link, params: dict[str, float], scenari
 
 
 def _link(url: str, opts: FlyOptions) -> Link:
-    """Our pymavlink link, or MAVSDK's (``opts.backend``)."""
+    """Our pymavlink link, recording the report's telemetry log, or MAVSDK's (``opts.backend``), which records none:
+    MAVSDK hands us decoded messages, not the bytes on the wire, and does the mission transfers out of our sight."""
     if opts.backend == "mavsdk":
+        (opts.report / TLOG).unlink(missing_ok=True)  # not an earlier flight's log beside this flight's report
         return MavsdkLink(url, source_system=opts.source_system, open_timeout=10.0)
     return Link(url, source_system=opts.source_system, open_timeout=10.0, signing_key=opts.signing_key,
-                target_system=opts.target_system)
+                target_system=opts.target_system, tlog=opts.report / TLOG)
+
+
+def _flown_missions(sup: FlightSupervisor, replanner: LiveReplanner | None, events: EventLog) -> list[LiveMission]:
+    """Every mission stored on the vehicle and verified there during the flight, in order: the supervisor's upload,
+    then each replan's (and each restore's); empty if the first upload was never verified."""
+    if not sup.verified:
+        return []
+    t = next((r["t"] for r in reversed(events.records) if r["event"] == "upload_verified"), 0.0)
+    return [LiveMission(t, "initial", tuple(sup.verified)), *(replanner.history if replanner is not None else ())]
+
+
+def _write_missions(report: Path, missions: list[LiveMission], spec: Any,
+                    replanner: LiveReplanner | None) -> list[dict[str, Any]]:
+    """``missions/NN-REASON.waypoints`` for each mission stored on the vehicle; their index for flight.json (``t``:
+    the event log's time its readback matched, ``reason``, ``items``, ``file``; a replan's ``outcome``)."""
+    folder = report / MISSIONS
+    folder.mkdir(exist_ok=True)
+    for old in folder.glob("[0-9][0-9]-*.waypoints"):  # an earlier flight's, in a report directory used again
+        old.unlink()
+    outcomes = {r.n: r.outcome for r in replanner.records} if replanner is not None else {}
+    index = []
+    for k, mission in enumerate(missions, start=1):
+        name = f"{k:02d}-{mission.reason.replace(' ', '-')}.waypoints"
+        write_waypoints(folder / name, mission.items, spec.home)
+        entry = {"t": mission.t, "reason": mission.reason, "items": len(mission.items), "file": f"{MISSIONS}/{name}"}
+        if mission.replan is not None:
+            entry["outcome"] = outcomes.get(mission.replan)
+        index.append(entry)
+    return index
+
+
+def _fuseplan_version() -> str | None:
+    """The installed fuseplan's version (None when it is run from a source tree that was never installed)."""
+    try:
+        return importlib.metadata.version("fuseplan")
+    except importlib.metadata.PackageNotFoundError:
+        return None
 
 
 def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,
-                         fence: list) -> None:
+                         fence: list, replanned: bool = False) -> None:
+    """mission.waypoints, mission.plan (with the fence uploaded) and mission.geojson of ``items``: the planned
+    mission before the flight, the last one stored on the vehicle after it. ``replanned``: ``items`` are a replan's,
+    so the geojson's route is theirs, without the first plan's smoothed trajectory."""
     write_waypoints(report / "mission.waypoints", items, spec.home)
     polygons = zones_from_prisms(scenario.environment.prisms, spec.home)
     top = float(np.max(np.asarray(plan_doc["trajectory"]["points"], dtype=float)[:, 2]))
@@ -276,14 +326,17 @@ def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scena
                    fenced_circles(scenario.environment.cylinders, spec.home, top) if fence else (),
                    zones=[z for k, z in enumerate(polygons) if k not in left_out] if fence else ())
     traj = lonlatalt(np.asarray(plan_doc["trajectory"]["points"], dtype=float), spec.home)
-    write_geojson(report / "mission.geojson", lonlatalt(np.asarray(plan_doc["waypoints"]), spec.home),
-                  zones_of(scenario, spec.home), traj, {"scenario": scenario.name}, geo_zones=polygons)
+    route = MissionRoute.of(items, spec.home).points if replanned else np.asarray(plan_doc["waypoints"])
+    write_geojson(report / "mission.geojson", lonlatalt(route, spec.home), zones_of(scenario, spec.home),
+                  None if replanned else traj, {"scenario": scenario.name, "replanned": replanned},
+                  geo_zones=polygons)
 
 
 def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: Scenario, out: FlightOutcome,
                          sim: Any, autopilot: str, n_items: tuple[int, int],
                          replanner: LiveReplanner | None = None,
-                         feed: TrafficFeed | None = None, limits: AutopilotLimits | None = None) -> dict[str, Any]:
+                         feed: TrafficFeed | None = None, limits: AutopilotLimits | None = None,
+                         missions: list[dict[str, Any]] | None = None) -> dict[str, Any]:
     """flight.json and track.png; the flown track is the simulator's truth when we ran it, else telemetry.
     Separations: the simulator's truth tracks, or a traffic feed's (the autopilot's positions against the
     intruders' scripted tracks)."""
@@ -304,12 +357,15 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     pace = replanner.prediction.pace if replanner is not None else None
     done = [r for r in records if r.latency_s is not None]
     doc = {
+        "fuseplan_version": _fuseplan_version(),
         "completed": out.completed,
         "reason": out.reason,
         "holding": out.holding,
         "items_reached": sorted(out.items_reached),
-        "mission_items": n_items[0],  # the planned mission, as in the mission files
+        "mission_items": n_items[0],  # the planned mission
         "room_items": n_items[1] - n_items[0],  # copies of its loiter end uploaded behind it (replan.with_room)
+        "missions": missions or [],  # every mission stored on the vehicle (missions/), the last one as mission.*
+        "tlog": TLOG if (opts.report / TLOG).exists() else None,
         "fence_items": out.fence_count,
         "min_clearance_m": safety.static_clearance_m,  # static obstacles (kept under its old name)
         "min_static_clearance_m": safety.static_clearance_m,

@@ -29,6 +29,7 @@ from companion.mavlink.errors import (
 )
 from companion.mavlink.items import FENCE, MISSION, MissionItem
 from companion.mavlink.link import Link, Message, Subscription
+from companion.mavlink.modes import heartbeat_mode
 from companion.mavlink.profiles import ARM, MODE, PILOT_ARM, START, profile_for
 from companion.mavlink.protocol import MissionClient
 from companion.mission import picture
@@ -78,8 +79,8 @@ def _booting(hb: object) -> bool:
 
 
 def _mode_name(hb: object) -> str:
-    """The mode a HEARTBEAT reports, by name."""
-    return profile_for(hb.autopilot, hb.type).mode_name(hb.custom_mode)  # type: ignore[attr-defined]
+    """The mode a HEARTBEAT reports, by name (pymavlink's: FBWA, not MODE_5)."""
+    return heartbeat_mode(hb)
 
 
 class Pilot(Protocol):

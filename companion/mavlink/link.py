@@ -18,6 +18,9 @@ ADSB_VEHICLE from an ADS-B receiver (component 156) on the vehicle; other system
 :meth:`Link.on_target_acquired` registers callbacks run whenever the target autopilot is (re)acquired: its first
 HEARTBEAT, the first on each new connection (after a reconnect) and the first after a heartbeat loss. Layers
 above use it to redo per-connection setup (``companion.mavlink.telemetry`` asks for message rates there).
+
+With ``tlog`` (a path) every message sent and every message parsed (from any system, our own echo included; not
+garbage) goes to a telemetry log (:mod:`companion.mavlink.tlog`), one file across reconnects, closed with the link.
 """
 
 from __future__ import annotations
@@ -28,6 +31,7 @@ import math
 import struct
 import time
 from collections.abc import AsyncIterator, Callable, Iterable, Mapping
+from pathlib import Path
 from types import ModuleType
 from typing import Any
 
@@ -37,6 +41,7 @@ from pymavlink.dialects.v20 import ardupilotmega
 from companion.mavlink.errors import LinkError
 from companion.mavlink.profiles import AutopilotProfile, profile_for
 from companion.mavlink.signing import SigningKey, enable_signing
+from companion.mavlink.tlog import SENT_LINK, Tlog
 
 log = logging.getLogger(__name__)
 
@@ -215,8 +220,10 @@ class Link:
                  target_system: int | None = None, target_component: int | None = None,
                  baud: int = 57600, heartbeat_interval: float = 1.0, heartbeat_timeout: float = 5.0,
                  reconnect_min: float = 0.5, reconnect_max: float = 8.0, open_timeout: float = 0.0,
-                 dialect: ModuleType = ardupilotmega, signing_key: SigningKey | None = None) -> None:
+                 dialect: ModuleType = ardupilotmega, signing_key: SigningKey | None = None,
+                 tlog: Path | None = None) -> None:
         self.url = url
+        self.tlog = Tlog(tlog) if tlog is not None else None  # every message sent and received, as a .tlog
         self._signing_key = signing_key  # MAVLink 2 signing: sign all we send, drop unsigned input
         self._signing_timestamp = 0  # the last signing timestamp of a closed connection (10 µs units)
         self.source_system = source_system
@@ -293,6 +300,8 @@ class Link:
             except OSError as exc:
                 if self._loop.time() + delay > deadline:
                     self._loop = None
+                    if self.tlog is not None:
+                        self.tlog.close()
                     raise LinkError(f"cannot open {self.url}: {exc}") from exc
                 log.info("cannot open %s (%s); retrying in %.1f s", self.url, exc, delay)
                 await asyncio.sleep(delay)
@@ -319,6 +328,8 @@ class Link:
                 fut.set_exception(LinkError("link closed"))
         self._expectations.clear()
         self._loop = None
+        if self.tlog is not None:
+            self.tlog.close()
 
     def _connect(self) -> None:
         """(Re-)create the pymavlink connection and register its fd with the loop."""
@@ -349,6 +360,8 @@ class Link:
         except (OSError, _PeerClosed) as exc:
             conn.close()
             raise OSError(f"greeting HEARTBEAT failed: {exc}") from exc
+        if self.tlog is not None:
+            self.tlog.write(self._heartbeat_msg.get_msgbuf(), SENT_LINK)
         fd = conn.fd if conn.fd is not None else conn.port.fileno()
         assert self._loop is not None
         self._loop.add_reader(fd, self._on_readable)
@@ -404,6 +417,8 @@ class Link:
         except (OSError, _PeerClosed) as exc:
             self._connection_lost(exc)
             raise LinkError(f"send on {self.url} failed: {exc}") from exc
+        if self.tlog is not None:
+            self.tlog.write(msg.get_msgbuf(), SENT_LINK)  # as packed: sequence number, signature and all
 
     async def _heartbeat_loop(self) -> None:
         """1 Hz HEARTBEAT, and the heartbeat-loss watch on the target."""
@@ -442,6 +457,8 @@ class Link:
                 continue
             if msg is None:
                 return
+            if self.tlog is not None and msg.get_type() != "BAD_DATA":
+                self.tlog.write(msg.get_msgbuf())  # the bytes as received
             self._dispatch(msg)
 
     def _dispatch(self, msg: Message) -> None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from companion.mavlink.link import Link
+from companion.mavlink.modes import mode_name
 from companion.mavlink.profiles import AutopilotProfile
 from companion.mavlink.protocol import MissionClient
 from companion.mavlink.vehicle_limits import AutopilotLimits
@@ -40,4 +41,5 @@ class ReplanContext:
         return self.link.profile.mode_number(name)
 
     def mode_name(self, custom_mode: int) -> str:
-        return self.link.profile.mode_name(custom_mode)
+        """The vehicle's mode ``custom_mode`` by name, as pymavlink names it (:mod:`companion.mavlink.modes`)."""
+        return mode_name(self.link.autopilot, self.link.vehicle_type, custom_mode)

@@ -41,7 +41,7 @@ from companion.replanning.planning import ReplanPlanning
 from companion.replanning.prediction import Prediction
 from companion.replanning.rejoin import RejoinChecks
 from companion.replanning.replan import CommitPoint, ReplanConfig, ReplanRecord, splice
-from companion.replanning.swap import MissionSwap
+from companion.replanning.swap import LiveMission, MissionSwap
 from companion.replanning.threats import Conflict
 from companion.replanning.worker import PlanWorker, expects_traffic
 from planner.world.environment import Threats
@@ -133,6 +133,11 @@ class LiveReplanner:
     def verified(self) -> list[tuple[float, list[MissionItem]]]:
         """Every mission known verified on the vehicle, with the (monotonic) time its readback matched."""
         return self.swap.verified
+
+    @property
+    def history(self) -> list[LiveMission]:
+        """The missions the replans stored on the vehicle (and restored), in order (:class:`LiveMission`)."""
+        return self.swap.history
 
     def near_goal(self) -> bool:
         """Whether the last position is near the goal: a completion report from before a swap (different

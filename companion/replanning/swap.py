@@ -8,6 +8,7 @@ import asyncio
 import math
 import time
 from collections.abc import Awaitable, Callable, Sequence
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -22,15 +23,29 @@ from companion.replanning.prediction import Prediction
 from companion.replanning.replan import MissionRoute, ReplanRecord
 
 
+@dataclass(frozen=True)
+class LiveMission:
+    """A mission verified on the vehicle, stored there from ``t`` (the event log's time of the record saying its
+    readback matched) until the next one: ``reason`` says why (``"replan 2"``, ``"restored after replan 2"``),
+    ``replan`` is that replan's number."""
+
+    t: float
+    reason: str
+    items: tuple[MissionItem, ...]
+    replan: int | None = None
+
+
 class MissionSwap:
     """The live mission: ``route`` (its route points and items) and ``verified`` (every mission known verified on
-    the vehicle, with the monotonic time its readback matched), changed only by :meth:`upload`."""
+    the vehicle, with the monotonic time its readback matched), changed only by :meth:`upload`; ``history`` the
+    missions this swap stored (the first one, the supervisor's, is not among them)."""
 
     def __init__(self, ctx: ReplanContext, motion: VehicleMotion, prediction: Prediction, modes: ModeControl,
                  items: Sequence[MissionItem]) -> None:
         self.ctx, self.motion, self.prediction, self.modes = ctx, motion, prediction, modes
         self.route = MissionRoute.of(items, ctx.scenario.home)
         self.verified: list[tuple[float, list[MissionItem]]] = [(time.monotonic(), list(items))]
+        self.history: list[LiveMission] = []
         self.upload_wall_s = 0.05  # running estimate of one verified upload (wall s)
         self.changing = False  # an upload or a restore is under way: the stored mission is in flux
 
@@ -142,6 +157,10 @@ class MissionSwap:
                     restored, left_with = await restore_mission(ctx.client, ctx.events, self.mission)
                     if restored:
                         self.verified.append((time.monotonic(), list(self.mission)))
+                        t = next((r["t"] for r in reversed(ctx.events.records) if r["event"] == "mission_restored"),
+                                 ctx.events.records[-1]["t"])
+                        self.history.append(LiveMission(t, f"restored after replan {rec.n}", tuple(self.mission),
+                                                        rec.n))
                     if attempt == cfg.upload_attempts:
                         raise VehicleHolding(f"replan {rec.n}: no verified upload after {attempt} attempts ({e}); "
                                              f"{left_with}; the vehicle is holding") from e
@@ -150,7 +169,8 @@ class MissionSwap:
             break
         self.route = MissionRoute.of(items, ctx.scenario.home)
         self.verified.append((time.monotonic(), list(items)))
-        ctx.events.log("replan_verified", n=rec.n, items=len(items), first_new=first_new_seq)
+        done = ctx.events.log("replan_verified", n=rec.n, items=len(items), first_new=first_new_seq)
+        self.history.append(LiveMission(done["t"], f"replan {rec.n}", tuple(items), rec.n))
         ctx.events.log("mission", **picture.mission(items, ctx.scenario.home))
 
     async def set_current(self, seq: int, then: Callable[[], Awaitable[None]] | None = None) -> None:

@@ -5,10 +5,12 @@ scripted intruders that an ADS-B receiver (component 156, ``--traffic``) reports
 
 from __future__ import annotations
 
+import asyncio
 import json
 from pathlib import Path
 
 import pytest
+from readback import first_difference, vehicle_mission, waypoints_file
 
 from companion.cli import main
 from planner.world.scenario import load_scenario
@@ -102,13 +104,16 @@ def test_crossing_traffic_on_serial1_with_adsb_from_a_receiver(sitl_factory_fn, 
     """The usual companion wiring: a ground station on SERIAL0, the companion on SERIAL1, an ADS-B receiver
     (component 156) on SERIAL2 reporting the two scripted intruders, timed to meet the vehicle wherever its real
     climb-out brings it. Without replanning both really conflict (separation from SITL's own positions below
-    d_coll); with it, both keep d_coll and no item is flown from an unverified mission."""
+    d_coll); with it, both keep d_coll and no item is flown from an unverified mission, and the report's
+    mission.waypoints is the last mission verified, which ArduPlane gives back after the flight item by item."""
     scenario = SCENARIOS / "crossing_traffic.toml"
     sc = load_scenario(scenario)
     sitl = sitl_factory_fn("plane", sc.home)
+    report = tmp_path / "rep"
     with sitl.hold_serial0():
-        code, flight, events = _fly(scenario, sitl.serial1_url, tmp_path / "rep", "--traffic", sitl.serial2_url,
+        code, flight, events = _fly(scenario, sitl.serial1_url, report, "--traffic", sitl.serial2_url,
                                     *([] if replan else ["--no-replan"]))
+        stored = asyncio.run(vehicle_mission(sitl.serial1_url)) if replan else None
     assert code == (0 if replan else 6) and flight["completed"] is True, flight  # 6: completed but unsafe
     assert flight["flown_safe"] is replan and flight["min_static_clearance_m"] >= flight["d_coll_m"], flight
     seps = flight["min_separation_m"]
@@ -119,6 +124,9 @@ def test_crossing_traffic_on_serial1_with_adsb_from_a_receiver(sitl_factory_fn, 
         assert flight["replan_attempts"] >= 1
         assert _steps_into_unverified_items(events) == []
         _assert_started_once_verified(events)
+        verified = [e for e in events if e["event"] == "replan_verified"]
+        assert [m["reason"] for m in flight["missions"]] == ["initial", *(f"replan {e['n']}" for e in verified)]
+        assert first_difference(waypoints_file(report / "mission.waypoints"), stored) is None
     else:
         assert max(seps.values()) < flight["d_coll_m"], seps
 

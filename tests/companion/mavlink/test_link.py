@@ -253,6 +253,44 @@ async def test_tcp_reconnects_after_peer_closes():
         await ap.close()
 
 
+async def test_tlog_records_both_ways_in_one_file_across_a_reconnect(tmp_path):
+    """With ``tlog``, every message sent and parsed goes to one .tlog across a TCP reconnect, which pymavlink reads
+    back: our HEARTBEATs (greetings on both connections, link 3) and the autopilot's (link 0), times never going
+    backwards; the autopilot's plain-text greeting (garbage) is not recorded; the file is closed with the link."""
+    from pymavlink import mavutil
+
+    path = tmp_path / "flight.tlog"
+    ap = TcpAutopilot()
+    await ap.start()
+    try:
+        async with Link(f"tcp:127.0.0.1:{ap.port}", reconnect_min=0.2, tlog=path) as link:
+            await link.wait_heartbeat(2.0)
+            assert link.bad_packets > 0  # the greeting text
+            ap.drop_connections()
+            await asyncio.sleep(0.05)
+            with link.subscribe("HEARTBEAT") as sub:
+                await sub.get(3.0)
+            link.send(mission_current(7))
+            assert link.reconnects == 1 and ap.connections == 2
+        assert link.tlog is not None and link.tlog._file is None  # closed with the link
+    finally:
+        await ap.close()
+    log = mavutil.mavlink_connection(str(path))
+    msgs = []
+    while (m := log.recv_match()) is not None:
+        msgs.append(m)
+    log.close()
+    assert msgs and "BAD_DATA" not in {m.get_type() for m in msgs}
+    times = [m._timestamp for m in msgs]
+    assert times == sorted(times)
+    ours = [m for m in msgs if m.get_srcComponent() == 191]
+    assert {m._link for m in ours} == {3} and {m._link for m in msgs if m.get_srcComponent() == 1} == {0}
+    assert sum(m.get_type() == "HEARTBEAT" for m in ours) >= 2  # a greeting on each connection
+    assert [m.seq for m in ours if m.get_type() == "MISSION_CURRENT"] == [7]
+    assert sum(m.get_type() == "HEARTBEAT" and m.get_srcComponent() == 1 for m in msgs) >= 2
+    assert link.tlog.records == len(msgs)
+
+
 async def test_tcp_reconnect_backs_off_exponentially_with_a_cap(caplog):
     caplog.set_level(logging.INFO, logger="companion.mavlink.link")
     ap = TcpAutopilot()
