@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import importlib.metadata
 import logging
 import math
 from collections.abc import Callable
@@ -63,6 +62,7 @@ from companion.replanning.replanner import LiveReplanner
 from companion.replanning.separation import min_separations
 from companion.replanning.swap import LiveMission
 from companion.replanning.worker import PlanWorker, expects_traffic
+from planner.distribution import fuseplan_version
 from planner.plan_file import as_planned
 from planner.world.scenario import Scenario
 
@@ -305,14 +305,6 @@ def _write_missions(report: Path, missions: list[LiveMission], spec: Any,
     return index
 
 
-def _fuseplan_version() -> str | None:
-    """The installed fuseplan's version (None when it is run from a source tree that was never installed)."""
-    try:
-        return importlib.metadata.version("fuseplan")
-    except importlib.metadata.PackageNotFoundError:
-        return None
-
-
 def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,
                          fence: list, replanned: bool = False) -> None:
     """mission.waypoints, mission.plan (with the fence uploaded) and mission.geojson of ``items``: the planned
@@ -357,7 +349,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     pace = replanner.prediction.pace if replanner is not None else None
     done = [r for r in records if r.latency_s is not None]
     doc = {
-        "fuseplan_version": _fuseplan_version(),
+        "fuseplan_version": fuseplan_version(),
         "completed": out.completed,
         "reason": out.reason,
         "holding": out.holding,

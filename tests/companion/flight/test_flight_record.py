@@ -122,6 +122,9 @@ def _simulator(scenario: Path, speedup: float) -> Iterator[int]:
         raise errors[0]
 
 
+# ArduPlane SITL's crossing-traffic flight checks the same (its readback after live replans equals mission.waypoints,
+# the missions' reasons): this one is for machines without SITL and for --with-covered
+@pytest.mark.slow(covered_by="sitl/test_flights.py::test_crossing_traffic_on_serial1_with_adsb_from_a_receiver[replan]")
 def test_the_reports_mission_is_the_one_the_vehicle_holds_after_a_replan(tmp_path: Path) -> None:
     """A flight with live replanning (the dynamic rescue's intruder; a 0.5 s replan budget, in which the planner
     finds a detour) against the simulator run apart from `fly`: after the flight, the vehicle's mission read back
