@@ -7,10 +7,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from planner.world.environment import Environment  # noqa: E402
+from planner.world.environment import Environment
 
 
 def draw_environment(ax, env: Environment, z_top: float) -> None:  # noqa: ANN001

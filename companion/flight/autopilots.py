@@ -285,7 +285,7 @@ def _claim(lock_name: str, instances: range, free: Callable[[int], bool]) -> tup
     fixtures' own names) until it is closed."""
     for n in instances:
         try:
-            lock = open(Path(tempfile.gettempdir()) / lock_name.format(n), "wb")  # noqa: SIM115 (held until stop)
+            lock = open(Path(tempfile.gettempdir()) / lock_name.format(n), "wb")  # held until stop
         except OSError:
             continue
         try:

@@ -203,7 +203,7 @@ def _segment_prism_chunk(a: np.ndarray, b: np.ndarray, prisms: Prisms, edges: tu
     k_n = len(prisms)
     ax, ay, az = a[:, 0], a[:, 1], a[:, 2]
     dx, dy, dz = b[:, 0] - ax, b[:, 1] - ay, b[:, 2] - az
-    Ax, Ay, Bx, By, ex, ey, l2 = edges  # noqa: N806 - edge ends A, B
+    Ax, Ay, Bx, By, ex, ey, l2 = edges  # edge ends A, B
     f, h = prisms.floor[:, None], prisms.ceiling[:, None]  # (K, 1)
     keep = prisms.keep_in[:, None]
     f3, h3 = f[..., None], h[..., None]
