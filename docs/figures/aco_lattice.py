@@ -12,9 +12,9 @@ import matplotlib.pyplot as plt
 import numpy as np
 from matplotlib.collections import LineCollection
 
-from planner.search.aco import build_lattice, initial_pheromone
 from planner.plan import plan, problem_from_scenario
 from planner.plot import draw_plan_view
+from planner.search.aco import build_lattice, initial_pheromone
 from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]

@@ -42,7 +42,7 @@ class Cylinders:
         return len(self.x)
 
     @classmethod
-    def empty(cls) -> "Cylinders":
+    def empty(cls) -> Cylinders:
         return cls([], [], [], [], [])
 
 
@@ -61,7 +61,7 @@ class Spheres:
         return len(self.radius)
 
     @classmethod
-    def empty(cls) -> "Spheres":
+    def empty(cls) -> Spheres:
         return cls(np.zeros((0, 3)), [])
 
 
@@ -138,7 +138,7 @@ class Prisms:
 
     @classmethod
     def from_polygons(cls, polygons: list[np.ndarray], floor: list[float] | np.ndarray,
-                      ceiling: list[float] | np.ndarray, keep_in: list[bool] | np.ndarray | None = None) -> "Prisms":
+                      ceiling: list[float] | np.ndarray, keep_in: list[bool] | np.ndarray | None = None) -> Prisms:
         """Prisms from simple polygons (each (V_k, 2), either orientation; a closing duplicate vertex is dropped)."""
         rings = [counter_clockwise(p) for p in polygons]
         start = np.concatenate([[0], np.cumsum([len(p) for p in rings], dtype=np.int64)])
@@ -146,7 +146,7 @@ class Prisms:
         return cls(vertices, start, floor, ceiling, keep_in)
 
     @classmethod
-    def empty(cls) -> "Prisms":
+    def empty(cls) -> Prisms:
         return cls(np.zeros((0, 2)), [0], [], [])
 
 
@@ -182,7 +182,7 @@ class Radars:
         return len(self.r_det)
 
     @classmethod
-    def empty(cls) -> "Radars":
+    def empty(cls) -> Radars:
         return cls(np.zeros((0, 3)), [], [])
 
 

@@ -204,7 +204,7 @@ class _Prism(_Table):
     name: _Ident | None = None
 
     @model_validator(mode="after")
-    def _slab(self) -> "_Prism":
+    def _slab(self) -> _Prism:
         if self.keep_in and (self.floor is not None or self.ceiling is not None):
             raise ValueError("a keep-in polygon has no floor or ceiling (it holds at every height)")
         if self.floor is not None and self.ceiling is not None and self.floor >= self.ceiling:
@@ -249,7 +249,7 @@ class _Radar(_Table):
     snr_threshold: _up_to(1e6) | None = None  # 60 dB
 
     @model_validator(mode="after")
-    def _one_range_source(self) -> "_Radar":
+    def _one_range_source(self) -> _Radar:
         given = [n for n in RADAR_EQUATION if getattr(self, n) is not None]
         if self.r_det is not None and given:
             raise ValueError(f"give either r_det or the radar-equation parameters, not both (also got {given[0]})")
