@@ -38,7 +38,7 @@ MERGE_TOLERANCE_M = 1.0
 PAPER_MIN_S = 0.05  # the least search time the paper's fusion is run on after an infeasible pipeline route (§15.6)
 
 
-class PlanStatus(str, enum.Enum):
+class PlanStatus(str, enum.Enum):  # noqa: UP042 - StrEnum would change how a status prints (str(), f-strings)
     EXACT = "exact"  # feasible, search ended on its own criteria
     APPROXIMATE = "approximate"  # feasible, but the time budget cut the search short
     INFEASIBLE = "infeasible"  # best path still violates a constraint

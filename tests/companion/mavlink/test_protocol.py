@@ -210,7 +210,7 @@ async def test_lost_final_ack_with_a_silent_autopilot_is_settled_by_readback(raw
                 break
         assert resent == FINAL_ACK_MISSES - 1 and time.monotonic() - t0 < 2.0
         raw_peer.send(mavlink.MAVLink_mission_count_message(1, 191, len(items), MISSION))
-        for seq in range(len(items)):
+        for _ in range(len(items)):
             req = await raw_peer.recv_type("MISSION_REQUEST_INT")
             raw_peer.send(_item_int(items[req.seq]))
         await asyncio.wait_for(upload, 2.0)  # confirmed by the readback
