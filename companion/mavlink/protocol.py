@@ -115,7 +115,7 @@ class MissionClient:
         tc = getattr(msg, "target_component", 0)
         return ts in (0, self.link.source_system) and tc in (0, self.link.source_component)
 
-    def _for(self, mission_type: int) -> object:
+    def _for(self, mission_type: int) -> Predicate:
         def predicate(msg: Message) -> bool:
             return getattr(msg, "mission_type", MISSION) == mission_type and self._to_us(msg)
         return predicate

@@ -130,8 +130,8 @@ async def request_rates(link: Link, rates: Sequence[Rate] = RATES,
     dialect = link.dialect
     profile = link.profile
     if profile.data_streams:
-        for stream, hz in stream_requests(rates):
-            link.send(dialect.MAVLink_request_data_stream_message(ts, tc, stream, hz, 1))
+        for stream, stream_hz in stream_requests(rates):
+            link.send(dialect.MAVLink_request_data_stream_message(ts, tc, stream, stream_hz, 1))
 
     def is_ack(m: Message) -> bool:
         return (m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL

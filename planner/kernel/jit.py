@@ -7,7 +7,9 @@ from __future__ import annotations
 import functools
 import hashlib
 from pathlib import Path
+from typing import Any
 
+njit: Any  # numba's decorator, or None
 try:
     from numba import njit
 except ImportError:  # pragma: no cover - numba is a dependency; the reference path still works without it
@@ -32,8 +34,8 @@ def _stamp_caches_with_the_package() -> bool:
     from numba.core import caching
 
     impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)  # numba ≥ 0.68, older
-    classes = getattr(impl, "_locator_classes", None)
-    base = getattr(caching, "_CacheLocator", None)
+    classes: Any = getattr(impl, "_locator_classes", None)
+    base: Any = getattr(caching, "_CacheLocator", None)
     if not isinstance(classes, list) or base is None:
         return False
     if any(getattr(c, "fuseplan_kernel", False) for c in classes):

@@ -30,7 +30,8 @@ def bezier_point(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, q3: np.ndarray,
     return s**3 * q0 + 3 * s**2 * t * q1 + 3 * s * t**2 * q2 + t**3 * q3
 
 
-def _evaluate(q0, q1, q2, q3, t):  # noqa: ANN001, ANN202 - broadcastable arrays
+def _evaluate(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, q3: np.ndarray,
+              t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     s = 1.0 - t
     pos = bezier_point(q0, q1, q2, q3, t)
     d1 = 3 * (s**2 * (q1 - q0) + 2 * s * t * (q2 - q1) + t**2 * (q3 - q2))
@@ -43,8 +44,8 @@ def bezier_derivatives(ctrl: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.
 
     ctrl (..., 4, 3), t (m,) → each (..., m, 3); derivatives are with respect to t ∈ [0, 1].
     """
-    q = [ctrl[..., i, None, :] for i in range(4)]
-    return _evaluate(*q, np.asarray(t, dtype=float)[:, None])
+    q0, q1, q2, q3 = (ctrl[..., i, None, :] for i in range(4))
+    return _evaluate(q0, q1, q2, q3, np.asarray(t, dtype=float)[:, None])
 
 
 def curvature(d1: np.ndarray, d2: np.ndarray) -> np.ndarray:

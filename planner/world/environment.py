@@ -9,8 +9,10 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from planner.world.polygons import counter_clockwise, enclosing_circle
 from planner.world.terrain import Terrain
@@ -34,6 +36,10 @@ class Cylinders:
     top: np.ndarray
     z_ref: np.ndarray
 
+    if TYPE_CHECKING:  # the columns are taken as any array-like and stored as read-only arrays (__post_init__)
+        def __init__(self, x: ArrayLike, y: ArrayLike, radius: ArrayLike, top: ArrayLike, z_ref: ArrayLike) -> None:
+            ...
+
     def __post_init__(self) -> None:
         for name in ("x", "y", "radius", "top", "z_ref"):
             object.__setattr__(self, name, _frozen(getattr(self, name)))
@@ -52,6 +58,9 @@ class Spheres:
 
     center: np.ndarray  # (k, 3)
     radius: np.ndarray  # (k,)
+
+    if TYPE_CHECKING:  # as Cylinders
+        def __init__(self, center: ArrayLike, radius: ArrayLike) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _frozen(self.center, (3,)))
@@ -81,10 +90,14 @@ class Prisms:
     start: np.ndarray  # (k + 1,) int
     floor: np.ndarray  # (k,)
     ceiling: np.ndarray  # (k,)
-    keep_in: np.ndarray | None = None  # (k,) bool; None: none is
+    keep_in: np.ndarray = None  # type: ignore[assignment]  # (k,) bool; None: none is (an array after __post_init__)
     cx: np.ndarray = field(init=False)
     cy: np.ndarray = field(init=False)
     r: np.ndarray = field(init=False)
+
+    if TYPE_CHECKING:  # as Cylinders
+        def __init__(self, vertices: ArrayLike, start: ArrayLike, floor: ArrayLike, ceiling: ArrayLike,
+                     keep_in: ArrayLike | None = None) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vertices", _frozen(self.vertices, (2,)))
@@ -137,8 +150,8 @@ class Prisms:
         return out
 
     @classmethod
-    def from_polygons(cls, polygons: list[np.ndarray], floor: list[float] | np.ndarray,
-                      ceiling: list[float] | np.ndarray, keep_in: list[bool] | np.ndarray | None = None) -> Prisms:
+    def from_polygons(cls, polygons: list[np.ndarray], floor: ArrayLike, ceiling: ArrayLike,
+                      keep_in: ArrayLike | None = None) -> Prisms:
         """Prisms from simple polygons (each (V_k, 2), either orientation; a closing duplicate vertex is dropped)."""
         rings = [counter_clockwise(p) for p in polygons]
         start = np.concatenate([[0], np.cumsum([len(p) for p in rings], dtype=np.int64)])
@@ -172,6 +185,9 @@ class Radars:
     center: np.ndarray  # (k, 3)
     r_det: np.ndarray  # (k,)
     soft_weight: np.ndarray  # (k,)
+
+    if TYPE_CHECKING:  # as Cylinders
+        def __init__(self, center: ArrayLike, r_det: ArrayLike, soft_weight: ArrayLike) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _frozen(self.center, (3,)))
@@ -315,7 +331,7 @@ class Environment:
     terrain: Terrain | None = None
     threats: Threats = field(default_factory=Threats)
 
-    def ground(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    def ground(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """Ground height at (x, y); zero on flat terrain."""
         if self.terrain is None:
             return np.zeros(np.broadcast_shapes(np.shape(x), np.shape(y)))

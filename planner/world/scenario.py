@@ -151,8 +151,8 @@ def _strict_table(cls: type) -> type:
         f.name: _strict_table(hints[f.name]) if dataclasses.is_dataclass(hints[f.name]) else hints[f.name]
         for f in dataclasses.fields(cls)
     }
-    table = TypedDict(f"{cls.__name__}Table", fields, total=False)  # type: ignore[operator]
-    table.__pydantic_config__ = _STRICT_FILE  # type: ignore[attr-defined]
+    table = TypedDict(f"{cls.__name__}Table", fields, total=False)  # type: ignore[misc]  # made at run time
+    table.__pydantic_config__ = _STRICT_FILE  # type: ignore[attr-defined]  # pydantic reads it off the class
     return table
 
 
@@ -228,10 +228,6 @@ class _Hemisphere(_Table):
 RADAR_EQUATION = ("pt_w", "gain", "wavelength_m", "rcs_m2", "ts_k", "bn_hz", "loss", "snr_threshold")
 
 
-def _up_to(limit: float) -> Any:
-    return Annotated[float, Field(gt=0, le=limit)]
-
-
 class _Radar(_Table):
     x: _Coord
     y: _Coord
@@ -239,14 +235,15 @@ class _Radar(_Table):
     soft_weight: Annotated[float, Field(ge=0, le=MAX_WEIGHT)] = 1.0
     r_det: _Positive | None = None
     # the radar equation's inputs, each bounded past any real radar so that the equation stays finite
-    pt_w: _up_to(1e8) | None = None  # W: 100 MW, ten times the largest early-warning radars' peak power
-    gain: _up_to(1e7) | None = None  # 70 dBi: above the largest dish antennas
-    wavelength_m: _up_to(100.0) | None = None  # m: HF over-the-horizon radars use 10 to 100 m
-    rcs_m2: _up_to(1e6) | None = None  # m²: a large ship is about 1e4
-    ts_k: _up_to(1e6) | None = None  # K
-    bn_hz: _up_to(1e10) | None = None  # Hz: 10 GHz of bandwidth
-    loss: _up_to(1e6) | None = None  # 60 dB
-    snr_threshold: _up_to(1e6) | None = None  # 60 dB
+    # W: 100 MW, ten times the largest early-warning radars' peak power
+    pt_w: Annotated[float, Field(gt=0, le=1e8)] | None = None
+    gain: Annotated[float, Field(gt=0, le=1e7)] | None = None  # 70 dBi: above the largest dish antennas
+    wavelength_m: Annotated[float, Field(gt=0, le=100.0)] | None = None  # m: HF over-the-horizon radars use 10 to 100 m
+    rcs_m2: Annotated[float, Field(gt=0, le=1e6)] | None = None  # m²: a large ship is about 1e4
+    ts_k: Annotated[float, Field(gt=0, le=1e6)] | None = None  # K
+    bn_hz: Annotated[float, Field(gt=0, le=1e10)] | None = None  # Hz: 10 GHz of bandwidth
+    loss: Annotated[float, Field(gt=0, le=1e6)] | None = None  # 60 dB
+    snr_threshold: Annotated[float, Field(gt=0, le=1e6)] | None = None  # 60 dB
 
     @model_validator(mode="after")
     def _one_range_source(self) -> _Radar:
@@ -361,9 +358,9 @@ class _ScenarioFile(_Table):
     bounds: _Bounds
     altitude: _Altitude
     route: _Route
-    vehicle: _VehicleTable = Field(default_factory=dict)  # type: ignore[valid-type]
-    hazard: _HazardTable = Field(default_factory=dict)  # type: ignore[valid-type]
-    planner: _PlannerTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    vehicle: _VehicleTable = Field(default_factory=dict)  # type: ignore[valid-type]  # a TypedDict made at run time
+    hazard: _HazardTable = Field(default_factory=dict)  # type: ignore[valid-type]  # a TypedDict made at run time
+    planner: _PlannerTable = Field(default_factory=dict)  # type: ignore[valid-type]  # a TypedDict made at run time
     cylinders: list[_Cylinder] = []
     prisms: list[_Prism] = []
     spheres: list[_Sphere] = []
