@@ -87,7 +87,7 @@ class Evaluation:
 
     @property
     def n_violations(self) -> np.ndarray:
-        return sum(self.violations.values())
+        return sum(self.violations.values())  # type: ignore[return-value]  # 0 only if there were no categories
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,10 +118,10 @@ class PlanningProblem:
         if self.start_heading is not None:  # a unit vector; a zero one (no motion) means no heading
             h = np.array(self.start_heading, dtype=float).reshape(3)
             n = float(np.linalg.norm(h[:2]))
-            h = h / max(float(np.linalg.norm(h)), _EPS) if n > 1e-6 else None
-            if h is not None:
-                h.setflags(write=False)
-            object.__setattr__(self, "start_heading", h)
+            unit = h / max(float(np.linalg.norm(h)), _EPS) if n > 1e-6 else None
+            if unit is not None:
+                unit.setflags(write=False)
+            object.__setattr__(self, "start_heading", unit)
 
     @property
     def timed_threats(self) -> bool:

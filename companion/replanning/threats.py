@@ -252,7 +252,7 @@ def route_separations(route: np.ndarray, speed: float, s_now: float, t_now: floa
     j = np.argmin(sep, axis=1)  # (k,) sample of closest approach
     min_sep = sep[np.arange(len(threats)), j]
     return [Conflict(threats.items[i].id, float(times[j[i]]), float(min_sep[i]),
-                     tuple(float(c) for c in pos[j[i]]), int(seg[j[i]]),
+                     (float(pos[j[i], 0]), float(pos[j[i], 1]), float(pos[j[i], 2])), int(seg[j[i]]),
                      float(min(s_now + speed * tau[j[i]], s_now + remaining)))
             for i in range(len(threats))]
 

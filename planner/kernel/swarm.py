@@ -72,7 +72,7 @@ def pso_step(x: np.ndarray, v: np.ndarray, pbest: np.ndarray, gbest: np.ndarray,
     """Compiled :func:`planner.search.spso.pso_step` for swarms (P, n, 3); ``w`` a scalar or (P, 1, 1)."""
     n_p = len(x)
 
-    def flat(a: np.ndarray) -> np.ndarray:
+    def flat(a: np.ndarray | float) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=np.float64).reshape(n_p, -1)
 
     def box(a: np.ndarray | float) -> np.ndarray:

@@ -106,7 +106,7 @@ def peak_factor(cos_turn: np.ndarray) -> np.ndarray:
     return PEAK_FACTOR[i] * (1.0 - w) + PEAK_FACTOR[i + 1] * w
 
 
-def peak_curvature(seg_len: np.ndarray, cos_turn: np.ndarray) -> np.ndarray:
+def peak_curvature(seg_len: np.ndarray | float, cos_turn: np.ndarray | float) -> np.ndarray:
     """Largest curvature (1/m) on the Bézier of a segment of length ``seg_len`` whose direction turns
     by θ (``cos_turn`` = cos θ = d̂_k · d̂_{k+1}) into the next segment; shapes broadcast."""
     c = np.clip(cos_turn, -1.0, 1.0)
@@ -139,7 +139,7 @@ def peak_climb(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.arctan(np.sqrt(best))
 
 
-def deviation_bound(seg_len: np.ndarray, cos_turn: np.ndarray) -> np.ndarray:
+def deviation_bound(seg_len: np.ndarray | float, cos_turn: np.ndarray | float) -> np.ndarray:
     """Largest distance of a segment's Bézier from its chord: Q1 lies on the chord and Q2 is offset by
     (r/3) sin θ, so the offset is t²(1−t) r sin θ, at most (4/27) r sin θ (t = 2/3). For turns past 90°
     Q2 also overshoots the chord's end; (4/27) r bounds both. Shapes broadcast → metres."""

@@ -63,6 +63,12 @@ class Intruder:
     meet: tuple[float, float, float] | None = None  # on its path; timed to be there as the vehicle passes
 
 
+def _xyz(v: Sequence[float]) -> tuple[float, float, float]:
+    """A validated 3-vector as a tuple."""
+    x, y, z = v
+    return x, y, z
+
+
 def _points(points: Sequence[Sequence[float]]) -> np.ndarray:
     """``points`` as a read-only (k, 3) array of metres."""
     out = np.array(points, dtype=float).reshape(-1, 3)
@@ -310,13 +316,18 @@ class _Loiter(_Table):
     direction: Literal["ccw", "cw"] | None = None
 
     def to_threat(self) -> Threat:
-        optional: dict[str, float] = {}
+        optional: _LoiterOptions = {}
         if self.phase_deg is not None:
             optional["phase"] = math.radians(self.phase_deg)
         if self.direction is not None:
             optional["direction"] = 1.0 if self.direction == "ccw" else -1.0
-        return Threat(self.id, "loiter", self.radius, tuple(self.center), speed=self.speed,
+        return Threat(self.id, "loiter", self.radius, _xyz(self.center), speed=self.speed,
                       circle_radius=self.circle_radius, **optional)
+
+
+class _LoiterOptions(TypedDict, total=False):
+    phase: float
+    direction: float
 
 
 class _Patrol(_Table):
@@ -328,7 +339,11 @@ class _Patrol(_Table):
     speed: _Speed
 
     def to_threat(self) -> Threat:
-        return Threat(self.id, "patrol", self.radius, tuple(self.a), tuple(self.b), speed=self.speed)
+        return Threat(self.id, "patrol", self.radius, _xyz(self.a), _xyz(self.b), speed=self.speed)
+
+
+class _MeetOption(TypedDict, total=False):
+    meet: tuple[float, float, float]
 
 
 class _Intruder(_Table):
@@ -342,8 +357,8 @@ class _Intruder(_Table):
 
     def to_intruder(self) -> Intruder:
         optional = self.model_dump(include={"start_time", "radius"}, exclude_none=True)
-        meet = {"meet": tuple(self.meet)} if self.meet is not None else {}
-        return Intruder(self.id, self.icao, tuple(tuple(w) for w in self.waypoints), self.speed, **optional, **meet)
+        meet: _MeetOption = {"meet": _xyz(self.meet)} if self.meet is not None else {}
+        return Intruder(self.id, self.icao, tuple(_xyz(w) for w in self.waypoints), self.speed, **optional, **meet)
 
 
 _TerrainTable = Annotated[_FlatTerrain | _HillsTerrain | _FileTerrain, Field(discriminator="kind")]
@@ -528,7 +543,8 @@ def _random_obstacles(
         kind = spec.kinds[int(rng.integers(len(spec.kinds)))]
         for _ in range(MAX_DRAWS):
             x, y = rng.uniform(0.0, size[0]), rng.uniform(0.0, size[1])
-            r, h = rng.uniform(*spec.radius), rng.uniform(*spec.height)
+            (r_lo, r_hi), (h_lo, h_hi) = spec.radius, spec.height
+            r, h = rng.uniform(r_lo, r_hi), rng.uniform(h_lo, h_hi)
             z = h if kind == "sphere" else 0.0
             if kind == "cylinder":
                 gap = np.hypot(keep_clear[:, 0] - x, keep_clear[:, 1] - y) - r
@@ -725,7 +741,8 @@ def _in_local_metres(raw: dict[str, Any], path: Path, file: str) -> tuple[dict[s
     (the full check names them)."""
     try:
         home_spec = _Home.model_validate(raw.get("home"))
-        terrain_spec = TypeAdapter(_TerrainTable | None).validate_python(raw.get("terrain"))
+        terrain_spec: _FlatTerrain | _HillsTerrain | _FileTerrain | None = \
+            TypeAdapter(_TerrainTable | None).validate_python(raw.get("terrain"))
     except ValidationError:
         return raw, None
     home = Home(home_spec.lat, home_spec.lon, home_spec.alt)
