@@ -136,7 +136,7 @@ def plot_pipeline(path: str | Path, env: Environment, roadmap_edges: np.ndarray,
 
     fig, ax = plt.subplots(figsize=(8, 7))
     draw_plan_view(ax, env)
-    ax.add_collection(LineCollection(roadmap_edges, colors="0.6", linewidths=0.3, alpha=0.35, label="roadmap"))
+    ax.add_collection(LineCollection(list(roadmap_edges), colors="0.6", linewidths=0.3, alpha=0.35, label="roadmap"))
     for k, a in enumerate(ants):
         ax.plot(a[:, 0], a[:, 1], color="tab:olive", lw=0.7, alpha=0.5, label="colony's ants" if k == 0 else None)
     for k, g in enumerate(guides):

@@ -311,7 +311,8 @@ def _polygon_items(prisms: Prisms, home: Home, max_route_alt: float | None,
     """Vertex items of the prisms to fence (:func:`build_fence`), keep-in polygons first."""
     lat, lon, _ = enu_to_geodetic(np.column_stack([prisms.vertices, np.zeros(len(prisms.vertices))]), home)
     left_out = prisms_left_out(prisms, min_route_alt, max_route_alt)
-    keep_in, no_fly = [], []
+    keep_in: list[MissionItem] = []
+    no_fly: list[MissionItem] = []
     for k in range(len(prisms)):
         if k in left_out:
             logger.info("fence: leaving out polygon %d: %s", k, left_out[k])

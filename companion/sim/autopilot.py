@@ -455,21 +455,22 @@ class SimAutopilot:
             now = loop.time()
             # while booting, look often: the first HEARTBEAT (and the end of boot) is a matter of sim tenths
             wake = now + (0.2 if self.booted else min(0.2, 0.02 / self.speedup + 0.002))
-            for key in (*PRODUCED, "receiver"):
+            keys: tuple[int | str, ...] = (*PRODUCED, "receiver")
+            for key in keys:
                 hz = self._rate(key)
                 if hz <= 0.0:
                     self._due.pop(key, None)
                     continue
                 due = self._due.get(key, now)
                 if now >= due:
-                    if key == "receiver":
+                    if isinstance(key, str):  # "receiver"
                         self._send_receiver()
                     elif key == mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE:
                         self._relay_adsb()
                     else:
                         for msg in self._stream_messages(key):
                             self._send(msg)
-                    cap = MAX_WALL_HZ.get(key, MAX_WALL_HZ_OTHERS)  # type: ignore[call-overload]
+                    cap = MAX_WALL_HZ.get(key, MAX_WALL_HZ_OTHERS)
                     due = max(due + 1.0 / min(hz * self.speedup, cap), now)
                 self._due[key] = due
                 wake = min(wake, due)
@@ -538,7 +539,9 @@ class SimAutopilot:
         loaded yet."""
         if self.booted:
             if mission_type == FENCE:  # ArduPlane's or ArduCopter's fence storage, as the vehicle imitated
-                return fence_capacity(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._mav_type()).max_items
+                capacity = fence_capacity(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._mav_type())
+                assert capacity is not None  # ArduPilot's fence storage is known for every vehicle
+                return capacity.max_items
             return MAX_ITEMS.get(mission_type)
         return 0 if mission_type == MISSION else None
 

@@ -65,7 +65,7 @@ def segment_sphere_clearance(
 
 
 def cylinder_signed_distance(
-    p: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, top: np.ndarray
+    p: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, top: np.ndarray | float
 ) -> np.ndarray:
     """Signed distance from point(s) p (..., 3) to a solid vertical cylinder from the ground to ``top``.
 
