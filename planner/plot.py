@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -12,8 +13,12 @@ import numpy as np
 
 from planner.world.environment import Environment
 
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from mpl_toolkits.mplot3d import Axes3D
 
-def draw_environment(ax, env: Environment, z_top: float) -> None:  # noqa: ANN001
+
+def draw_environment(ax: Axes3D, env: Environment, z_top: float) -> None:
     """Cylinders (to their top, or to the ceiling when unlimited), prisms' walls, spheres and terrain on a 3-D
     axis."""
     th = np.linspace(0, 2 * np.pi, 40)
@@ -47,7 +52,7 @@ def draw_environment(ax, env: Environment, z_top: float) -> None:  # noqa: ANN00
         ax.plot_surface(gx, gy, env.terrain.height_at(gx, gy), cmap="terrain", alpha=0.5, linewidth=0)
 
 
-def draw_plan_view(ax, env: Environment) -> None:  # noqa: ANN001
+def draw_plan_view(ax: Axes, env: Environment) -> None:
     """Top-down view: cylinders, prisms, spheres (full radius), radar detection ranges, threat tracks, terrain."""
     from matplotlib.patches import Circle, Polygon
 

@@ -20,6 +20,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.mission.geo import geodetic_to_enu
@@ -36,8 +37,8 @@ _VERTICAL_VALID = mavlink.ADSB_FLAGS_VERTICAL_VELOCITY_VALID
 # Closest approach of two constant-velocity tracks
 # ---------------------------------------------------------------------------------------------------------------
 
-def closest_approach(p1: np.ndarray, v1: np.ndarray, p2: np.ndarray,
-                     v2: np.ndarray) -> tuple[np.ndarray | float, np.ndarray | float]:
+def closest_approach(p1: ArrayLike, v1: ArrayLike, p2: ArrayLike,
+                     v2: ArrayLike) -> tuple[np.ndarray | float, np.ndarray | float]:
     """Time and distance of closest approach of ``p1 + v1 t`` and ``p2 + v2 t`` for t ≥ 0.
 
     Inputs broadcast over leading axes: positions (..., 3) m, velocities (..., 3) m/s. Returns ``(t*, d*)``,

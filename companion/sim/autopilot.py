@@ -18,7 +18,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pymap3d
@@ -1037,12 +1037,12 @@ class SimAutopilot:
 
 async def serve(scenario: Scenario, listen: str = "udpin:127.0.0.1:14550", speedup: float = 1.0,
                 loss: float = 0.0, latency_s: float = 0.0, until: float | asyncio.Event | None = None,
-                seed: int = 0, signing_key: SigningKey | None = None, **options: object) -> None:
+                seed: int = 0, signing_key: SigningKey | None = None, **options: Any) -> None:
     """Run a :class:`SimAutopilot` until cancelled, until ``until`` seconds of simulated time have passed (a
     number), or until ``until`` is set (an :class:`asyncio.Event`). Used by ``fuseplan sim``. ``options``: the
     keyword-only options of :class:`SimAutopilot` (boot_s, streams_unasked, adsb_receiver…)."""
     async with SimAutopilot(scenario, listen, speedup, loss, latency_s, seed, signing_key=signing_key,
-                            **options) as sim:  # type: ignore[arg-type]
+                            **options) as sim:
         logger.info("simulated %s serving on %s (port %d), speed-up %g", sim.vehicle.type, listen, sim.port,
                     speedup)
         if until is None:

@@ -48,7 +48,7 @@ def _stamp_caches_with_the_package() -> bool:
             self._inner = inner
 
         @classmethod
-        def from_function(cls, py_func, py_file):  # noqa: ANN206
+        def from_function(cls, py_func: Any, py_file: str) -> PackageLocator | None:
             if Path(py_file).resolve().parent != PACKAGE:
                 return None
             for other in classes:

@@ -278,7 +278,7 @@ class Threats:
         """The same threats with every radius larger by ``margin_m`` (a replan keeps its own margin from them)."""
         return Threats(tuple(dataclasses.replace(t, radius=t.radius + margin_m) for t in self.items))
 
-    def positions(self, t: np.ndarray) -> np.ndarray:
+    def positions(self, t: ArrayLike) -> np.ndarray:
         """Threat centres at times ``t`` (any shape S, seconds) → (k, *S, 3) metres ENU.
 
         Each law is computed only for the threats that follow it (one broadcast per kind, not per threat).
@@ -308,7 +308,7 @@ class Threats:
             out[i] = self.p0[i][ex] + self.p1[i][ex] * (t - self.t_ref[i][ex])[..., None]
         return out
 
-    def radii(self, t: np.ndarray) -> np.ndarray:
+    def radii(self, t: ArrayLike) -> np.ndarray:
         """Threat radii at times ``t`` → (k, *S); track uncertainty grows with prediction time."""
         t = np.asarray(t, dtype=float)
         ex = (slice(None),) + (None,) * t.ndim
