@@ -26,7 +26,7 @@ class ScenarioError(FuseplanError):
         where = f"{self.file}: {one_line(field)}" if field else self.file
         super().__init__(f"{where}: {one_line(reason)}")
 
-    def __reduce__(self):  # noqa: ANN204 - survives pickling across process pools
+    def __reduce__(self) -> tuple[type[ScenarioError], tuple[str, str, str]]:  # survives pickling across process pools
         return (type(self), (self.file, self.field, self.reason))
 
 

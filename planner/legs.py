@@ -32,7 +32,8 @@ def leg_problems(problem: PlanningProblem, vias: np.ndarray) -> list[PlanningPro
     """``problem`` cut at ``vias`` (k, 3) into k + 1 legs; every leg after the first without a start time or
     heading yet (:func:`plan_through` sets them from the leg before)."""
     points = np.vstack([problem.start, np.asarray(vias, dtype=float).reshape(-1, 3), problem.goal])
-    return [dataclasses.replace(problem, start=a, goal=b, **({} if k == 0 else {"start_heading": None}))
+    return [dataclasses.replace(problem, start=a, goal=b) if k == 0
+            else dataclasses.replace(problem, start=a, goal=b, start_heading=None)
             for k, (a, b) in enumerate(zip(points[:-1], points[1:], strict=True))]
 
 

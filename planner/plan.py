@@ -39,7 +39,7 @@ MERGE_TOLERANCE_M = 1.0
 PAPER_MIN_S = 0.05  # the least search time the paper's fusion is run on after an infeasible pipeline route (§15.6)
 
 
-class PlanStatus(str, enum.Enum):
+class PlanStatus(str, enum.Enum):  # noqa: UP042 - StrEnum would change how a status prints (str(), f-strings)
     EXACT = "exact"  # feasible, search ended on its own criteria
     APPROXIMATE = "approximate"  # feasible, but the time budget cut the search short
     INFEASIBLE = "infeasible"  # best path still violates a constraint
@@ -88,12 +88,18 @@ class PlanResult:
         """Per category: violation terms the cost counted on the waypoint path (segment × obstacle pairs)."""
         return {k: int(v[0]) for k, v in self.evaluation.violations.items()}
 
+    @property
+    def _clearance(self) -> np.ndarray:
+        clearance = self.check.clearance
+        assert clearance is not None  # check_trajectory measures it
+        return clearance
+
     def metrics(self, d_safe: float) -> dict[str, float | int]:
         return {
             "length_m": self.trajectory.length,
             "waypoint_length_m": float(np.linalg.norm(np.diff(self.waypoints, axis=0), axis=1).sum()),
             "smoothness": smoothness(self.waypoints),
-            "robustness": robustness(self.check.clearance, self.trajectory.curvature, d_safe),
+            "robustness": robustness(self._clearance, self.trajectory.curvature, d_safe),
             "min_clearance_m": self.check.min_clearance,
             "plan_time_s": self.plan_time_s,
             "convergence_iteration": convergence_iteration(self.optimiser.history),
@@ -113,8 +119,8 @@ def problem_from_scenario(scenario: Scenario, start_time: float | None = None) -
 
 class Optimiser(Protocol):
     def run(self, problem: PlanningProblem, rng: np.random.Generator, initial_paths: np.ndarray | None = ...,
-            deadline: Deadline = ..., progress: Callable[[int, int, float], None] | None = ...,
-            ) -> OptimiserResult: ...
+            *, deadline: Deadline = ..., progress: Callable[[int, int, float], None] | None = ...,
+            ) -> OptimiserResult: ...  # deadline and progress by name: SphericalPSO takes an encoding between them
 
 
 def make_optimiser(settings: PlannerSettings) -> Optimiser:
@@ -254,9 +260,11 @@ def json_safe(value: Any) -> Any:
 
 def _phases(opt: OptimiserResult) -> dict[str, Any]:
     """PLAN.json's ``phases`` record for a two-phase (fusion) result; nothing for single-phase ones."""
-    phases = getattr(opt, "phases", None)
-    if not phases:
+    from planner.search.fusion import FusionResult
+
+    if not isinstance(opt, FusionResult) or not opt.phases:  # only a fusion result has phases
         return {}
+    phases = opt.phases
     doc: dict[str, Any] = {name: {"best_cost": r.best_cost, "iterations": r.iterations, "time_s": r.time_s,
                                   "evaluations": r.evaluations, "stop_reason": r.stop_reason}
                            for name, r in phases.items()}

@@ -3,17 +3,22 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from planner.world.environment import Environment  # noqa: E402
+from planner.world.environment import Environment
+
+if TYPE_CHECKING:
+    from matplotlib.axes import Axes
+    from mpl_toolkits.mplot3d import Axes3D
 
 
-def draw_environment(ax, env: Environment, z_top: float) -> None:  # noqa: ANN001
+def draw_environment(ax: Axes3D, env: Environment, z_top: float) -> None:
     """Cylinders (to their top, or to the ceiling when unlimited), prisms' walls, spheres and terrain on a 3-D
     axis."""
     th = np.linspace(0, 2 * np.pi, 40)
@@ -47,7 +52,7 @@ def draw_environment(ax, env: Environment, z_top: float) -> None:  # noqa: ANN00
         ax.plot_surface(gx, gy, env.terrain.height_at(gx, gy), cmap="terrain", alpha=0.5, linewidth=0)
 
 
-def draw_plan_view(ax, env: Environment) -> None:  # noqa: ANN001
+def draw_plan_view(ax: Axes, env: Environment) -> None:
     """Top-down view: cylinders, prisms, spheres (full radius), radar detection ranges, threat tracks, terrain."""
     from matplotlib.patches import Circle, Polygon
 
@@ -136,7 +141,7 @@ def plot_pipeline(path: str | Path, env: Environment, roadmap_edges: np.ndarray,
 
     fig, ax = plt.subplots(figsize=(8, 7))
     draw_plan_view(ax, env)
-    ax.add_collection(LineCollection(roadmap_edges, colors="0.6", linewidths=0.3, alpha=0.35, label="roadmap"))
+    ax.add_collection(LineCollection(list(roadmap_edges), colors="0.6", linewidths=0.3, alpha=0.35, label="roadmap"))
     for k, a in enumerate(ants):
         ax.plot(a[:, 0], a[:, 1], color="tab:olive", lw=0.7, alpha=0.5, label="colony's ants" if k == 0 else None)
     for k, g in enumerate(guides):

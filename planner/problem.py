@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import Protocol
 
 import numpy as np
 
@@ -46,7 +47,14 @@ def _dot3(p: np.ndarray, q: np.ndarray) -> np.ndarray:
     return p[..., 0] * q[..., 0] + p[..., 1] * q[..., 1] + p[..., 2] * q[..., 2]
 
 
-def _height_range(z0, z1, z2, z3, env: Environment) -> tuple[np.ndarray, np.ndarray]:  # noqa: ANN001
+class _Add(Protocol):
+    """Evaluate's ``add``: violations where ``depth`` > 0 (``axis`` the particle axis), penalised at ``rate``."""
+
+    def __call__(self, category: str, depth: np.ndarray, rate: float, axis: int = 0) -> None: ...
+
+
+def _height_range(z0: np.ndarray, z1: np.ndarray, z2: np.ndarray, z3: np.ndarray,
+                  env: Environment) -> tuple[np.ndarray, np.ndarray]:
     """Exact height range of each Bézier segment (P, S) from its control heights. The control hull
     bounds it, so the cubic's extremes are solved only where the hull reaches past the band."""
     lo = np.minimum(np.minimum(z0, z3), np.minimum(z1, z2))
@@ -87,7 +95,7 @@ class Evaluation:
 
     @property
     def n_violations(self) -> np.ndarray:
-        return sum(self.violations.values())
+        return sum(self.violations.values())  # type: ignore[return-value]  # 0 only if there were no categories
 
 
 @dataclass(frozen=True, eq=False)
@@ -118,10 +126,10 @@ class PlanningProblem:
         if self.start_heading is not None:  # a unit vector; a zero one (no motion) means no heading
             h = np.array(self.start_heading, dtype=float).reshape(3)
             n = float(np.linalg.norm(h[:2]))
-            h = h / max(float(np.linalg.norm(h)), _EPS) if n > 1e-6 else None
-            if h is not None:
-                h.setflags(write=False)
-            object.__setattr__(self, "start_heading", h)
+            unit = h / max(float(np.linalg.norm(h)), _EPS) if n > 1e-6 else None
+            if unit is not None:
+                unit.setflags(write=False)
+            object.__setattr__(self, "start_heading", unit)
 
     @property
     def timed_threats(self) -> bool:
@@ -218,7 +226,7 @@ class PlanningProblem:
         return Evaluation(total=total, terms=terms, penalty=pen, violations=viol)
 
     # -- terms ------------------------------------------------------------------------------------
-    def _soft_and_violation(self, clearance: np.ndarray, add, axis: int) -> np.ndarray:  # noqa: ANN001
+    def _soft_and_violation(self, clearance: np.ndarray, add: _Add, axis: int) -> np.ndarray:
         """T_c(d) per particle; d < d_coll adds a violation of depth d_coll − d (docs/method.md §4.3)."""
         d_safe, d_coll = self.hazard.d_safe, self.hazard.d_coll
         gap = d_safe - clearance  # how far inside d_safe; capped where the violation takes over
@@ -281,7 +289,8 @@ class PlanningProblem:
             blocked |= (radar_d < self.env.radars.r_det[lead]).any(axis=0)
         return blocked
 
-    def _hazard(self, paths, a, b, seg_len, dev, add) -> np.ndarray:  # noqa: ANN001
+    def _hazard(self, paths: np.ndarray, a: np.ndarray, b: np.ndarray, seg_len: np.ndarray, dev: np.ndarray,
+                add: _Add) -> np.ndarray:
         """J2: obstacles by exact segment distances; radars; time-aware dynamic threats.
 
         The clearance of the flown curve is bounded below by the segment's exact clearance minus
@@ -317,7 +326,7 @@ class PlanningProblem:
             total += self._soft_and_violation(pri_c - dev, add, 1)
         return total
 
-    def _timed_samples(self, a, b, seg_len):  # noqa: ANN001, ANN202
+    def _timed_samples(self, a: np.ndarray, b: np.ndarray, seg_len: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Points along each segment and the times the vehicle reaches them at cruise speed."""
         pts = a[:, :, None, :] + _THREAT_T[:, None] * (b - a)[:, :, None, :]  # (P, S, m, 3)
         s0 = np.cumsum(seg_len, axis=1) - seg_len  # distance flown at each segment start
@@ -326,7 +335,8 @@ class PlanningProblem:
         p = len(a)
         return pts.reshape(p, -1, 3), t.reshape(p, -1)
 
-    def _altitude(self, paths, a, q2, b, curve_lo, curve_hi, add) -> np.ndarray:  # noqa: ANN001
+    def _altitude(self, paths: np.ndarray, a: np.ndarray, q2: np.ndarray, b: np.ndarray, curve_lo: np.ndarray,
+                  curve_hi: np.ndarray, add: _Add) -> np.ndarray:
         """J3: distance from mid-band over interior waypoints; band violations of the flown curve."""
         env = self.env
         z_lo, z_hi = env.z_min, env.z_max  # band above terrain
@@ -350,7 +360,8 @@ class PlanningProblem:
         add("altitude", depth, self.penalty.per_metre)
         return j3
 
-    def _smoothness(self, seg, seg_len, u, v, cos_turn, add) -> np.ndarray:  # noqa: ANN001
+    def _smoothness(self, seg: np.ndarray, seg_len: np.ndarray, u: np.ndarray, v: np.ndarray, cos_turn: np.ndarray,
+                    add: _Add) -> np.ndarray:
         """J4: turn and climb-change angles at interior waypoints; turn, curvature and climb limits."""
         veh = self.vehicle
         gamma = climb_angle(seg)  # climb angle of every segment

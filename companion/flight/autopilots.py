@@ -285,7 +285,7 @@ def _claim(lock_name: str, instances: range, free: Callable[[int], bool]) -> tup
     fixtures' own names) until it is closed."""
     for n in instances:
         try:
-            lock = open(Path(tempfile.gettempdir()) / lock_name.format(n), "wb")  # noqa: SIM115 (held until stop)
+            lock = open(Path(tempfile.gettempdir()) / lock_name.format(n), "wb")  # held until stop
         except OSError:
             continue
         try:
@@ -342,19 +342,25 @@ def _terminate(process: subprocess.Popen[bytes], kill: Callable[[], None]) -> No
             process.wait()
 
 
+def _program(process: subprocess.Popen[bytes]) -> str:
+    """The program a process runs (its args: a list here, or one path)."""
+    args = process.args
+    return str(args[0] if isinstance(args, (list, tuple)) else args)
+
+
 def _leftovers(process: subprocess.Popen[bytes], tcp: tuple[int, ...] = (), udp: tuple[int, ...] = ()) -> list[str]:
     """What of a stopped autopilot is still there: its process, a listening or bound port."""
     left = [f"process {process.pid}"] if Path(f"/proc/{process.pid}").exists() else []
     left += [f"tcp {p} listening" for p in tcp if _sockets(("tcp", "tcp6"), p, "0A")]
     left += [f"udp {p} bound" for p in udp if _sockets(("udp", "udp6"), p, None)]
     if left:  # said even when an error of the flight is on its way (the raise below is then not reached)
-        log.warning("%s left %s after its stop", process.args[0], ", ".join(left))
+        log.warning("%s left %s after its stop", _program(process), ", ".join(left))
     return left
 
 
 def _raise_left(process: subprocess.Popen[bytes], left: list[str], tail: str) -> None:
     if left:
-        raise AutopilotError(f"{Path(str(process.args[0])).name} left {', '.join(left)} after its stop:\n{tail}")
+        raise AutopilotError(f"{Path(_program(process)).name} left {', '.join(left)} after its stop:\n{tail}")
 
 
 def _tail(log_path: Path | None, lines: int = 15) -> str:
@@ -366,4 +372,4 @@ def _tail(log_path: Path | None, lines: int = 15) -> str:
 
 def _why(process: subprocess.Popen[bytes], what: str, log_path: Path) -> str:
     state = f"exited with code {process.returncode}" if process.poll() is not None else "still running"
-    return f"{Path(str(process.args[0])).name}: {what} ({state}); the end of its log:\n{_tail(log_path)}"
+    return f"{Path(_program(process)).name}: {what} ({state}); the end of its log:\n{_tail(log_path)}"

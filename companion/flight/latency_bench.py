@@ -13,7 +13,7 @@ from __future__ import annotations
 import asyncio
 import json
 from collections import Counter
-from collections.abc import Awaitable, Callable, Sequence
+from collections.abc import Callable, Coroutine, Sequence
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -56,7 +56,7 @@ class LatencyRun:
 
 async def fly_on_sim(plan_doc: dict, scenario: Scenario, *, speedup: float, cfg: ReplanConfig, seed: int,
                      flight_timeout: float, before: Callable[[SimAutopilot], None] | None = None,
-                     during: Callable[[SimAutopilot, LiveReplanner], Awaitable[None]] | None = None,
+                     during: Callable[[SimAutopilot, LiveReplanner], Coroutine[Any, Any, None]] | None = None,
                      stop: Callable[[LiveReplanner], bool] | None = None) -> tuple:
     """Fly ``plan_doc`` with live replanning on a simulator over UDP on 127.0.0.1. ``before(sim)`` runs
     before the flight (fault injection), ``during(sim, replanner)`` beside it; ``stop(replanner)`` ends the
@@ -125,8 +125,8 @@ def run_latency_bench(plans: Sequence[tuple[dict, Scenario]], runs: int, speedup
 
 
 def _each_flight(plans: Sequence[tuple[dict, Scenario]], runs: int, speedup: float, cfg: ReplanConfig,
-                 fly: Callable[..., Awaitable[Any]], routes_long: float, word: str, said: Callable[[Any], str],
-                 progress: Callable[[str], None] | None) -> list[Any]:
+                 fly: Callable[..., Coroutine[Any, Any, Any]], routes_long: float, word: str,
+                 said: Callable[[Any], str], progress: Callable[[str], None] | None) -> list[Any]:
     """``runs`` flights of each plan, ``fly(doc, scenario, run, speedup, cfg, timeout_s)`` each, the timeout
     60 s + ``routes_long`` × the route's flying time; progress says "SCENARIO WORD r/runs: said(result)"."""
     results = []

@@ -9,6 +9,7 @@ protocol client, the exports and the simulated autopilot.
 from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
+from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -64,13 +65,13 @@ class MissionItem:
             self.z, self.mission_type)
 
     @classmethod
-    def from_message(cls, msg: object) -> MissionItem:
+    def from_message(cls, msg: Any) -> MissionItem:  # a pymavlink message
         """From MISSION_ITEM_INT, or the legacy float MISSION_ITEM (lat/lon in degrees)."""
-        is_int = msg.get_type() == "MISSION_ITEM_INT"  # type: ignore[attr-defined]
-        x = msg.x if is_int else round(msg.x * 1e7)  # type: ignore[attr-defined]
-        y = msg.y if is_int else round(msg.y * 1e7)  # type: ignore[attr-defined]
-        return cls(msg.seq, msg.frame, msg.command, msg.param1, msg.param2, msg.param3,  # type: ignore[attr-defined]
-                   msg.param4, int(x), int(y), float(msg.z), msg.current, msg.autocontinue,  # type: ignore[attr-defined]
+        is_int = msg.get_type() == "MISSION_ITEM_INT"
+        x = msg.x if is_int else round(msg.x * 1e7)
+        y = msg.y if is_int else round(msg.y * 1e7)
+        return cls(msg.seq, msg.frame, msg.command, msg.param1, msg.param2, msg.param3,
+                   msg.param4, int(x), int(y), float(msg.z), msg.current, msg.autocontinue,
                    getattr(msg, "mission_type", MISSION))
 
 

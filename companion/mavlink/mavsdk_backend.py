@@ -1,8 +1,8 @@
 """`fly --backend mavsdk`: the vehicle reached through MAVSDK-Python 4 (its bundled C++ library) instead of our own
 pymavlink link; planning, replanning decisions, verification and the report stay ours.
 
-* :class:`MavsdkLink` is a :class:`~companion.mavlink.link.Link` whose connection is MAVSDK's: the messages the supervisor
-  and replanner read come from MAVSDK's ``mavlink_direct`` subscriptions (one per message name in
+* :class:`MavsdkLink` is a :class:`~companion.mavlink.link.Link` whose connection is MAVSDK's: the messages the
+  supervisor and replanner read come from MAVSDK's ``mavlink_direct`` subscriptions (one per message name in
   :data:`MESSAGES`, turned into pymavlink message objects so every layer above reads them as on our own link);
   what we send goes out through MAVSDK; MAVSDK sends the HEARTBEAT.
 * :class:`MavsdkMissionClient` does the transfers with MAVSDK's own implementations: ``mission_raw`` for mission,

@@ -306,10 +306,13 @@ PX4_VTOL = replace(PX4_MULTICOPTER, name="PX4 VTOL", layout=PX4_VTOL_LAYOUT.key,
 
 # Other MAVLink autopilots (MAVSDK's MissionRawServer says MAV_AUTOPILOT_GENERIC) store items as sent and are
 # commanded with ArduPilot's conventions for their vehicle type: ArduPlane's for a fixed-wing, ArduCopter's else.
-_NOT_ARDUPILOT = dict(booting_modes=frozenset(), boot_needs_status=False, storage=Firmware.GENERIC,
-                      home_at_zero=False, min_fence_items=0, partial_write=False, data_streams=False)
-GENERIC = replace(ARDUCOPTER, name="generic", **_NOT_ARDUPILOT)
-GENERIC_FIXED_WING = replace(ARDUPLANE, name="generic fixed-wing", **_NOT_ARDUPILOT)
+def _not_ardupilot(profile: AutopilotProfile, name: str) -> AutopilotProfile:
+    return replace(profile, name=name, booting_modes=frozenset(), boot_needs_status=False, storage=Firmware.GENERIC,
+                   home_at_zero=False, min_fence_items=0, partial_write=False, data_streams=False)
+
+
+GENERIC = _not_ardupilot(ARDUCOPTER, "generic")
+GENERIC_FIXED_WING = _not_ardupilot(ARDUPLANE, "generic fixed-wing")
 
 # ArduPlane as a QuadPlane (HEARTBEAT type VTOL_*): its items are stored as ArduPlane stores them, while mode
 # numbers, start, hold and in-flight uploads follow ArduCopter, as the companion has always done for these types.

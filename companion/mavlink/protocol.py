@@ -41,7 +41,7 @@ from companion.mavlink.errors import (
     MissionVerifyError,
 )
 from companion.mavlink.items import FENCE, MISSION, MissionItem
-from companion.mavlink.link import Link, Message
+from companion.mavlink.link import Link, Message, Predicate, Subscription
 from companion.mavlink.profiles import Firmware
 from companion.mavlink.storage import changed_range, mission_difference
 
@@ -115,7 +115,7 @@ class MissionClient:
         tc = getattr(msg, "target_component", 0)
         return ts in (0, self.link.source_system) and tc in (0, self.link.source_component)
 
-    def _for(self, mission_type: int) -> object:
+    def _for(self, mission_type: int) -> Predicate:
         def predicate(msg: Message) -> bool:
             return getattr(msg, "mission_type", MISSION) == mission_type and self._to_us(msg)
         return predicate
@@ -272,7 +272,8 @@ class MissionClient:
                               home_at_zero: bool | None = None) -> list[MissionItem]:
         """Upload, download and compare item by item as the target stores them (:mod:`companion.mavlink.storage`).
         ``home_at_zero`` (default: the target is ArduPilot and this is the MISSION list) skips seq 0, which
-        ArduPilot replaces with home. Returns the readback; raises :class:`MissionVerifyError` on the first difference."""
+        ArduPilot replaces with home. Returns the readback; raises :class:`MissionVerifyError` on the first
+        difference."""
         if home_at_zero is None:
             home_at_zero = self.home_at_zero(mission_type)
         sent = _numbered(items, mission_type)
@@ -484,8 +485,9 @@ class MissionClient:
         log.info("downloaded %d items (mission type %d)", count, mission_type)
         return got
 
-    async def _request(self, sub, request: Message, want: str | tuple[str, ...], wait: float, operation: str,
-                       seq: int | None, match=None, patient: bool = True) -> Message:
+    async def _request(self, sub: Subscription, request: Message, want: str | tuple[str, ...], wait: float,
+                       operation: str, seq: int | None, match: Predicate | None = None,
+                       patient: bool = True) -> Message:
         """Send ``request`` until a ``want`` message (passing ``match``) arrives. MISSION_ACK errors raise,
         except MAV_MISSION_ERROR, which ArduPilot also sends for a stray item that arrives after an upload (a
         duplicate on a lossy link): it is taken as an answer to our request only when it keeps coming. After

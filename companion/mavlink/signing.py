@@ -128,10 +128,10 @@ def read_secret(path: Path, what: str, insecure: bool = False) -> bytes:
     return read_regular_file(path, SECRET_MAX_BYTES, what, private)
 
 
-def enable_signing(mav: object, key: SigningKey, link_id: int = 0, timestamp: int = 0) -> None:
+def enable_signing(mav: Any, key: SigningKey, link_id: int = 0, timestamp: int = 0) -> None:
     """Sign everything ``mav`` (a pymavlink ``MAVLink``) sends and reject unsigned or badly signed input;
     timestamps go on from the latest of ``timestamp`` (a previous connection's), ``mav``'s own and now."""
-    signing = mav.signing  # type: ignore[attr-defined]
+    signing = mav.signing
     signing.secret_key = key.secret
     signing.sign_outgoing = True
     signing.allow_unsigned_callback = None

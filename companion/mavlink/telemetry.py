@@ -17,7 +17,8 @@ companion reads and how often; :func:`request_rates` is the one function that as
   sets the group's other messages (LOCAL_POSITION_NED, NAV_CONTROLLER_OUTPUT, …) to that rate: a few hundred
   bytes/s at most;
 * ahead of the per-message intervals, interval -1 (off) for what the autopilot streams to the companion unasked
-  and the companion does not read (its profile's ``streams_off``: PX4's onboard link, :mod:`companion.mavlink.profiles`).
+  and the companion does not read (its profile's ``streams_off``: PX4's onboard link,
+  :mod:`companion.mavlink.profiles`).
 
 Rates are in the autopilot's time: under SITL speed-up N a 10 Hz request arrives at 10·N Hz of wall time.
 
@@ -129,8 +130,8 @@ async def request_rates(link: Link, rates: Sequence[Rate] = RATES,
     dialect = link.dialect
     profile = link.profile
     if profile.data_streams:
-        for stream, hz in stream_requests(rates):
-            link.send(dialect.MAVLink_request_data_stream_message(ts, tc, stream, hz, 1))
+        for stream, stream_hz in stream_requests(rates):
+            link.send(dialect.MAVLink_request_data_stream_message(ts, tc, stream, stream_hz, 1))
 
     def is_ack(m: Message) -> bool:
         return (m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL

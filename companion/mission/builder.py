@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import Any, Literal
 
 import numpy as np
+from numpy.typing import ArrayLike
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.mavlink.items import (
@@ -135,7 +136,7 @@ def is_home_item(item: MissionItem) -> bool:
     return item.seq == 0 and item.command == CMD_WAYPOINT and normalise_frame(item.frame) == FRAME_GLOBAL
 
 
-def build_mission(waypoints_enu: np.ndarray, spec: MissionSpec, trajectory: Any = None) -> list[MissionItem]:
+def build_mission(waypoints_enu: ArrayLike, spec: MissionSpec, trajectory: Any = None) -> list[MissionItem]:
     """Mission items for a planned route.
 
     waypoints_enu (N, 3) ENU m, start and goal included (N ≥ 2). ``trajectory`` is the smoothed trajectory
@@ -311,7 +312,8 @@ def _polygon_items(prisms: Prisms, home: Home, max_route_alt: float | None,
     """Vertex items of the prisms to fence (:func:`build_fence`), keep-in polygons first."""
     lat, lon, _ = enu_to_geodetic(np.column_stack([prisms.vertices, np.zeros(len(prisms.vertices))]), home)
     left_out = prisms_left_out(prisms, min_route_alt, max_route_alt)
-    keep_in, no_fly = [], []
+    keep_in: list[MissionItem] = []
+    no_fly: list[MissionItem] = []
     for k in range(len(prisms)):
         if k in left_out:
             logger.info("fence: leaving out polygon %d: %s", k, left_out[k])

@@ -168,7 +168,7 @@ def _plan_fence(zones: Sequence[Zone], circles: Sequence[Circle]) -> dict[str, A
                  "version": PLAN_FENCE_POLYGON_VERSION} for z in zones if z.polygon is not None]
     rings = [{"circle": {"center": [float(z.centre[0]), float(z.centre[1])], "radius": float(z.radius_m)},
               "inclusion": bool(z.inclusion), "version": PLAN_FENCE_CIRCLE_VERSION}
-             for z in zones if z.centre is not None]
+             for z in zones if z.centre is not None and z.radius_m is not None]  # _check_zone: both or neither
     rings += [{"circle": {"center": [c.lat, c.lon], "radius": float(c.radius_m)}, "inclusion": False,
                "version": PLAN_FENCE_CIRCLE_VERSION} for c in circles]
     return {"version": 2, "circles": rings, "polygons": polygons}
@@ -279,8 +279,9 @@ def zone_feature(zone: Zone) -> dict[str, Any]:
         if alt is not None:
             props[f"{which}_m"] = float(alt.value)
             props[f"{which}_ref"] = alt.ref
-    if zone.centre is not None:
+    if zone.centre is not None and zone.radius_m is not None:  # _check_zone: both or neither
         return _point([float(zone.centre[1]), float(zone.centre[0])], **props, radius_m=float(zone.radius_m))
+    assert zone.polygon is not None  # _check_zone: a polygon or a circle
     lonlat = [[float(o), float(a)] for a, o in zone.polygon]
     if signed_area(np.array(lonlat)) < 0.0:  # RFC 7946: exterior rings counter-clockwise
         lonlat.reverse()
@@ -357,6 +358,7 @@ def mp_fence_text(zones: Sequence[Zone], home: Home, return_point: GeoPoint | No
                 else mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION
             rows += [(command, MP_FENCE_FRAME, float(len(z.polygon)), a, o, 0.0) for a, o in z.polygon]
         else:
+            assert z.centre is not None and z.radius_m is not None  # _check_zone: a polygon or a circle
             command = mavlink.MAV_CMD_NAV_FENCE_CIRCLE_INCLUSION if z.inclusion \
                 else mavlink.MAV_CMD_NAV_FENCE_CIRCLE_EXCLUSION
             rows.append((command, MP_FENCE_FRAME, float(z.radius_m), z.centre[0], z.centre[1], 0.0))

@@ -79,7 +79,7 @@ def export_fence_warning(plan_doc: Mapping[str, Any], scenario: Scenario, autopi
     frame = mavlink.MAV_TYPE_FIXED_WING if scenario.vehicle.type == "plane" else mavlink.MAV_TYPE_QUADROTOR
     capacity = fence_capacity(firmware, frame)
     problem = capacity.problem(fence) if capacity is not None and fence else None
-    if problem is None:
+    if problem is None or capacity is None:
         return None
     zones = fenced_zones(env, scenario.home, top, 0.0)
     return (f"its fence will not fit the vehicle: {problem}{_source(capacity)}; a ground station's upload of it will "

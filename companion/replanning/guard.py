@@ -107,4 +107,5 @@ def first_breach(path: np.ndarray, env: Environment, d_coll: float) -> Breach | 
         return None
     j = int(bad[0])
     o = int(np.argmin(d[:, j]))
-    return Breach(names[o], float(d[o, j]), float(path[j, 0]), tuple(float(c) for c in path[j, 1:4]))
+    return Breach(names[o], float(d[o, j]), float(path[j, 0]),
+                  (float(path[j, 1]), float(path[j, 2]), float(path[j, 3])))

@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterator
+from typing import TypedDict
 
 import numpy as np
 
@@ -13,6 +14,14 @@ from companion.mavlink.vehicle_limits import ARDUPLANE_TURN_EFFICIENCY
 from companion.replanning.context import ReplanContext
 from companion.replanning.guard import GUARD_DT_S, predict_own_path
 from planner.world.config import G0
+
+
+class HeightResponse(TypedDict, total=False):
+    """:func:`predict_own_path`'s height arguments (none: instant)."""
+
+    climb_rate: float
+    sink_rate: float
+    height_lag_s: float
 
 # how much wider than its path-follower's bound (AutopilotLimits.wide_turn_radius) a plane may turn (flown_paths,
 # and onto a hold circle): resuming, ArduPlane SITL at 23.5 m/s turned back from a hold at 58 m against the L1
@@ -56,7 +65,7 @@ class VehicleMotion:
         """How far before a waypoint the vehicle may count it reached (ArduPlane switches early)."""
         return max(self.ctx.scenario.vehicle.acceptance_radius, self.ctx.profile.early_switch_m)
 
-    def height_response(self) -> dict[str, float]:
+    def height_response(self) -> HeightResponse:
         """How a plane's height follows its demand (:func:`predict_own_path`'s ``climb_rate``, ``sink_rate`` and
         ``height_lag_s``): its TECS limits when read, else the scenario's climb angle at cruise, lagging by
         :data:`TECS_LAG_S`. A copter's is left instant."""

@@ -20,6 +20,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, replace
 
 import numpy as np
+from numpy.typing import ArrayLike
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.mission.geo import geodetic_to_enu
@@ -36,8 +37,8 @@ _VERTICAL_VALID = mavlink.ADSB_FLAGS_VERTICAL_VELOCITY_VALID
 # Closest approach of two constant-velocity tracks
 # ---------------------------------------------------------------------------------------------------------------
 
-def closest_approach(p1: np.ndarray, v1: np.ndarray, p2: np.ndarray,
-                     v2: np.ndarray) -> tuple[np.ndarray | float, np.ndarray | float]:
+def closest_approach(p1: ArrayLike, v1: ArrayLike, p2: ArrayLike,
+                     v2: ArrayLike) -> tuple[np.ndarray | float, np.ndarray | float]:
     """Time and distance of closest approach of ``p1 + v1 t`` and ``p2 + v2 t`` for t ≥ 0.
 
     Inputs broadcast over leading axes: positions (..., 3) m, velocities (..., 3) m/s. Returns ``(t*, d*)``,
@@ -252,7 +253,7 @@ def route_separations(route: np.ndarray, speed: float, s_now: float, t_now: floa
     j = np.argmin(sep, axis=1)  # (k,) sample of closest approach
     min_sep = sep[np.arange(len(threats)), j]
     return [Conflict(threats.items[i].id, float(times[j[i]]), float(min_sep[i]),
-                     tuple(float(c) for c in pos[j[i]]), int(seg[j[i]]),
+                     (float(pos[j[i], 0]), float(pos[j[i], 1]), float(pos[j[i], 2])), int(seg[j[i]]),
                      float(min(s_now + speed * tau[j[i]], s_now + remaining)))
             for i in range(len(threats))]
 

@@ -34,7 +34,7 @@ class WorkerPlan:
     optimiser_s: float
 
 
-def _plan_job(problem: Any, settings: Any, seed: list[int], initial: np.ndarray, budget_s: float,
+def _plan_job(problem: Any, settings: Any, seed: list[int], initial: np.ndarray | None, budget_s: float,
               vias: np.ndarray | None = None) -> WorkerPlan:
     """One replan in the worker process, through ``vias`` (k, 3) when given (``initial``: the first leg's seeds)."""
     # the deadline starts here, in the worker process, when the job does

@@ -18,7 +18,7 @@ import logging
 import math
 import time
 from collections.abc import Callable
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pymap3d
@@ -455,21 +455,22 @@ class SimAutopilot:
             now = loop.time()
             # while booting, look often: the first HEARTBEAT (and the end of boot) is a matter of sim tenths
             wake = now + (0.2 if self.booted else min(0.2, 0.02 / self.speedup + 0.002))
-            for key in (*PRODUCED, "receiver"):
+            keys: tuple[int | str, ...] = (*PRODUCED, "receiver")
+            for key in keys:
                 hz = self._rate(key)
                 if hz <= 0.0:
                     self._due.pop(key, None)
                     continue
                 due = self._due.get(key, now)
                 if now >= due:
-                    if key == "receiver":
+                    if isinstance(key, str):  # "receiver"
                         self._send_receiver()
                     elif key == mavlink.MAVLINK_MSG_ID_ADSB_VEHICLE:
                         self._relay_adsb()
                     else:
                         for msg in self._stream_messages(key):
                             self._send(msg)
-                    cap = MAX_WALL_HZ.get(key, MAX_WALL_HZ_OTHERS)  # type: ignore[call-overload]
+                    cap = MAX_WALL_HZ.get(key, MAX_WALL_HZ_OTHERS)
                     due = max(due + 1.0 / min(hz * self.speedup, cap), now)
                 self._due[key] = due
                 wake = min(wake, due)
@@ -538,7 +539,9 @@ class SimAutopilot:
         loaded yet."""
         if self.booted:
             if mission_type == FENCE:  # ArduPlane's or ArduCopter's fence storage, as the vehicle imitated
-                return fence_capacity(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._mav_type()).max_items
+                capacity = fence_capacity(mavlink.MAV_AUTOPILOT_ARDUPILOTMEGA, self._mav_type())
+                assert capacity is not None  # ArduPilot's fence storage is known for every vehicle
+                return capacity.max_items
             return MAX_ITEMS.get(mission_type)
         return 0 if mission_type == MISSION else None
 
@@ -1034,12 +1037,12 @@ class SimAutopilot:
 
 async def serve(scenario: Scenario, listen: str = "udpin:127.0.0.1:14550", speedup: float = 1.0,
                 loss: float = 0.0, latency_s: float = 0.0, until: float | asyncio.Event | None = None,
-                seed: int = 0, signing_key: SigningKey | None = None, **options: object) -> None:
+                seed: int = 0, signing_key: SigningKey | None = None, **options: Any) -> None:
     """Run a :class:`SimAutopilot` until cancelled, until ``until`` seconds of simulated time have passed (a
     number), or until ``until`` is set (an :class:`asyncio.Event`). Used by ``fuseplan sim``. ``options``: the
     keyword-only options of :class:`SimAutopilot` (boot_s, streams_unasked, adsb_receiver…)."""
     async with SimAutopilot(scenario, listen, speedup, loss, latency_s, seed, signing_key=signing_key,
-                            **options) as sim:  # type: ignore[arg-type]
+                            **options) as sim:
         logger.info("simulated %s serving on %s (port %d), speed-up %g", sim.vehicle.type, listen, sim.port,
                     speedup)
         if until is None:

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import asyncio
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -54,12 +55,12 @@ class Counters:
 
 
 class _Endpoint(asyncio.DatagramProtocol):
-    def __init__(self, on_datagram) -> None:  # noqa: ANN001
+    def __init__(self, on_datagram: Callable[[bytes, tuple], None]) -> None:
         self._on = on_datagram
         self.transport: asyncio.DatagramTransport | None = None
 
     def connection_made(self, transport: asyncio.BaseTransport) -> None:
-        self.transport = transport  # type: ignore[assignment]
+        self.transport = transport  # type: ignore[assignment]  # a datagram endpoint's (typed as the base)
 
     def datagram_received(self, data: bytes, addr: tuple) -> None:
         self._on(data, addr)

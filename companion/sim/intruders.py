@@ -65,7 +65,8 @@ class IntruderTrack:
     mission-time order. The vehicle's takeoff and climb-out differ from one autopilot to the next (ArduPlane
     overshoots the route start and turns back; a copter climbs, then accelerates), so nothing is decided until it
     has flown :data:`SETTLE_S` + :data:`PACE_WINDOW_S` on its route: its arrival at the meeting point is then
-    estimated from its pace over the last :data:`PACE_WINDOW_S`, and the intruder takes off at the time that brings it to ``meet`` at its nominal speed;
+    estimated from its pace over the last :data:`PACE_WINDOW_S`, and the intruder takes off at the time that brings it
+    to ``meet`` at its nominal speed;
     if that time has passed already, it takes off at once at the speed that keeps the appointment (within
     :data:`SPEED_RANGE`). A vehicle that leaves the route after that (it replanned) keeps the appointment as last
     estimated, and so does one that slows below half its best pace on the route (a copter braking to hold). From its

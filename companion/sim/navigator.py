@@ -101,7 +101,7 @@ class Waypoint(NavTask):
     waypoint at right angles to the track; copter: 3-D distance, then ``hold`` seconds)."""
 
     def __init__(self, seq: int, target: Point, origin: tuple[float, float], radius: float, hold: float = 0.0,
-                 origin_z: float | None = None):
+                 origin_z: float | None = None) -> None:
         self.seq, self.target, self.origin, self.radius, self.hold = seq, target, origin, radius, hold
         self.origin_z = origin_z  # the leg's starting altitude (the previous target's, or where it was)
         self._glide: bool | None = None
@@ -155,7 +155,7 @@ class Waypoint(NavTask):
 class Loiter(NavTask):
     """Circle (plane) or hover (copter) at a point; ``duration`` None = unlimited."""
 
-    def __init__(self, centre: Point, radius: float, clockwise: bool = True, duration: float | None = None):
+    def __init__(self, centre: Point, radius: float, clockwise: bool = True, duration: float | None = None) -> None:
         self.centre, self.radius, self.clockwise, self.duration = centre, radius, clockwise, duration
         self._elapsed: float | None = None
 
@@ -250,7 +250,7 @@ class Navigator:
     """Runs the stored mission (item 0 = home is never flown)."""
 
     def __init__(self, model: FlightModel, to_enu: Callable[[MissionItem], Point], events: NavigatorEvents,
-                 home: tuple[float, float] = (0.0, 0.0)):
+                 home: tuple[float, float] = (0.0, 0.0)) -> None:
         self.model = model
         self.home = home  # where RTL returns to, m in the frame
         self._to_enu = to_enu

@@ -8,14 +8,14 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
-from matplotlib.collections import LineCollection  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
+from matplotlib.collections import LineCollection
 
-from planner.search.aco import build_lattice, initial_pheromone  # noqa: E402
-from planner.plan import plan, problem_from_scenario  # noqa: E402
-from planner.plot import draw_plan_view  # noqa: E402
-from planner.world.scenario import load_scenario  # noqa: E402
+from planner.plan import plan, problem_from_scenario
+from planner.plot import draw_plan_view
+from planner.search.aco import build_lattice, initial_pheromone
+from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[2]
 

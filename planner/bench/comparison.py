@@ -16,6 +16,7 @@ import functools
 import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
+from types import ModuleType
 from typing import Any
 
 import numpy as np
@@ -263,7 +264,7 @@ def markdown(name: str, title: str, rows: Sequence[dict[str, Any]], claims: Sequ
     return "\n".join(lines)
 
 
-def _plt():
+def _plt() -> ModuleType:
     import matplotlib
 
     matplotlib.use("Agg")

@@ -158,7 +158,7 @@ class _DaskPool:
         self._client = client
         try:  # every worker there now, before any run: a mismatch is one line, not a failure per run
             found = client.run(software)
-        except Exception as e:  # noqa: BLE001 - a worker without fuseplan cannot even unpickle the check
+        except Exception as e:  # a worker without fuseplan cannot even unpickle the check
             raise FuseplanError(f"a dask worker cannot run fuseplan ({type(e).__name__}: {e}); install "
                                 f"fuseplan[cluster] on every worker") from None
         for address, have in sorted(found.items()):
@@ -210,7 +210,7 @@ def _dask_client(spec: ExecutorSpec, n_tasks: int) -> tuple[Any, Any]:
             cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host="127.0.0.1",
                                                scheduler_port=0, dashboard_address="127.0.0.1:0",
                                                silence_logs=logging.WARNING)
-        except Exception as e:  # noqa: BLE001 - dask's reasons vary (a worker that cannot start, no free port)
+        except Exception as e:  # dask's reasons vary (a worker that cannot start, no free port)
             raise FuseplanError(f"cannot start a dask LocalCluster of {n} workers: {type(e).__name__}: {e}") from None
         return distributed.Client(cluster), cluster
     try:

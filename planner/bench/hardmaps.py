@@ -297,7 +297,8 @@ def _dense(seed: int, rng: np.random.Generator, count: int = 250, size: float = 
     n_line = n_clusters // 2
     centres = np.concatenate([start[:2] + rng.uniform(0.15, 0.85, (n_line, 1)) * (goal - start)[:2],
                               rng.uniform(0.0, size, (n_clusters - n_line, 2))])
-    kinds_l, rows = [], []
+    kinds_l: list[int] = []
+    rows: list[list[float]] = []
     for _ in range(max_batches):
         if len(rows) >= count:
             break

@@ -11,9 +11,10 @@ import multiprocessing as mp
 import os
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
+from multiprocessing.synchronize import Event as EventType
 
 
-def _spin(stop, core: int | None) -> None:  # noqa: ANN001 - an mp.Event
+def _spin(stop: EventType, core: int | None) -> None:
     if core is not None and hasattr(os, "sched_setaffinity"):
         try:
             os.sched_setaffinity(0, {core})

@@ -98,7 +98,10 @@ def altitude_limits(env: Environment) -> tuple[float, float]:
     return float(h.min()) + env.z_min, float(h.max()) + env.z_max
 
 
-def _discs(env: Environment, need_solid: float, need_radar: float) -> dict[str, tuple[np.ndarray, ...]]:
+_Disc = tuple[np.ndarray, np.ndarray, np.ndarray | None, np.ndarray]  # x, y, z (None: a cylinder's), reach
+
+
+def _discs(env: Environment, need_solid: float, need_radar: float) -> dict[str, _Disc]:
     """Per family, centres (x, y, z) and reach (radius + need): a point farther than the reach from a sphere's
     or a radar's centre, or horizontally from a cylinder's axis, clears that obstacle. Both distances less the
     radius bound the exact clearance from below (for a cylinder with a finite top too); cylinders have no z."""
@@ -141,7 +144,7 @@ def _group(cells: np.ndarray, owners: np.ndarray) -> list[tuple[int, np.ndarray]
     return list(zip(cells[first].tolist(), np.split(owners, first[1:])))
 
 
-def _reach(disc: tuple[np.ndarray | None, ...], idx: np.ndarray) -> _Reach:
+def _reach(disc: _Disc, idx: np.ndarray) -> _Reach:
     """(x, y, z, reach²) as plain floats for the listed members of one family (z 0 for cylinders, unused)."""
     x, y, z, reach = disc
     zs = np.zeros(len(idx)) if z is None else z[idx]

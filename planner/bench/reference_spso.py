@@ -28,8 +28,12 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from planner.world.scenario import Scenario
 
 _ANGLE = np.pi / 4  # ψ and the φ cone half-width (the original's angle range)
 _EPS = 1e-12
@@ -51,7 +55,7 @@ class ReferenceWorld:
     d_coll: float
 
     @classmethod
-    def of(cls, scenario) -> ReferenceWorld:  # noqa: ANN001 - a planner.world.scenario.Scenario
+    def of(cls, scenario: Scenario) -> ReferenceWorld:
         env = scenario.environment
         cyl = env.cylinders
         return cls(np.array(scenario.start, dtype=float), np.array(scenario.goal, dtype=float), env.size_x,

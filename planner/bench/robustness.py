@@ -14,7 +14,7 @@ time) and ``NAME.csv``.
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -158,7 +158,8 @@ def pipeline_figure(path: Path, family: str, seed: int, overrides: Sequence[str]
     return path
 
 
-def _report(name: str, intro: str, peers: bool):  # noqa: ANN202 - the report callable of a Bench
+def _report(name: str, intro: str,
+            peers: bool) -> Callable[[Path, list[dict[str, Any]], BenchSettings], list[Path]]:  # a Bench's report
     def report(out_dir: Path, records: list[dict[str, Any]], settings: BenchSettings) -> list[Path]:
         rows = summarise(records, settings.bench.variants)
         csv_path, md_path = out_dir / f"{name}.csv", out_dir / f"{name}.md"

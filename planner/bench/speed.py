@@ -614,7 +614,7 @@ def _machine(records: Sequence[dict[str, Any]], s: SpeedSettings) -> str:
 def markdown(records: Sequence[dict[str, Any]], s: SpeedSettings) -> str:
     head, scal, lat = headline_rows(records), scaling_rows(records, s), latency_rows(records, s)
     kernels_seen = sorted({r["kernel"] for r in records})
-    sources = sorted({r.get("source") for r in records if r.get("source")})
+    sources = sorted({r["source"] for r in records if r.get("source")})
     code = f"Code: {revision()}, planner source hash {', '.join(sources) or 'unknown'}."
     if len(sources) > 1:
         code += (f" **The planner's source changed during this run ({len(sources)} versions): the numbers mix "

@@ -24,7 +24,7 @@ _NEAR_LIMIT = 1e-12  # rad: a turn this close to its limit is measured with libm
 
 
 @inline
-def _ground(x, y, has_terrain, tx0, ty0, tdx, tdy, h):  # noqa: ANN001, ANN202
+def _ground(x, y, has_terrain, tx0, ty0, tdx, tdy, h):
     """Bilinear ground height (terrain.Terrain.height_at); zero on flat terrain."""
     if not has_terrain:
         return 0.0
@@ -40,20 +40,20 @@ def _ground(x, y, has_terrain, tx0, ty0, tdx, tdy, h):  # noqa: ANN001, ANN202
 
 
 @inline
-def _peak_curvature(seg_len, cos_turn, table):  # noqa: ANN001, ANN202
+def _peak_curvature(seg_len, cos_turn, table):
     c = min(max(cos_turn, -1.0), 1.0)
     return peak_factor(c, table) * math.sqrt(1.0 - c * c) / max(seg_len, _EPS_CURV)
 
 
 @inline
-def _sin_or_one(cos_turn):  # noqa: ANN001, ANN202
+def _sin_or_one(cos_turn):
     """sin θ for turns up to 90°, 1 past it (smoothing.deviation_bound / corner_cut_bound)."""
     c = min(max(cos_turn, -1.0), 1.0)
     return math.sqrt(1.0 - c * c) if c >= 0.0 else 1.0
 
 
 @inline
-def _after_turn(acc_r, overshoot, cos_turn):  # noqa: ANN001, ANN202
+def _after_turn(acc_r, overshoot, cos_turn):
     """What a turn does to the segment after it: the corner's cut or the swing past it, the larger
     (smoothing.corner_cut_bound, overshoot_bound)."""
     cut = 0.5 * acc_r * _sin_or_one(cos_turn)
@@ -63,7 +63,7 @@ def _after_turn(acc_r, overshoot, cos_turn):  # noqa: ANN001, ANN202
 
 
 @inline
-def _peak_climb(ux, uy, uz, vx, vy, vz):  # noqa: ANN001, ANN202
+def _peak_climb(ux, uy, uz, vx, vy, vz):
     """tan² of the largest |flight-path angle| on a segment's Bézier (smoothing.peak_climb)."""
     dx, dy, dz = vx - ux, vy - uy, vz - uz
     hu_dh = ux * dx + uy * dy
@@ -79,7 +79,7 @@ def _peak_climb(ux, uy, uz, vx, vy, vz):  # noqa: ANN001, ANN202
 
 
 @inline
-def _tan2_at(ux, uy, uz, dx, dy, dz, bb):  # noqa: ANN001, ANN202
+def _tan2_at(ux, uy, uz, dx, dy, dz, bb):
     wz = uz + bb * dz
     wx = ux + bb * dx
     wy = uy + bb * dy
@@ -87,7 +87,7 @@ def _tan2_at(ux, uy, uz, dx, dy, dz, bb):  # noqa: ANN001, ANN202
 
 
 @inline
-def _add_violations(excess, s, limit, pen_c, rate, pen, viol, category):  # noqa: ANN001, ANN202
+def _add_violations(excess, s, limit, pen_c, rate, pen, viol, category):
     """Each particle whose ``excess[s] − limit`` is positive adds a violation of that depth: the penalty and the
     count in two loops (a loop writing one array runs in SIMD lanes; adding a zero leaves a sum as it was)."""
     n_p = excess.shape[1]
@@ -99,7 +99,7 @@ def _add_violations(excess, s, limit, pen_c, rate, pen, viol, category):  # noqa
 
 
 @inline
-def _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, dist):  # noqa: ANN001, ANN202
+def _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, dist):
     """Whether the point (cx, cy) is farther than ``dist`` from the box."""
     ex = max(max(x_lo - cx, cx - x_hi), 0.0)
     ey = max(max(y_lo - cy, cy - y_hi), 0.0)
@@ -107,7 +107,7 @@ def _box_beyond(x_lo, x_hi, y_lo, y_hi, cx, cy, dist):  # noqa: ANN001, ANN202
 
 
 @inline
-def _hazard(c, p, d_safe, gap_cap, pen_c, per_m, soft, pen, viol):  # noqa: ANN001, ANN202
+def _hazard(c, p, d_safe, gap_cap, pen_c, per_m, soft, pen, viol):
     """Particle p's hazard term for one clearance c (§4.3): a collision past the soft cap, the clipped gap squared."""
     g = d_safe - c
     depth = g - gap_cap
@@ -119,7 +119,7 @@ def _hazard(c, p, d_safe, gap_cap, pen_c, per_m, soft, pen, viol):  # noqa: ANN0
 
 
 @inline
-def _roofed_cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev, gap_cap, pen_c, per_m, iters, soft, pen, viol):  # noqa: ANN001, ANN202
+def _roofed_cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev, gap_cap, pen_c, per_m, iters, soft, pen, viol):
     """Particle p's segment s against one cylinder with a finite ``top``, one particle at a time: J2's soft term
     into ``soft[p]``, a collision into ``pen[p]``/``viol[0, p]``; near the wall, the roof by golden section."""
     ax, ay, az = pt[s, 0, p], pt[s, 1, p], pt[s, 2, p]
@@ -136,7 +136,7 @@ def _roofed_cylinder_term(pt, s, p, cx, cy, r, top, d_safe, dev, gap_cap, pen_c,
 
 @called
 def _threat_terms(pt, s, p, seg_len, s0, dev, thr, threat_t, start_time, cruise, max_speed, d_safe, gap_cap,
-                  pen_c, per_m, soft, pen, viol):  # noqa: ANN001, ANN202
+                  pen_c, per_m, soft, pen, viol):
     """Particle p's segment s against every moving threat at the times it flies its samples (§4.6)."""
     ax, ay, az = pt[s, 0, p], pt[s, 1, p], pt[s, 2, p]
     bx, by, bz = pt[s + 1, 0, p], pt[s + 1, 1, p], pt[s + 1, 2, p]
@@ -173,13 +173,13 @@ def _threat_terms(pt, s, p, seg_len, s0, dev, thr, threat_t, start_time, cruise,
 
 
 @inline
-def _above(ax, ay, az, dx, dy, dz, t, tx0, ty0, tdx, tdy, h):  # noqa: ANN001, ANN202
+def _above(ax, ay, az, dx, dy, dz, t, tx0, ty0, tdx, tdy, h):
     """Height above the ground of a + t (b − a)."""
     return az + t * dz - _ground(ax + t * dx, ay + t * dy, True, tx0, ty0, tdx, tdy, h)
 
 
 @inline
-def _lines(a, b, origin, step, n):  # noqa: ANN001, ANN202
+def _lines(a, b, origin, step, n):
     """The first and last grid line (grid units) that a span a..b meets along one axis, the grid clamped."""
     fa = min(max((a - origin) / step, 0.0), n - 1.0)
     fb = min(max((b - origin) / step, 0.0), n - 1.0)
@@ -187,7 +187,7 @@ def _lines(a, b, origin, step, n):  # noqa: ANN001, ANN202
 
 
 @called
-def _chord_range(ax, ay, az, bx, by, bz, tx0, ty0, tdx, tdy, h):  # noqa: ANN001, ANN202
+def _chord_range(ax, ay, az, bx, by, bz, tx0, ty0, tdx, tdy, h):
     """Least and greatest height above the bilinear ground along the segment a→b, exactly: Terrain.clearance_range
     (docs/method.md §15.1), piece by piece between the grid lines in the order the segment meets them."""
     ny, nx = h.shape
@@ -235,7 +235,7 @@ def _chord_range(ax, ay, az, bx, by, bz, tx0, ty0, tdx, tdy, h):  # noqa: ANN001
 
 
 @inline
-def _local_slope(ax, ay, bx, by, tx0, ty0, tdx, tdy, nx, ny, slopes):  # noqa: ANN001, ANN202
+def _local_slope(ax, ay, bx, by, tx0, ty0, tdx, tdy, nx, ny, slopes):
     """The largest bound of |∇h| over the slope blocks under the box of a chord a→b (Terrain.slope_blocks)."""
     i0 = min(int(min(max((min(ax, bx) - tx0) / tdx, 0.0), nx - 2.0)), nx - 2) // SLOPE_BLOCK
     i1 = min(int(min(max((max(ax, bx) - tx0) / tdx, 0.0), nx - 2.0)), nx - 2) // SLOPE_BLOCK
@@ -250,7 +250,7 @@ def _local_slope(ax, ay, bx, by, tx0, ty0, tdx, tdy, nx, ny, slopes):  # noqa: A
 
 @called
 def _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, max_slope, sag, z_min, z_max, tx0, ty0, tdx, tdy,
-                   terrain_h, pen_c, per_m, pen, viol):  # noqa: ANN001, ANN202
+                   terrain_h, pen_c, per_m, pen, viol):
     """Particle p's curve on segment s against the band above the terrain: each chord between two of its samples,
     exactly over the ground (_chord_range: the roadmap's and the checker's test, §4.7, §15.1). A chord whose ends
     are inside the band by more than the local slope bound × its horizontal length cannot leave it (the ground
@@ -289,7 +289,7 @@ def _terrain_terms(pt, seg, q2, s, p, terrain_t, slopes, max_slope, sag, z_min, 
 
 @called
 def _terrain_band(pt, seg, q2, terrain_t, slopes, max_slope, sag, z_min, z_max, tx0, ty0, tdx, tdy, terrain_h,
-                  pen_c, per_m, pen, viol):  # noqa: ANN001, ANN202
+                  pen_c, per_m, pen, viol):
     """Every particle's curve on every segment against the band above the terrain (_terrain_terms), segment by
     segment as in _cost: one call from it, whose loop keeps few values live around each particle's call."""
     for s in range(pt.shape[0] - 1):
@@ -304,7 +304,7 @@ def _cost(paths, acc_r, overshoot, max_turn, r_min, max_climb, cruise, d_safe, d
           has_heading, heading, timed, start_time, max_speed, thr, has_terrain, tx0, ty0, tdx, tdy, slopes, max_slope,
           sag, terrain_h,
           cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, rad_w, pri_v, pri_start, pri_rows, peak_table,
-          threat_t, terrain_t, golden_iters, broad):  # noqa: ANN001, ANN202
+          threat_t, terrain_t, golden_iters, broad):
     """terms (P, 5), penalty (P,), violations (P, 5) and the weighted total (P,) for paths (P, N, 3), from the
     fields of :class:`KernelInputs` (see :func:`evaluate`); ``thr`` holds the threats' laws, a row each.
 

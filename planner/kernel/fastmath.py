@@ -12,7 +12,7 @@ from planner.kernel.jit import inline, linked
 
 
 @inline
-def horner(c, w):  # noqa: ANN001, ANN202
+def horner(c, w):
     """c[0] + c[1]·w + … + c[-1]·w^(n−1), by Horner's rule from the highest coefficient (the polynomials below)."""
     a = c[len(c) - 1]
     for k in range(len(c) - 2, -1, -1):
@@ -29,7 +29,7 @@ _TAN_PI_8 = math.tan(math.pi / 8.0)
 
 
 @inline
-def fast_atan2(y, x):  # noqa: ANN001, ANN202
+def fast_atan2(y, x):
     """math.atan2 (to a rounding or two) without a libm call and without branches, so that a loop over particles
     runs in SIMD lanes: the ratio of the smaller to the larger coordinate, reduced below tan(π/8) by
     atan t = π/4 + atan((t − 1)/(t + 1)), then the polynomial, then the octant."""
@@ -59,7 +59,7 @@ _PIO2_LO = 6.123233995736766e-17  # π/2 minus that double
 
 
 @inline
-def fast_sincos(a):  # noqa: ANN001, ANN202
+def fast_sincos(a):
     """(sin a, cos a) to a rounding or two for |a| up to a few turns, branch-free (see fast_atan2): a = n·π/2 + r,
     |r| ≤ π/4, then the quadrant n mod 4 swaps and signs the two polynomials (in floats: no vector int64)."""
     n = np.floor(a * (2.0 / math.pi) + 0.5)
@@ -78,14 +78,14 @@ def fast_sincos(a):  # noqa: ANN001, ANN202
 
 
 @inline
-def bezier(q0, q1, q2, q3, t):  # noqa: ANN001, ANN202
+def bezier(q0, q1, q2, q3, t):
     """One coordinate of a cubic Bézier of control values q0…q3 at t (smoothing.bezier_point)."""
     s = 1.0 - t
     return s**3 * q0 + 3 * s**2 * t * q1 + 3 * s * t**2 * q2 + t**3 * q3
 
 
 @linked
-def cubic_range(q0, q1, q2, q3):  # noqa: ANN001, ANN202
+def cubic_range(q0, q1, q2, q3):
     """Exact min and max of a scalar cubic Bézier on [0, 1] (smoothing.cubic_range)."""
     a, b, c = q1 - q0, q2 - q1, q3 - q2
     qa = a - 2 * b + c
@@ -108,7 +108,7 @@ def cubic_range(q0, q1, q2, q3):  # noqa: ANN001, ANN202
 
 
 @inline
-def peak_factor(c, table):  # noqa: ANN001, ANN202
+def peak_factor(c, table):
     """G(c) for c = cos θ, interpolated in its table on a uniform grid of [−1, 1] (smoothing.peak_factor)."""
     n = table.shape[0]
     f = (min(max(c, -1.0), 1.0) + 1.0) * ((n - 1) / 2.0)

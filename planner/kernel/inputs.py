@@ -65,7 +65,7 @@ def _threat_rows(thr: Threats) -> np.ndarray:
     return rows
 
 
-def _f64(a, shape: tuple[int, ...] = (-1,)) -> np.ndarray:  # noqa: ANN001
+def _f64(a, shape: tuple[int, ...] = (-1,)) -> np.ndarray:
     """A contiguous, writeable float64 copy: one compiled signature for every problem."""
     return np.array(a, dtype=np.float64, order="C").reshape(shape)
 
@@ -232,7 +232,7 @@ class KernelInputs:
         )
 
 
-def warm_up(problem) -> None:  # noqa: ANN001
+def warm_up(problem) -> None:
     """Compile (first run on a machine) or load from the disk cache every compiled function, on ``problem``'s
     arrays: the replan worker calls it before the flight so that no replan pays for it."""
     if chosen() != "compiled":

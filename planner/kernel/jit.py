@@ -7,7 +7,9 @@ from __future__ import annotations
 import functools
 import hashlib
 from pathlib import Path
+from typing import Any
 
+njit: Any  # numba's decorator, or None
 try:
     from numba import njit
 except ImportError:  # pragma: no cover - numba is a dependency; the reference path still works without it
@@ -32,8 +34,8 @@ def _stamp_caches_with_the_package() -> bool:
     from numba.core import caching
 
     impl = getattr(caching, "CacheImpl", None) or getattr(caching, "_CacheImpl", None)  # numba ≥ 0.68, older
-    classes = getattr(impl, "_locator_classes", None)
-    base = getattr(caching, "_CacheLocator", None)
+    classes: Any = getattr(impl, "_locator_classes", None)
+    base: Any = getattr(caching, "_CacheLocator", None)
     if not isinstance(classes, list) or base is None:
         return False
     if any(getattr(c, "fuseplan_kernel", False) for c in classes):
@@ -46,7 +48,7 @@ def _stamp_caches_with_the_package() -> bool:
             self._inner = inner
 
         @classmethod
-        def from_function(cls, py_func, py_file):  # noqa: ANN001, ANN206
+        def from_function(cls, py_func: Any, py_file: str) -> PackageLocator | None:
             if Path(py_file).resolve().parent != PACKAGE:
                 return None
             for other in classes:
@@ -74,22 +76,22 @@ def _stamp_caches_with_the_package() -> bool:
 PACKAGE_STAMPED = njit is not None and _stamp_caches_with_the_package()  # every cached function below this line
 
 
-def jit(fn):  # noqa: ANN001, ANN202
+def jit(fn):
     """Compile with an on-disk cache (no JIT pause after the first run on a machine); identity without numba."""
     return fn if njit is None else njit(cache=True, nogil=True, error_model="numpy")(fn)
 
 
-def inline(fn):  # noqa: ANN001, ANN202
+def inline(fn):
     """A helper compiled into its caller (a call passing arrays costs more than the arithmetic inside)."""
     return fn if njit is None else njit(inline="always", error_model="numpy")(fn)
 
 
-def linked(fn):  # noqa: ANN001, ANN202
+def linked(fn):
     """A helper left to LLVM to inline where it pays (scalar paths): faster to compile than ``inline``."""
     return fn if njit is None else njit(error_model="numpy")(fn)
 
 
-def called(fn):  # noqa: ANN001, ANN202
+def called(fn):
     """A helper on a rare or long path, compiled once and called: inlining it into each caller would cost more
     compile time (the first run on a machine) than the call costs at run time."""
     return fn if njit is None else njit(cache=True, nogil=True, error_model="numpy")(fn)

@@ -15,13 +15,13 @@ _GOLDEN = (math.sqrt(5.0) - 1.0) / 2.0
 
 
 @inline
-def seg_point(ax, ay, az, bx, by, bz, px, py, pz):  # noqa: ANN001, ANN202
+def seg_point(ax, ay, az, bx, by, bz, px, py, pz):
     """Distance from point p to segment a→b (geometry.segment_point_distance)."""
     return math.sqrt(seg_point_sq(ax, ay, az, bx, by, bz, px, py, pz))
 
 
 @inline
-def seg_point_sq(ax, ay, az, bx, by, bz, px, py, pz):  # noqa: ANN001, ANN202
+def seg_point_sq(ax, ay, az, bx, by, bz, px, py, pz):
     """Squared distance from point p to segment a→b."""
     dx, dy, dz = bx - ax, by - ay, bz - az
     wx, wy, wz = px - ax, py - ay, pz - az
@@ -33,12 +33,12 @@ def seg_point_sq(ax, ay, az, bx, by, bz, px, py, pz):  # noqa: ANN001, ANN202
 
 
 @inline
-def seg_point_2d(ax, ay, bx, by, px, py):  # noqa: ANN001, ANN202
+def seg_point_2d(ax, ay, bx, by, px, py):
     return math.sqrt(seg_point_2d_sq(ax, ay, bx, by, px, py))
 
 
 @inline
-def seg_point_2d_sq(ax, ay, bx, by, px, py):  # noqa: ANN001, ANN202
+def seg_point_2d_sq(ax, ay, bx, by, px, py):
     """Squared plan-view distance from p to segment a→b (its square root is geometry.segment_point_distance_2d)."""
     dx, dy = bx - ax, by - ay
     dd = dx * dx + dy * dy
@@ -50,7 +50,7 @@ def seg_point_2d_sq(ax, ay, bx, by, px, py):  # noqa: ANN001, ANN202
 
 
 @inline
-def _cyl_signed(ax, ay, az, dx, dy, dz, t, cx, cy, r, top):  # noqa: ANN001, ANN202
+def _cyl_signed(ax, ay, az, dx, dy, dz, t, cx, cy, r, top):
     """Signed distance of a + t·d from a cylinder with a finite top (geometry.cylinder_signed_distance)."""
     px, py, pz = ax + t * dx, ay + t * dy, az + t * dz
     u = math.hypot(px - cx, py - cy) - r
@@ -60,7 +60,7 @@ def _cyl_signed(ax, ay, az, dx, dy, dz, t, cx, cy, r, top):  # noqa: ANN001, ANN
 
 
 @called
-def seg_cyl_finite(ax, ay, az, bx, by, bz, cx, cy, r, top, iters):  # noqa: ANN001, ANN202
+def seg_cyl_finite(ax, ay, az, bx, by, bz, cx, cy, r, top, iters):
     """Golden-section minimum over the segment, step for step as geometry.segment_cylinder_clearance."""
     dx, dy, dz = bx - ax, by - ay, bz - az
     lo, hi = 0.0, 1.0
@@ -87,7 +87,7 @@ def seg_cyl_finite(ax, ay, az, bx, by, bz, cx, cy, r, top, iters):  # noqa: ANN0
 
 
 @inline
-def _edge_sq(px, py, ax, ay, ex, ey, l2):  # noqa: ANN001, ANN202
+def _edge_sq(px, py, ax, ay, ex, ey, l2):
     """Squared plan-view distance from p to the edge A + s·E (geometry._edge_sq; ``l2`` = |E|², 1 if zero)."""
     wx = px - ax
     wy = py - ay
@@ -98,7 +98,7 @@ def _edge_sq(px, py, ax, ay, ex, ey, l2):  # noqa: ANN001, ANN202
 
 
 @inline
-def _edge(v, j, i0, i1):  # noqa: ANN001, ANN202
+def _edge(v, j, i0, i1):
     """Edge j of the polygon v[i0:i1] (closed): its first end, its second, its vector and |E|² (1 if zero)."""
     px, py = v[j, 0], v[j, 1]
     nj = j + 1 if j + 1 < i1 else i0
@@ -109,7 +109,7 @@ def _edge(v, j, i0, i1):  # noqa: ANN001, ANN202
 
 
 @inline
-def _g(t, ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h):  # noqa: ANN001, ANN202
+def _g(t, ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h):
     """g_e(t) of docs/method.md §2.7: the squared distance of a + t·d to edge e's vertical strip [f, h]."""
     z = az + t * dz
     wo = max(max(f - z, z - h), 0.0)
@@ -117,12 +117,12 @@ def _g(t, ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h):  # noqa: ANN001, 
 
 
 @inline
-def _ratio(num, den):  # noqa: ANN001, ANN202
+def _ratio(num, den):
     return num / den if den != 0.0 else 0.0
 
 
 @linked
-def _edge_min(ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h, knots):  # noqa: ANN001, ANN202
+def _edge_min(ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h, knots):
     """The least of g_e over [0, 1] (geometry.segment_prism_clearance, step for step): the quadratic pieces between
     the sorted breakpoints, each's vertex from three values, g evaluated there and at the breakpoints."""
     s0 = ((ax - px0) * ex + (ay - py0) * ey) / l2
@@ -157,7 +157,7 @@ def _edge_min(ax, ay, az, dx, dy, dz, px0, py0, ex, ey, l2, f, h, knots):  # noq
 
 
 @called
-def seg_prism(ax, ay, az, bx, by, bz, v, i0, i1, f, h, keep, limit, cross, knots):  # noqa: ANN001, ANN202
+def seg_prism(ax, ay, az, bx, by, bz, v, i0, i1, f, h, keep, limit, cross, knots):
     """Signed clearance of segment a→b from the prism over polygon vertices v[i0:i1] (V, 2) between f and h (keep:
     a keep-in polygon), as geometry.segment_prism_clearance computes it (docs/method.md §2.7). Edges whose plan
     distance from the segment (bounded below from their midpoints) exceeds ``limit`` or the least so far are
@@ -234,7 +234,7 @@ def seg_prism(ax, ay, az, bx, by, bz, v, i0, i1, f, h, keep, limit, cross, knots
 
 
 @linked
-def prism_lanes(la, v, i0, i1, f, h, keep, m, ws, clr):  # noqa: ANN001, ANN202
+def prism_lanes(la, v, i0, i1, f, h, keep, m, ws, clr):
     """seg_prism for m segments at once, bit for bit (docs/method.md §2.7): lanes la[:, 0:m] hold ax, ay, az, bx, by,
     bz and the limit (rows 0–6); their clearances go to clr[0:m]. Edge by edge, the segments innermost (SIMD lanes):
     a's containment, the crossings' count, first and last, and the least squared plan distance (ends to edges,
@@ -331,7 +331,7 @@ def prism_lanes(la, v, i0, i1, f, h, keep, m, ws, clr):  # noqa: ANN001, ANN202
 
 
 @inline
-def prism_width(start):  # noqa: ANN001, ANN202
+def prism_width(start):
     """The most vertices of one polygon, from the prisms' start indices (the crossings' scratch length)."""
     w = 0
     for k in range(start.shape[0] - 1):
@@ -340,7 +340,7 @@ def prism_width(start):  # noqa: ANN001, ANN202
 
 
 @inline
-def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad, stamp, token, out):  # noqa: ANN001, ANN202
+def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad, stamp, token, out):
     """Indices (ascending, into ``out``; returns how many) of the obstacles whose plan-view discs come within
     ``reach`` (per axis) of the segment a→b. Visits the cells under the segment swept by a ±reach square, row by
     row (a diagonal segment's bounding box would be mostly empty cells); ``stamp`` marks obstacles seen for
@@ -390,7 +390,7 @@ def _near(ax, ay, bx, by, reach, ox, oy, cell, nx, ny, start, items, cx, cy, rad
 
 @jit
 def _blocked(a, b, d_coll, cyl_x, cyl_y, cyl_r, cyl_top, sph_c, sph_r, rad_c, rad_det, golden_iters, gox, goy, gcell,
-             gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r, pri_v, pri_start, pri_rows):  # noqa: ANN001, ANN202
+             gnx, gny, ob_start, ob_items, ob_x, ob_y, ob_r, pri_v, pri_start, pri_rows):
     """For segments a→b (E, 3): within d_coll of a cylinder, sphere or prism, or inside a radar's range (as
     PlanningProblem.segment_blocked), visiting only the obstacles the broad phase finds within d_coll."""
     n_e = a.shape[0]

@@ -9,7 +9,7 @@ from planner.kernel.jit import jit
 
 
 @jit
-def _decode_spherical(x, start, goal):  # noqa: ANN001, ANN202
+def _decode_spherical(x, start, goal):
     """Paths (P, n + 2, 3) from spherical particles (P, n, 3), as geometry.spherical_to_cartesian + start/goal:
     the steps summed in order from the start (the reference's cumsum, then start + sum). Sines and cosines are
     fast_sincos's, particles innermost so that they run in SIMD lanes."""
@@ -47,7 +47,7 @@ def decode_spherical(x: np.ndarray, start: np.ndarray, goal: np.ndarray) -> np.n
 
 
 @jit
-def _pso_step(x, v, pbest, gbest, w, c1, c2, lo, hi, vmax, reflection, r1, r2):  # noqa: ANN001, ANN202
+def _pso_step(x, v, pbest, gbest, w, c1, c2, lo, hi, vmax, reflection, r1, r2):
     """planner.search.spso.pso_step element by element, the same operations in the same order (so bit for bit), on
     flattened particles (P, m) and bounds (m,); branch-free, so each particle's coordinates run in SIMD lanes."""
     n_p, m = x.shape
@@ -72,7 +72,7 @@ def pso_step(x: np.ndarray, v: np.ndarray, pbest: np.ndarray, gbest: np.ndarray,
     """Compiled :func:`planner.search.spso.pso_step` for swarms (P, n, 3); ``w`` a scalar or (P, 1, 1)."""
     n_p = len(x)
 
-    def flat(a: np.ndarray) -> np.ndarray:
+    def flat(a: np.ndarray | float) -> np.ndarray:
         return np.ascontiguousarray(a, dtype=np.float64).reshape(n_p, -1)
 
     def box(a: np.ndarray | float) -> np.ndarray:

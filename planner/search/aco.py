@@ -233,7 +233,8 @@ class AntColony:
         return OptimiserResult(path, best_cost, best_eval, history, it, stop.fired or "",
                                time.perf_counter() - t0, cfg.n_ants * it + 1)  # + the seed's evaluation
 
-    def _update(self, tau, choice, costs, ib, best_choice, best_cost, ref, it, rng) -> None:  # noqa: ANN001
+    def _update(self, tau: np.ndarray, choice: np.ndarray, costs: np.ndarray, ib: int, best_choice: np.ndarray,
+                best_cost: float, ref: float, it: int, rng: np.random.Generator) -> None:
         """Classic (paper Eq. (35)) or enhanced (Eq. (36)) pheromone update, then clipping to [τ_min, τ_max]
         (docs/method.md §8.4)."""
         cfg = self.cfg

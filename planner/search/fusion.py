@@ -118,7 +118,7 @@ class Fusion:
             colony = RoadmapColony(s.aco, enc.n + 2, cfg.colony_iter).run(
                 q, weights, problem, self._elites(pso, enc, rm.spacing), rng, deadline.share(0.5), first_s=step_s)
             trace["ants"] = colony.ant_paths
-            if colony.route is not None:
+            if colony.route is not None and colony.evaluation is not None and colony.path is not None:  # together
                 done.append(("colony", OptimiserResult(
                     colony.route, colony.cost, colony.evaluation, colony.history, colony.iterations,
                     f"{100 * colony.arrived:.0f}% of ants arrived", colony.time_s, colony.evaluations)))

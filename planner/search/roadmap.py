@@ -189,8 +189,7 @@ def build(problem: PlanningProblem, cfg: RoadmapConfig) -> Roadmap:
     n_lev, band, dz_fit = _levels(problem, cfg, h)
     levels = (np.array([env.z_min + margin_z + 0.5 * band]) if n_lev == 1
               else np.linspace(env.z_min + margin_z, env.z_max - margin_z, n_lev))
-    gx, gy = np.meshgrid(np.arange(len(xs)), np.arange(len(ys)), indexing="ij")
-    gx, gy = gx.ravel(), gy.ravel()
+    gx, gy = (g.ravel() for g in np.meshgrid(np.arange(len(xs)), np.arange(len(ys)), indexing="ij"))
     ground = env.ground(xs[gx], ys[gy])
     nx, ny, nl = len(xs), len(ys), len(levels)
 
@@ -368,7 +367,7 @@ def timed_weights(q: Query, problem: PlanningProblem, weights: np.ndarray) -> np
     their times, the edge keeps at least g − L/2 − s·(max(L/v, |t_a − t_b|) − L/2v), s the fastest a surface
     moves (speed plus radius growth). One threat position per node, not per edge and time sample."""
     env = problem.env
-    if not problem.timed_threats:
+    if not problem.timed_threats or problem.start_time is None:  # timed threats have a start time
         return weights
     v = problem.vehicle.cruise_speed
     dist = dijkstra(q.graph(weights), indices=q.start)

@@ -195,6 +195,7 @@ class RoadmapColony:
                                                               float(cost[ib]), best_cost, rng)
             tau *= omega
             tau[q.edge_ids(nodes)] += iter_amount
+            assert best_nodes is not None  # the first iteration's best ant beat inf
             tau[q.edge_ids(best_nodes)] += best_amount
             np.clip(tau, cfg.tau_min, cfg.tau_max, out=tau)
             history.append(best_cost)

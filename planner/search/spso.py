@@ -89,7 +89,9 @@ class SphericalPSO:
             w = inertia(cfg, it, st.f, st.gbest_f)
             r1 = rng.random(st.x.shape)
             r2 = rng.random(st.x.shape)
-            x, st.v = pso_step(st.x, st.v, st.pbest_x, st.gbest_x, w, cfg.c1, cfg.c2,
+            v = st.v
+            assert v is not None  # run_swarm gives the swarm its velocities (v0)
+            x, st.v = pso_step(st.x, v, st.pbest_x, st.gbest_x, w, cfg.c1, cfg.c2,
                                enc.lo, enc.hi, vmax, cfg.reflection, r1, r2)
             st.w = float(np.mean(w))
             return x

@@ -38,8 +38,11 @@ log = logging.getLogger(__name__)
 class DecisionSpace(Protocol):
     """A swarm lives in a box ``lo``/``hi`` (shape of one particle); ``decode`` gives full paths."""
 
-    lo: np.ndarray
-    hi: np.ndarray
+    @property
+    def lo(self) -> np.ndarray: ...  # read-only: the spaces are frozen dataclasses
+
+    @property
+    def hi(self) -> np.ndarray: ...
 
     def decode(self, x: np.ndarray) -> np.ndarray: ...  # (P, …) → paths (P, n + 2, 3)
 

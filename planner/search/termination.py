@@ -23,7 +23,8 @@ class Progress:
 
 
 class Criterion(Protocol):
-    name: str
+    @property
+    def name(self) -> str: ...  # read-only: the criteria are frozen dataclasses
 
     def done(self, p: Progress) -> bool: ...
 

@@ -156,7 +156,7 @@ def check_trajectory(
     sharp = np.flatnonzero(horizontal_turn(seg) > vehicle.max_turn * (1.0 + _TOL_REL))
     if start_heading is not None and len(seg):
         first = seg[0] / max(float(np.linalg.norm(seg[0])), 1e-9)
-        tight = peak_curvature(np.linalg.norm(seg[0]), first @ start_heading) * vehicle.min_turn_radius
+        tight = peak_curvature(float(np.linalg.norm(seg[0])), first @ start_heading) * vehicle.min_turn_radius
         if horizontal_turn(np.stack([start_heading, seg[0]]))[0] > vehicle.max_turn * (1.0 + _TOL_REL) \
                 or tight > 1.0 + _TOL_REL:
             sharp = np.concatenate([[-1], sharp])  # the turn at the start (waypoint 0)

@@ -30,7 +30,8 @@ def bezier_point(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, q3: np.ndarray,
     return s**3 * q0 + 3 * s**2 * t * q1 + 3 * s * t**2 * q2 + t**3 * q3
 
 
-def _evaluate(q0, q1, q2, q3, t):  # noqa: ANN001, ANN202 - broadcastable arrays
+def _evaluate(q0: np.ndarray, q1: np.ndarray, q2: np.ndarray, q3: np.ndarray,
+              t: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     s = 1.0 - t
     pos = bezier_point(q0, q1, q2, q3, t)
     d1 = 3 * (s**2 * (q1 - q0) + 2 * s * t * (q2 - q1) + t**2 * (q3 - q2))
@@ -43,8 +44,8 @@ def bezier_derivatives(ctrl: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.
 
     ctrl (..., 4, 3), t (m,) → each (..., m, 3); derivatives are with respect to t ∈ [0, 1].
     """
-    q = [ctrl[..., i, None, :] for i in range(4)]
-    return _evaluate(*q, np.asarray(t, dtype=float)[:, None])
+    q0, q1, q2, q3 = (ctrl[..., i, None, :] for i in range(4))
+    return _evaluate(q0, q1, q2, q3, np.asarray(t, dtype=float)[:, None])
 
 
 def curvature(d1: np.ndarray, d2: np.ndarray) -> np.ndarray:
@@ -105,7 +106,7 @@ def peak_factor(cos_turn: np.ndarray) -> np.ndarray:
     return PEAK_FACTOR[i] * (1.0 - w) + PEAK_FACTOR[i + 1] * w
 
 
-def peak_curvature(seg_len: np.ndarray, cos_turn: np.ndarray) -> np.ndarray:
+def peak_curvature(seg_len: np.ndarray | float, cos_turn: np.ndarray | float) -> np.ndarray:
     """Largest curvature (1/m) on the Bézier of a segment of length ``seg_len`` whose direction turns
     by θ (``cos_turn`` = cos θ = d̂_k · d̂_{k+1}) into the next segment; shapes broadcast."""
     c = np.clip(cos_turn, -1.0, 1.0)
@@ -138,7 +139,7 @@ def peak_climb(u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return np.arctan(np.sqrt(best))
 
 
-def deviation_bound(seg_len: np.ndarray, cos_turn: np.ndarray) -> np.ndarray:
+def deviation_bound(seg_len: np.ndarray | float, cos_turn: np.ndarray | float) -> np.ndarray:
     """Largest distance of a segment's Bézier from its chord: Q1 lies on the chord and Q2 is offset by
     (r/3) sin θ, so the offset is t²(1−t) r sin θ, at most (4/27) r sin θ (t = 2/3). For turns past 90°
     Q2 also overshoots the chord's end; (4/27) r bounds both. Shapes broadcast → metres."""

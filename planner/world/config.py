@@ -49,7 +49,7 @@ def within(lo: float, hi: float, unit: str = "", *, open_lo: bool = False, open_
             raise ValueError(f"{show_number(value)} must be {rule}")
         return value
 
-    check.bounds = (lo, hi, open_lo, open_hi)  # type: ignore[attr-defined] # for tests and docs to read
+    check.bounds = (lo, hi, open_lo, open_hi)  # type: ignore[attr-defined]  # for tests and docs to read
     return AfterValidator(check)
 
 

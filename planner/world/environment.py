@@ -9,8 +9,10 @@ import dataclasses
 import math
 from dataclasses import dataclass, field
 from functools import cached_property
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from planner.world.polygons import counter_clockwise, enclosing_circle
 from planner.world.terrain import Terrain
@@ -34,6 +36,10 @@ class Cylinders:
     top: np.ndarray
     z_ref: np.ndarray
 
+    if TYPE_CHECKING:  # the columns are taken as any array-like and stored as read-only arrays (__post_init__)
+        def __init__(self, x: ArrayLike, y: ArrayLike, radius: ArrayLike, top: ArrayLike, z_ref: ArrayLike) -> None:
+            ...
+
     def __post_init__(self) -> None:
         for name in ("x", "y", "radius", "top", "z_ref"):
             object.__setattr__(self, name, _frozen(getattr(self, name)))
@@ -42,7 +48,7 @@ class Cylinders:
         return len(self.x)
 
     @classmethod
-    def empty(cls) -> "Cylinders":
+    def empty(cls) -> Cylinders:
         return cls([], [], [], [], [])
 
 
@@ -53,6 +59,9 @@ class Spheres:
     center: np.ndarray  # (k, 3)
     radius: np.ndarray  # (k,)
 
+    if TYPE_CHECKING:  # as Cylinders
+        def __init__(self, center: ArrayLike, radius: ArrayLike) -> None: ...
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _frozen(self.center, (3,)))
         object.__setattr__(self, "radius", _frozen(self.radius))
@@ -61,7 +70,7 @@ class Spheres:
         return len(self.radius)
 
     @classmethod
-    def empty(cls) -> "Spheres":
+    def empty(cls) -> Spheres:
         return cls(np.zeros((0, 3)), [])
 
 
@@ -81,10 +90,14 @@ class Prisms:
     start: np.ndarray  # (k + 1,) int
     floor: np.ndarray  # (k,)
     ceiling: np.ndarray  # (k,)
-    keep_in: np.ndarray | None = None  # (k,) bool; None: none is
+    keep_in: np.ndarray = None  # type: ignore[assignment]  # (k,) bool; None: none is (an array after __post_init__)
     cx: np.ndarray = field(init=False)
     cy: np.ndarray = field(init=False)
     r: np.ndarray = field(init=False)
+
+    if TYPE_CHECKING:  # as Cylinders
+        def __init__(self, vertices: ArrayLike, start: ArrayLike, floor: ArrayLike, ceiling: ArrayLike,
+                     keep_in: ArrayLike | None = None) -> None: ...
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "vertices", _frozen(self.vertices, (2,)))
@@ -137,8 +150,8 @@ class Prisms:
         return out
 
     @classmethod
-    def from_polygons(cls, polygons: list[np.ndarray], floor: list[float] | np.ndarray,
-                      ceiling: list[float] | np.ndarray, keep_in: list[bool] | np.ndarray | None = None) -> "Prisms":
+    def from_polygons(cls, polygons: list[np.ndarray], floor: ArrayLike, ceiling: ArrayLike,
+                      keep_in: ArrayLike | None = None) -> Prisms:
         """Prisms from simple polygons (each (V_k, 2), either orientation; a closing duplicate vertex is dropped)."""
         rings = [counter_clockwise(p) for p in polygons]
         start = np.concatenate([[0], np.cumsum([len(p) for p in rings], dtype=np.int64)])
@@ -146,7 +159,7 @@ class Prisms:
         return cls(vertices, start, floor, ceiling, keep_in)
 
     @classmethod
-    def empty(cls) -> "Prisms":
+    def empty(cls) -> Prisms:
         return cls(np.zeros((0, 2)), [0], [], [])
 
 
@@ -173,6 +186,9 @@ class Radars:
     r_det: np.ndarray  # (k,)
     soft_weight: np.ndarray  # (k,)
 
+    if TYPE_CHECKING:  # as Cylinders
+        def __init__(self, center: ArrayLike, r_det: ArrayLike, soft_weight: ArrayLike) -> None: ...
+
     def __post_init__(self) -> None:
         object.__setattr__(self, "center", _frozen(self.center, (3,)))
         object.__setattr__(self, "r_det", _frozen(self.r_det))
@@ -182,7 +198,7 @@ class Radars:
         return len(self.r_det)
 
     @classmethod
-    def empty(cls) -> "Radars":
+    def empty(cls) -> Radars:
         return cls(np.zeros((0, 3)), [], [])
 
 
@@ -262,7 +278,7 @@ class Threats:
         """The same threats with every radius larger by ``margin_m`` (a replan keeps its own margin from them)."""
         return Threats(tuple(dataclasses.replace(t, radius=t.radius + margin_m) for t in self.items))
 
-    def positions(self, t: np.ndarray) -> np.ndarray:
+    def positions(self, t: ArrayLike) -> np.ndarray:
         """Threat centres at times ``t`` (any shape S, seconds) → (k, *S, 3) metres ENU.
 
         Each law is computed only for the threats that follow it (one broadcast per kind, not per threat).
@@ -292,7 +308,7 @@ class Threats:
             out[i] = self.p0[i][ex] + self.p1[i][ex] * (t - self.t_ref[i][ex])[..., None]
         return out
 
-    def radii(self, t: np.ndarray) -> np.ndarray:
+    def radii(self, t: ArrayLike) -> np.ndarray:
         """Threat radii at times ``t`` → (k, *S); track uncertainty grows with prediction time."""
         t = np.asarray(t, dtype=float)
         ex = (slice(None),) + (None,) * t.ndim
@@ -315,7 +331,7 @@ class Environment:
     terrain: Terrain | None = None
     threats: Threats = field(default_factory=Threats)
 
-    def ground(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    def ground(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """Ground height at (x, y); zero on flat terrain."""
         if self.terrain is None:
             return np.zeros(np.broadcast_shapes(np.shape(x), np.shape(y)))

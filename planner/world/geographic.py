@@ -130,10 +130,12 @@ def _visit_points(raw: dict[str, Any], visit: Callable[[str, str, Any, dict[str,
     for section, key, kind in _POINTS:
         for where, table in _entries(raw, section):
             if kind == "vec3 list":
+                assert key is not None  # a named field (_POINTS)
                 points = table.get(key)
                 if isinstance(points, list):
                     table[key] = [visit(f"{where}.{key}[{j}]", "vec3", p, table, None) for j, p in enumerate(points)]
             elif kind == "vec3":
+                assert key is not None
                 if key in table:
                     table[key] = visit(f"{where}.{key}", kind, table[key], table, key)
             else:
@@ -294,7 +296,8 @@ def localise(raw: dict[str, Any], file: str, home: Home,
             continue
         where = f"prisms[{i}]"
         if "polygon" in table:
-            xy = east_north(*np.asarray(table.pop("polygon"), dtype=float).T, origin)
+            ll = np.asarray(table.pop("polygon"), dtype=float)
+            xy = east_north(ll[:, 0], ll[:, 1], origin)
         else:
             xy = from_home(polygons[i])
         table["xy"] = [[float(x), float(y)] for x, y in xy]
@@ -312,8 +315,9 @@ def localise(raw: dict[str, Any], file: str, home: Home,
             elif ref == "ground" and terrain is not None:
                 under = _ground_under(terrain, np.asarray(xy))
                 table[key] = value + (under[0] if key == "floor" else under[1])  # the larger solid
-    if keep_in is not None:
-        region_xy = east_north(*np.asarray(region["polygon"], dtype=float).T, origin)
+    if region is not None and keep_in is not None:  # keep_in: the region's polygon
+        ll = np.asarray(region["polygon"], dtype=float)
+        region_xy = east_north(ll[:, 0], ll[:, 1], origin)
         entry = {"xy": [[float(x), float(y)] for x, y in region_xy], "keep_in": True, "name": "region.polygon"}
         raw["prisms"] = [*(prisms if isinstance(prisms, list) else []), entry]
     launch = from_home(np.zeros(2))

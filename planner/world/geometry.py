@@ -10,6 +10,7 @@ enters it (its magnitude is then the depth of the closest approach), so penaltie
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from planner.world.environment import Prisms
 
@@ -43,7 +44,8 @@ def segment_point_distance(a: np.ndarray, b: np.ndarray, p: np.ndarray) -> np.nd
 
 
 def segment_point_distance_2d(
-    ax: np.ndarray, ay: np.ndarray, bx: np.ndarray, by: np.ndarray, px: np.ndarray, py: np.ndarray
+    ax: np.ndarray | float, ay: np.ndarray | float, bx: np.ndarray | float, by: np.ndarray | float,
+    px: np.ndarray | float, py: np.ndarray | float,
 ) -> np.ndarray:
     """Same as :func:`segment_point_distance` for D = 2 with separate coordinate arrays (hot path)."""
     dx = bx - ax
@@ -58,14 +60,15 @@ def segment_point_distance_2d(
 
 
 def segment_sphere_clearance(
-    a: np.ndarray, b: np.ndarray, center: np.ndarray, radius: np.ndarray
+    a: np.ndarray, b: np.ndarray, center: np.ndarray, radius: np.ndarray | float
 ) -> np.ndarray:
     """Signed clearance of segment a→b from a sphere: ‖closest point − c‖ − R. a, b, center: (..., 3)."""
     return segment_point_distance(a, b, center) - radius
 
 
 def cylinder_signed_distance(
-    p: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, top: np.ndarray
+    p: np.ndarray, cx: np.ndarray | float, cy: np.ndarray | float, radius: np.ndarray | float,
+    top: np.ndarray | float,
 ) -> np.ndarray:
     """Signed distance from point(s) p (..., 3) to a solid vertical cylinder from the ground to ``top``.
 
@@ -87,7 +90,7 @@ def segment_cylinder_clearance_2d(
 
 
 def segment_cylinder_clearance(
-    a: np.ndarray, b: np.ndarray, cx: np.ndarray, cy: np.ndarray, radius: np.ndarray, top: np.ndarray
+    a: np.ndarray, b: np.ndarray, cx: ArrayLike, cy: ArrayLike, radius: ArrayLike, top: ArrayLike
 ) -> np.ndarray:
     """Signed clearance of segment a→b (..., 3) from a vertical cylinder with a finite or infinite top.
 
@@ -122,7 +125,8 @@ def segment_cylinder_clearance(
     return np.where(np.isinf(top), exact_2d, best)
 
 
-def _edge_sq(px, py, ax, ay, ex, ey, l2):  # noqa: ANN001, ANN202 - broadcastable arrays
+def _edge_sq(px: np.ndarray, py: np.ndarray, ax: np.ndarray, ay: np.ndarray, ex: np.ndarray, ey: np.ndarray,
+             l2: np.ndarray) -> np.ndarray:  # broadcastable arrays
     """Squared plan-view distance from points (px, py) to edges A + s·E, s ∈ [0, 1] (``l2`` = |E|², 1 if zero)."""
     wx = px - ax
     wy = py - ay
@@ -132,7 +136,8 @@ def _edge_sq(px, py, ax, ay, ex, ey, l2):  # noqa: ANN001, ANN202 - broadcastabl
     return qx * qx + qy * qy
 
 
-def _inside_count(px, py, ax, ay, bx, by):  # noqa: ANN001, ANN202 - broadcastable arrays, edge axis -2
+def _inside_count(px: np.ndarray, py: np.ndarray, ax: np.ndarray, ay: np.ndarray, bx: np.ndarray,
+                  by: np.ndarray) -> np.ndarray:  # broadcastable arrays, edge axis -2
     """Even-odd containment (polygons.contains) of points in each padded polygon: edges on axis −2."""
     straddles = (ay > py) != (by > py)
     dy = np.where(by != ay, by - ay, 1.0)
@@ -173,7 +178,7 @@ def _ratio(num: np.ndarray, den: np.ndarray) -> np.ndarray:
     return np.where(nz, num / np.where(nz, den, 1.0), 0.0)
 
 
-def segment_prism_clearance(a: np.ndarray, b: np.ndarray, prisms: Prisms) -> np.ndarray:
+def segment_prism_clearance(a: ArrayLike, b: ArrayLike, prisms: Prisms) -> np.ndarray:
     """Signed clearance (K, ...) of segments a→b (..., 3) from each prism's solid, exactly (docs/method.md §2.7).
 
     Outside: the least over edges e of the convex g_e(t) = dist(p_xy(t), e)² + max(w(t), 0)², a quadratic between
@@ -203,7 +208,7 @@ def _segment_prism_chunk(a: np.ndarray, b: np.ndarray, prisms: Prisms, edges: tu
     k_n = len(prisms)
     ax, ay, az = a[:, 0], a[:, 1], a[:, 2]
     dx, dy, dz = b[:, 0] - ax, b[:, 1] - ay, b[:, 2] - az
-    Ax, Ay, Bx, By, ex, ey, l2 = edges  # noqa: N806 - edge ends A, B
+    Ax, Ay, Bx, By, ex, ey, l2 = edges  # edge ends A, B
     f, h = prisms.floor[:, None], prisms.ceiling[:, None]  # (K, 1)
     keep = prisms.keep_in[:, None]
     f3, h3 = f[..., None], h[..., None]

@@ -63,6 +63,12 @@ class Intruder:
     meet: tuple[float, float, float] | None = None  # on its path; timed to be there as the vehicle passes
 
 
+def _xyz(v: Sequence[float]) -> tuple[float, float, float]:
+    """A validated 3-vector as a tuple."""
+    x, y, z = v
+    return x, y, z
+
+
 def _points(points: Sequence[Sequence[float]]) -> np.ndarray:
     """``points`` as a read-only (k, 3) array of metres."""
     out = np.array(points, dtype=float).reshape(-1, 3)
@@ -151,8 +157,8 @@ def _strict_table(cls: type) -> type:
         f.name: _strict_table(hints[f.name]) if dataclasses.is_dataclass(hints[f.name]) else hints[f.name]
         for f in dataclasses.fields(cls)
     }
-    table = TypedDict(f"{cls.__name__}Table", fields, total=False)  # type: ignore[operator]
-    table.__pydantic_config__ = _STRICT_FILE  # type: ignore[attr-defined]
+    table = TypedDict(f"{cls.__name__}Table", fields, total=False)  # type: ignore[misc]  # made at run time
+    table.__pydantic_config__ = _STRICT_FILE  # type: ignore[attr-defined]  # pydantic reads it off the class
     return table
 
 
@@ -204,7 +210,7 @@ class _Prism(_Table):
     name: _Ident | None = None
 
     @model_validator(mode="after")
-    def _slab(self) -> "_Prism":
+    def _slab(self) -> _Prism:
         if self.keep_in and (self.floor is not None or self.ceiling is not None):
             raise ValueError("a keep-in polygon has no floor or ceiling (it holds at every height)")
         if self.floor is not None and self.ceiling is not None and self.floor >= self.ceiling:
@@ -228,10 +234,6 @@ class _Hemisphere(_Table):
 RADAR_EQUATION = ("pt_w", "gain", "wavelength_m", "rcs_m2", "ts_k", "bn_hz", "loss", "snr_threshold")
 
 
-def _up_to(limit: float) -> Any:
-    return Annotated[float, Field(gt=0, le=limit)]
-
-
 class _Radar(_Table):
     x: _Coord
     y: _Coord
@@ -239,17 +241,18 @@ class _Radar(_Table):
     soft_weight: Annotated[float, Field(ge=0, le=MAX_WEIGHT)] = 1.0
     r_det: _Positive | None = None
     # the radar equation's inputs, each bounded past any real radar so that the equation stays finite
-    pt_w: _up_to(1e8) | None = None  # W: 100 MW, ten times the largest early-warning radars' peak power
-    gain: _up_to(1e7) | None = None  # 70 dBi: above the largest dish antennas
-    wavelength_m: _up_to(100.0) | None = None  # m: HF over-the-horizon radars use 10 to 100 m
-    rcs_m2: _up_to(1e6) | None = None  # m²: a large ship is about 1e4
-    ts_k: _up_to(1e6) | None = None  # K
-    bn_hz: _up_to(1e10) | None = None  # Hz: 10 GHz of bandwidth
-    loss: _up_to(1e6) | None = None  # 60 dB
-    snr_threshold: _up_to(1e6) | None = None  # 60 dB
+    # W: 100 MW, ten times the largest early-warning radars' peak power
+    pt_w: Annotated[float, Field(gt=0, le=1e8)] | None = None
+    gain: Annotated[float, Field(gt=0, le=1e7)] | None = None  # 70 dBi: above the largest dish antennas
+    wavelength_m: Annotated[float, Field(gt=0, le=100.0)] | None = None  # m: HF over-the-horizon radars use 10 to 100 m
+    rcs_m2: Annotated[float, Field(gt=0, le=1e6)] | None = None  # m²: a large ship is about 1e4
+    ts_k: Annotated[float, Field(gt=0, le=1e6)] | None = None  # K
+    bn_hz: Annotated[float, Field(gt=0, le=1e10)] | None = None  # Hz: 10 GHz of bandwidth
+    loss: Annotated[float, Field(gt=0, le=1e6)] | None = None  # 60 dB
+    snr_threshold: Annotated[float, Field(gt=0, le=1e6)] | None = None  # 60 dB
 
     @model_validator(mode="after")
-    def _one_range_source(self) -> "_Radar":
+    def _one_range_source(self) -> _Radar:
         given = [n for n in RADAR_EQUATION if getattr(self, n) is not None]
         if self.r_det is not None and given:
             raise ValueError(f"give either r_det or the radar-equation parameters, not both (also got {given[0]})")
@@ -313,13 +316,18 @@ class _Loiter(_Table):
     direction: Literal["ccw", "cw"] | None = None
 
     def to_threat(self) -> Threat:
-        optional: dict[str, float] = {}
+        optional: _LoiterOptions = {}
         if self.phase_deg is not None:
             optional["phase"] = math.radians(self.phase_deg)
         if self.direction is not None:
             optional["direction"] = 1.0 if self.direction == "ccw" else -1.0
-        return Threat(self.id, "loiter", self.radius, tuple(self.center), speed=self.speed,
+        return Threat(self.id, "loiter", self.radius, _xyz(self.center), speed=self.speed,
                       circle_radius=self.circle_radius, **optional)
+
+
+class _LoiterOptions(TypedDict, total=False):
+    phase: float
+    direction: float
 
 
 class _Patrol(_Table):
@@ -331,7 +339,11 @@ class _Patrol(_Table):
     speed: _Speed
 
     def to_threat(self) -> Threat:
-        return Threat(self.id, "patrol", self.radius, tuple(self.a), tuple(self.b), speed=self.speed)
+        return Threat(self.id, "patrol", self.radius, _xyz(self.a), _xyz(self.b), speed=self.speed)
+
+
+class _MeetOption(TypedDict, total=False):
+    meet: tuple[float, float, float]
 
 
 class _Intruder(_Table):
@@ -345,8 +357,8 @@ class _Intruder(_Table):
 
     def to_intruder(self) -> Intruder:
         optional = self.model_dump(include={"start_time", "radius"}, exclude_none=True)
-        meet = {"meet": tuple(self.meet)} if self.meet is not None else {}
-        return Intruder(self.id, self.icao, tuple(tuple(w) for w in self.waypoints), self.speed, **optional, **meet)
+        meet: _MeetOption = {"meet": _xyz(self.meet)} if self.meet is not None else {}
+        return Intruder(self.id, self.icao, tuple(_xyz(w) for w in self.waypoints), self.speed, **optional, **meet)
 
 
 _TerrainTable = Annotated[_FlatTerrain | _HillsTerrain | _FileTerrain, Field(discriminator="kind")]
@@ -361,9 +373,9 @@ class _ScenarioFile(_Table):
     bounds: _Bounds
     altitude: _Altitude
     route: _Route
-    vehicle: _VehicleTable = Field(default_factory=dict)  # type: ignore[valid-type]
-    hazard: _HazardTable = Field(default_factory=dict)  # type: ignore[valid-type]
-    planner: _PlannerTable = Field(default_factory=dict)  # type: ignore[valid-type]
+    vehicle: _VehicleTable = Field(default_factory=dict)  # type: ignore[valid-type]  # a TypedDict made at run time
+    hazard: _HazardTable = Field(default_factory=dict)  # type: ignore[valid-type]  # a TypedDict made at run time
+    planner: _PlannerTable = Field(default_factory=dict)  # type: ignore[valid-type]  # a TypedDict made at run time
     cylinders: list[_Cylinder] = []
     prisms: list[_Prism] = []
     spheres: list[_Sphere] = []
@@ -531,7 +543,8 @@ def _random_obstacles(
         kind = spec.kinds[int(rng.integers(len(spec.kinds)))]
         for _ in range(MAX_DRAWS):
             x, y = rng.uniform(0.0, size[0]), rng.uniform(0.0, size[1])
-            r, h = rng.uniform(*spec.radius), rng.uniform(*spec.height)
+            (r_lo, r_hi), (h_lo, h_hi) = spec.radius, spec.height
+            r, h = rng.uniform(r_lo, r_hi), rng.uniform(h_lo, h_hi)
             z = h if kind == "sphere" else 0.0
             if kind == "cylinder":
                 gap = np.hypot(keep_clear[:, 0] - x, keep_clear[:, 1] - y) - r
@@ -728,7 +741,8 @@ def _in_local_metres(raw: dict[str, Any], path: Path, file: str) -> tuple[dict[s
     (the full check names them)."""
     try:
         home_spec = _Home.model_validate(raw.get("home"))
-        terrain_spec = TypeAdapter(_TerrainTable | None).validate_python(raw.get("terrain"))
+        terrain_spec: _FlatTerrain | _HillsTerrain | _FileTerrain | None = \
+            TypeAdapter(_TerrainTable | None).validate_python(raw.get("terrain"))
     except ValidationError:
         return raw, None
     home = Home(home_spec.lat, home_spec.lon, home_spec.alt)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 
 @dataclass(frozen=True, eq=False)
@@ -59,7 +60,7 @@ class Terrain:
     def max_height(self) -> float:
         return float(self.heights.max())
 
-    def height_at(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    def height_at(self, x: ArrayLike, y: ArrayLike) -> np.ndarray:
         """Bilinear ground height at points (x, y) of any matching shape → same shape, metres."""
         ny, nx = self.heights.shape
         fx = np.clip((np.asarray(x, dtype=float) - self.x0) / self.dx, 0.0, nx - 1.0)

@@ -22,8 +22,8 @@ Fixtures:
   the companion sees the boot from its first HEARTBEAT on.
 
 Telemetry: real ArduCopter streams nothing but HEARTBEAT until asked, so every connection asks for the
-companion's rates with :func:`companion.mavlink.telemetry.request_rates` (the companion's own request; REQUEST_DATA_STREAM
-for every group at 10 Hz while that module is not there).
+companion's rates with :func:`companion.mavlink.telemetry.request_rates` (the companion's own request;
+REQUEST_DATA_STREAM for every group at 10 Hz while that module is not there).
 
 The ``measure`` fixture notes the numbers the tests measure (boot times, acceptance distances, refusal texts…);
 they are printed at the end of the run under "conformance measurements".

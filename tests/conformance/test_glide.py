@@ -12,9 +12,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import pytest_asyncio
-from conformance.conftest import home_item, item, numbered, ready, takeoff, waypoint
+from conformance.conftest import home_item, numbered, ready, takeoff, waypoint
 from conformance.test_hold_turn import _track_until, change_speed, track_until_east
-from pymavlink.dialects.v20 import ardupilotmega as mavlink
 
 pytestmark = pytest.mark.asyncio(loop_scope="module")
 

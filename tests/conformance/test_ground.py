@@ -202,7 +202,7 @@ async def test_set_current_makes_that_item_current(vehicle) -> None:
     for seq in (3, 1, 5):
         with vehicle.link.subscribe("MISSION_CURRENT") as sub:
             await vehicle.client.set_current(seq)
-            current = await next_matching(sub, lambda m: m.seq == seq, timeout=2.0)
+            current = await next_matching(sub, lambda m: m.seq == seq, timeout=2.0)  # noqa: B023 - awaited in this pass
         assert current.seq == seq
 
 

@@ -34,7 +34,7 @@ def backend(request: pytest.FixtureRequest) -> str:
 
 
 @contextlib.asynccontextmanager
-async def ground_station(v) -> AsyncIterator[MissionClient]:  # noqa: ANN001
+async def ground_station(v) -> AsyncIterator[MissionClient]:
     """A ground station (system 255, Mission Planner's component) on another port of the vehicle: SITL's SERIAL2,
     or a second client of the simulator's TCP port."""
     url = f"tcp:127.0.0.1:{v.sim.port}" if v.sim is not None else v.sitl.serial2_url

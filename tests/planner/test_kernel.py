@@ -73,7 +73,7 @@ def every_family() -> Environment:
 @pytest.mark.parametrize("overshoot", [0.0, 22.0], ids=["curve", "overshoot"])
 @pytest.mark.parametrize("terrain", [True, False], ids=["terrain", "flat"])
 @pytest.mark.parametrize("heading", [None, (0.6, -0.8, 0.0), (-1.0, 0.2, 0.1)], ids=["none", "h1", "h2"])
-def test_kernel_matches_the_reference_with_every_family(terrain: bool, heading, overshoot: float) -> None:  # noqa: ANN001
+def test_kernel_matches_the_reference_with_every_family(terrain: bool, heading, overshoot: float) -> None:
     env = every_family()
     if not terrain:
         env = dataclasses.replace(env, terrain=None)  # by name: Environment's fields gained prisms before terrain

@@ -79,7 +79,7 @@ def test_a_deadline_is_shared_by_the_legs_in_proportion_to_their_length(monkeypa
     given: list[tuple] = []
     real_plan = legs.plan
 
-    def timed_plan(problem, settings, rng, initial_paths, deadline, seed, progress):  # noqa: ANN001, ANN202
+    def timed_plan(problem, settings, rng, initial_paths, deadline, seed, progress):
         result = real_plan(problem, settings, rng, seed=seed)
         given.append((deadline.seconds, problem, result))
         now[0] += deadline.seconds  # as if the leg took its whole share

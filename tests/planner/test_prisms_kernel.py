@@ -50,7 +50,7 @@ def prism_world(terrain: bool = False, keep_in: bool = True) -> Environment:
                        terrain=Terrain(0.0, 0.0, 50.0, 50.0, hills) if terrain else None)
 
 
-def problem_on(env: Environment, **kw) -> PlanningProblem:  # noqa: ANN003
+def problem_on(env: Environment, **kw) -> PlanningProblem:
     return PlanningProblem(env, np.array([100.0, 100.0, 120.0]), np.array([1850.0, 1800.0, 200.0]), VehicleLimits(),
                            HazardConfig(d_safe=80.0, d_coll=20.0), **kw)
 

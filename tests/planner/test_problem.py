@@ -47,7 +47,7 @@ def problem(env: Environment, path: np.ndarray, **kw) -> PlanningProblem:
     return PlanningProblem(env, path[0], path[-1], kw.pop("vehicle", VEH), **kw)
 
 
-def evaluate_one(env: Environment, path, **kw):  # noqa: ANN001, ANN201
+def evaluate_one(env: Environment, path, **kw):
     path = np.asarray(path, dtype=float)
     ev = problem(env, path, **kw).evaluate(path[None])
     return ev
@@ -59,7 +59,7 @@ def line_x(y: float, z: float, x0: float = 200.0, x1: float = 1800.0, n: int = 2
     return np.stack([xs, np.full(n, y), np.full(n, z)], axis=1)
 
 
-def only(ev, category: str) -> bool:  # noqa: ANN001
+def only(ev, category: str) -> bool:
     """True when ``category`` is the only violated category."""
     return all((ev.violations[c][0] > 0) == (c == category) for c in CATEGORIES)
 

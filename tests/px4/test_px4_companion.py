@@ -58,7 +58,7 @@ def _fence_item(command: int, north_m: float, east_m: float, param1: float, fram
 
 
 @pytest.fixture(scope="module")
-def px4(px4_factory):  # noqa: ANN201
+def px4(px4_factory):
     return px4_factory(SC.home, speedup=SPEEDUP)
 
 

@@ -29,12 +29,12 @@ EXC = mavlink.MAV_CMD_NAV_FENCE_POLYGON_VERTEX_EXCLUSION
 
 
 @pytest.fixture(scope="module")
-def px4(px4_factory):  # noqa: ANN001, ANN201
+def px4(px4_factory):
     return px4_factory(HOME, speedup=SPEEDUP)
 
 
 @pytest_asyncio.fixture(scope="module", loop_scope="module")
-async def clients(px4) -> AsyncIterator[tuple[MissionClient, MissionClient]]:  # noqa: ANN001
+async def clients(px4) -> AsyncIterator[tuple[MissionClient, MissionClient]]:
     """(companion, ground station): the companion on PX4's API/offboard link, a ground station (system 255) on its
     GCS link (PX4 answers whoever sends there)."""
     async with (Link(px4.companion_url, open_timeout=5.0) as companion,

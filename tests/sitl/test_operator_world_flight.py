@@ -49,8 +49,8 @@ def test_arduplane_flies_round_the_fence_and_to_the_goal_the_operator_uploaded(s
     flown = np.array([[e["x"], e["y"]] for e in events if e["event"] == "position"])
     assert len(flown) > 20
     gaps = track_clearance(flown)
-    print(f"flown clearance {flight['min_static_clearance_m']:.1f} m ({flight.get('nearest_obstacle')}); "
-          f"by zone {gaps}")
+    nearest = flight.get("nearest_obstacle")
+    print(f"flown clearance {flight['min_static_clearance_m']:.1f} m ({nearest}); by zone {gaps}")
     assert min(gaps.values()) >= D_COLL, gaps
     assert np.hypot(*(flown[-1] - [1180.0, 720.0])) < 200.0  # it got there
     print(f"the ground station (streams off in {gcs.streams_off_s:.2f} s) heard:",

@@ -273,7 +273,8 @@ async def _ask(client: MavClient, timeout: float) -> dict[str, bool]:
     for name, (make, answers) in REQUESTS.items():
         t = time.monotonic()
         client.send(make())
-        answered[name] = await client.wait_for(lambda m: _from_autopilot(m) and answers(m), timeout, t) is not None
+        answered[name] = await client.wait_for(
+            lambda m: _from_autopilot(m) and answers(m), timeout, t) is not None  # noqa: B023 - awaited in this pass
     return answered
 
 

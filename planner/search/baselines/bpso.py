@@ -163,7 +163,9 @@ class BPSO:
             r2 = rng.random(shape)
             u = rng.random(shape)
             st.w = pso.w0
-            x, st.v = bpso_step(st.x, st.v, st.pbest_x, st.gbest_x, st.w, pso.c1, pso.c2, cfg.v_max,
+            v = st.v
+            assert v is not None  # run_swarm gives the swarm its velocities (v0)
+            x, st.v = bpso_step(st.x, v, st.pbest_x, st.gbest_x, st.w, pso.c1, pso.c2, cfg.v_max,
                                 r1, r2, u)
             return x
 

@@ -104,7 +104,9 @@ class PSOGSA:
             r1 = rng.random(st.x.shape)
             r2 = rng.random(st.x.shape)
             st.w = damped_inertia(pso, it)
-            x, st.v = psogsa_step(st.x, st.v, st.f, st.gbest_x, gravity(cfg, it, pso.max_iter), st.w,
+            v = st.v
+            assert v is not None  # run_swarm gives the swarm its velocities (v0)
+            x, st.v = psogsa_step(st.x, v, st.f, st.gbest_x, gravity(cfg, it, pso.max_iter), st.w,
                                   cfg.c1, cfg.c2, enc.lo, enc.hi, vmax, r_pair, r1, r2)
             return x
 

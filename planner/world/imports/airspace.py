@@ -15,7 +15,7 @@ refused (no geoid model here). Which format a file is in is decided in planner/w
 from __future__ import annotations
 
 import logging
-from typing import Any
+from typing import Any, TypeGuard
 
 from planner.errors import ScenarioError
 from planner.world.geo_inputs import Altitude, AltitudeRef, Zone
@@ -85,7 +85,7 @@ def openaip_limit(file: str, where: str, limit: Any) -> Altitude:
     return Altitude(value * multiplier * metres, OPENAIP_DATUMS[datum][1])
 
 
-def _code(value: Any, codes: dict[int, Any]) -> bool:
+def _code(value: Any, codes: dict[int, Any]) -> TypeGuard[int]:
     """Whether ``value`` is one of OpenAIP's integer ``codes`` (not a boolean, a string or a list that looks like
     one)."""
     return isinstance(value, int) and not isinstance(value, bool) and value in codes
@@ -130,13 +130,13 @@ def _ed269_volume(file: str, at: str, name: str, volume: Any) -> Zone:
     here = f"{at}.horizontalProjection"
     projection = volume.get("horizontalProjection")
     ptype = projection.get("type") if isinstance(projection, dict) else None
-    if ptype == "Circle":
+    if ptype == "Circle" and isinstance(projection, dict):
         centre = position(file, f"{here}.center", projection.get("center"))
         radius = number(file, f"{here}.radius", projection.get("radius")) * scale
         if radius <= 0.0:
             raise ScenarioError(file, f"{here}.radius", f"{radius:g} m (a radius must be > 0)")
         return Zone(name, False, centre=centre, radius_m=radius, floor=floor, ceiling=ceiling)
-    if ptype == "Polygon":
+    if ptype == "Polygon" and isinstance(projection, dict):
         vertices = outer_ring(file, f"{here}.coordinates", projection.get("coordinates"))
         return Zone(name, False, polygon=vertices, floor=floor, ceiling=ceiling)
     raise ScenarioError(file, here, f"{what_geometry(projection)} is not a Polygon or Circle")

@@ -195,6 +195,7 @@ def route_of(home: GeoPoint | None, items: Sequence[NavItem]) -> Route:
             points.append(it.point)
     ends = [it for it in items if it.command in END_COMMANDS]
     end_command = END_COMMANDS[ends[-1].command] if ends else None
+    start: GeoPoint | None
     if home is not None:
         start, rest = home, points
     else:

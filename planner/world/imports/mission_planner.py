@@ -152,7 +152,7 @@ def wpl_items(file: str, text: str) -> list[WplItem]:
         lat, lon, alt = values[4:7]
         if not (math.isfinite(lat) and math.isfinite(lon)):
             raise ScenarioError(file, where, "latitude and longitude must be numbers, not NaN")
-        items.append(WplItem(n, seq, frame, command, tuple(values[:4]), lat, lon, alt))  # type: ignore[arg-type]
+        items.append(WplItem(n, seq, frame, command, (values[0], values[1], values[2], values[3]), lat, lon, alt))
     return items
 
 

@@ -137,7 +137,8 @@ def _fence(file: str, fence: dict[str, Any]) -> tuple[tuple[Zone, ...], GeoPoint
         _version(file, f"{where}.version", poly, FENCE_POLYGON_VERSION, "fence polygon")
         inclusion = member(file, where, poly, "inclusion", bool, "true or false")
         vertices = member(file, where, poly, "polygon", list, "an array of [lat, lon]")
-        points = [_coordinate(file, f"{where}.polygon[{i}]", p, False)[:2] for i, p in enumerate(vertices)]
+        points = [(c[0], c[1]) for c in (_coordinate(file, f"{where}.polygon[{i}]", p, False)
+                                         for i, p in enumerate(vertices))]
         zones.append(Zone(where, inclusion, polygon=ring(file, f"{where}.polygon", points)))
     for k, circle in enumerate(member(file, "geoFence", fence, "circles", list, "an array")):
         where = f"geoFence.circles[{k}]"

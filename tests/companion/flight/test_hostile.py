@@ -9,9 +9,9 @@ import json
 from pathlib import Path
 
 import pytest
+from hostile import running
 
 from companion.cli import main
-from tests.hostile import running
 
 ROOT = Path(__file__).resolve().parents[3]
 STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
@@ -79,7 +79,7 @@ def test_an_item_changed_during_an_outage_is_found_and_the_flight_ends_5(plan_js
     def cut(sim, record) -> bool:
         if sim.mission_time is None or sim.mission_time < 15.0:
             return False
-        from tests.hostile import change_item_in_outage
+        from hostile import change_item_in_outage
 
         change_item_in_outage(sim, record, len(sim.mission) - 2, 7.0)
         return True

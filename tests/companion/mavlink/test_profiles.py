@@ -1,4 +1,5 @@
-"""Autopilot profiles: each is picked from HEARTBEAT fields and holds its family's facts (companion/mavlink/profiles.py)."""
+"""Autopilot profiles: each is picked from HEARTBEAT fields and holds its family's facts
+(companion/mavlink/profiles.py)."""
 
 from __future__ import annotations
 

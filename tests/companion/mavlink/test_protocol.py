@@ -210,7 +210,7 @@ async def test_lost_final_ack_with_a_silent_autopilot_is_settled_by_readback(raw
                 break
         assert resent == FINAL_ACK_MISSES - 1 and time.monotonic() - t0 < 2.0
         raw_peer.send(mavlink.MAVLink_mission_count_message(1, 191, len(items), MISSION))
-        for seq in range(len(items)):
+        for _ in range(len(items)):
             req = await raw_peer.recv_type("MISSION_REQUEST_INT")
             raw_peer.send(_item_int(items[req.seq]))
         await asyncio.wait_for(upload, 2.0)  # confirmed by the readback
@@ -723,17 +723,17 @@ async def test_mavsdk_set_current_unconfirmed_by_mavsdk_is_sent_as_the_message(s
     scenario, mission, _ = rescue_static_mission()
     async with sim_cls(scenario, listen="udpin:127.0.0.1:0", speedup=10.0) as sim, \
             _mavsdk_client(sim, mission, shutdown_s=10.0) as client:
-        real = sim._server._on_set_current  # noqa: SLF001 - the autopilot's own handler, made hostile below
+        real = sim._server._on_set_current  # the autopilot's own handler, made hostile below
         calls: list[float] = []
 
         def deaf_at_first(seq: int) -> bool:  # nothing at all for 1.2 s after the first one: no MISSION_CURRENT
             calls.append(time.monotonic())
             return True if calls[-1] - calls[0] < 1.2 else real(seq)
 
-        sim._server._on_set_current = deaf_at_first  # noqa: SLF001
+        sim._server._on_set_current = deaf_at_first
         with caplog.at_level("WARNING", logger="companion.mavlink.mavsdk_backend"):
             await client.set_current(3)
-        assert sim._nav.current_seq == 3  # noqa: SLF001
+        assert sim._nav.current_seq == 3
         assert "sending MISSION_SET_CURRENT itself" in caplog.text and len(calls) >= 2
 
 

@@ -55,7 +55,7 @@ def _quickly(fifo: Path, call: Callable[[], object]) -> BaseException | None:
         try:
             call()
             out.append(None)
-        except BaseException as e:  # noqa: BLE001 - handed to the test
+        except BaseException as e:  # handed to the test
             out.append(e)
 
     thread = threading.Thread(target=run, daemon=True)

@@ -34,7 +34,7 @@ async def _upload(sim_key: SigningKey | None, link_key: SigningKey | None) -> tu
                 error = None
             except CompanionError as e:
                 error = e
-            return error, sim.mission, sim._transport._udp_parser.signing  # noqa: SLF001 (counters)
+            return error, sim.mission, sim._transport._udp_parser.signing  # counters
 
 
 def test_signed_link_uploads_and_verifies() -> None:
@@ -57,7 +57,7 @@ def test_a_wrong_key_is_refused_both_ways() -> None:
                 with pytest.raises(HeartbeatTimeout, match="signed with another key .* were dropped: check that "
                                    "both ends hold the same key"):  # the autopilot's messages fail our check
                     await link.wait_heartbeat(1.5)
-                return sim.mission, sim._transport._udp_parser.signing  # noqa: SLF001 (counters)
+                return sim.mission, sim._transport._udp_parser.signing  # counters
 
     stored, signing = asyncio.run(go())
     assert len(stored) == 1 and signing.badsig_count > 0 and signing.goodsig_count == 0
@@ -131,11 +131,11 @@ def test_signing_timestamps_go_on_across_a_reconnect() -> None:
 
     async def go() -> tuple[int, int, int, list[int]]:
         async with SimAutopilot(SC, "tcp:127.0.0.1:0", speedup=5.0, signing_key=KEY) as sim:
-            transport = sim._transport  # noqa: SLF001
+            transport = sim._transport
             transport._packer.signing.timestamp += ahead  # the vehicle's clock
             parsers = []  # one per TCP connection: what each rejected
 
-            def parser(*args: int, make=transport._mavlink):  # noqa: ANN202
+            def parser(*args: int, make=transport._mavlink):
                 parsers.append(make(*args))
                 return parsers[-1]
 
@@ -144,7 +144,7 @@ def test_signing_timestamps_go_on_across_a_reconnect() -> None:
                             heartbeat_timeout=0.8, reconnect_min=0.2, reconnect_max=0.5) as link:
                 await link.wait_heartbeat(3.0)
                 await asyncio.sleep(0.3)
-                learned = link._conn.mav.signing.timestamp  # noqa: SLF001
+                learned = link._conn.mav.signing.timestamp
                 sim.inject_outage(3.0)  # well past the heartbeat timeout, also on a loaded machine
                 for _ in range(100):
                     await asyncio.sleep(0.1)
@@ -153,7 +153,7 @@ def test_signing_timestamps_go_on_across_a_reconnect() -> None:
                 await link.wait_heartbeat(5.0)
                 client = MissionClient(link, timeout=0.3, retries=3)
                 await client.upload_verified(ITEMS)
-                return (learned, link._conn.mav.signing.timestamp, link.reconnects,  # noqa: SLF001
+                return (learned, link._conn.mav.signing.timestamp, link.reconnects,
                         [p.signing.badsig_count for p in parsers])
 
     learned, after, reconnects, rejected = asyncio.run(go())

@@ -1,6 +1,6 @@
-"""companion.mavlink.telemetry over real sockets on 127.0.0.1: the companion asks for its message rates once the autopilot
-is identified, again after every TCP reconnect and after a heartbeat loss, and carries on whatever the autopilot
-answers (or does not). A raw UDP peer and a small TCP server play the autopilot and record what they receive.
+"""companion.mavlink.telemetry over real sockets on 127.0.0.1: the companion asks for its message rates once the
+autopilot is identified, again after every TCP reconnect and after a heartbeat loss, and carries on whatever the
+autopilot answers (or does not). A raw UDP peer and a small TCP server play the autopilot and record what they receive.
 The last test does the same against a real ArduPlane SITL on SERIAL1 and measures the rates."""
 
 from __future__ import annotations

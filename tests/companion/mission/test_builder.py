@@ -1,4 +1,5 @@
-"""companion.mission.geo and companion.mission.builder: geodesy round trips, item encoding, mission layout per autopilot."""
+"""companion.mission.geo and companion.mission.builder: geodesy round trips, item encoding, mission layout per
+autopilot."""
 
 from __future__ import annotations
 

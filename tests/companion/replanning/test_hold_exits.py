@@ -48,7 +48,7 @@ def _only_exits_safe(rp: LiveReplanner) -> None:
     worker = rp.planning.worker
     real = worker.plan
 
-    async def plan(*args, **kwargs):  # noqa: ANN202
+    async def plan(*args, **kwargs):
         out = await real(*args, **kwargs)
         if rp.modes.planning_exit is None:
             return replace(out, status="infeasible", violations={"collision": 1})
@@ -57,14 +57,14 @@ def _only_exits_safe(rp: LiveReplanner) -> None:
     worker.plan = plan
 
 
-def _fly(doc: dict, during) -> tuple:  # noqa: ANN001
+def _fly(doc: dict, during) -> tuple:
     sc = load_scenario(DYNAMIC)
     out, records, rp, sim = asyncio.run(fly_on_sim(doc, sc, speedup=SPEEDUP, cfg=ReplanConfig(), seed=3,
                                                    during=during, flight_timeout=150.0))
     return sc, out, records, rp, sim
 
 
-def _kept_d_coll(sc, sim: SimAutopilot) -> None:  # noqa: ANN001
+def _kept_d_coll(sc, sim: SimAutopilot) -> None:
     seps = truth_separations(sim, sc)
     assert seps and min(s.separation for s in seps.values()) >= sc.hazard.d_coll, seps
 
@@ -136,7 +136,7 @@ def test_an_exit_whose_join_is_no_longer_clear_is_refused_and_planned_again(dyna
         real = rp.rejoin.leg_blocked
         refuse = [True]
 
-        def leg_blocked(seq: int, margin_m: float = rejoin.RESUME_MARGIN_M):  # noqa: ANN202
+        def leg_blocked(seq: int, margin_m: float = rejoin.RESUME_MARGIN_M):
             if margin_m == EXIT_CHECK_MARGIN_M and refuse:  # the exit's own check, once
                 refuse.pop()
                 return 4.0, "cylinders[3]"
@@ -159,7 +159,7 @@ def test_an_exit_passed_before_it_was_looked_at_is_planned_again_not_flown_late(
     does): the plane must not be resumed from there onto a route timed for the exit; it plans again."""
     async def during(sim: SimAutopilot, rp: LiveReplanner) -> None:
         _only_exits_safe(rp)
-        real = rp._leave_hold  # noqa: SLF001
+        real = rp._leave_hold
         starved, seen = [True], {}
 
         async def leave_hold(now: float) -> None:
@@ -181,7 +181,7 @@ def test_an_exit_passed_before_it_was_looked_at_is_planned_again_not_flown_late(
                 starved.pop()
             await real(now)
 
-        rp._leave_hold = leave_hold  # noqa: SLF001
+        rp._leave_hold = leave_hold
 
     sc, out, records, _rp, sim = _fly(dynamic_doc, during)
     assert out.completed, out.reason

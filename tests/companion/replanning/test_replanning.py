@@ -305,7 +305,7 @@ def _slow_first_plan(delay_s: float, guard: bool = True):
         real = worker.plan
         late = [delay_s]
 
-        async def plan(*args, **kwargs):  # noqa: ANN202
+        async def plan(*args, **kwargs):
             if late:
                 await asyncio.sleep(late.pop())
             return await real(*args, **kwargs)

@@ -120,7 +120,8 @@ SCENARIO = Path(__file__).resolve().parents[3] / "sitl_scenarios" / "rescue_dyna
 def _without_start_time(tmp_path: Path, meet: str) -> Path:
     text = re.sub(r"^start_time = .*$", "", SCENARIO.read_text(), count=1, flags=re.M)
     path = tmp_path / "case.toml"
-    path.write_text(re.sub(r"^meet = .*$", "", text, flags=re.M).replace("[[intruders]]", f"[[intruders]]\nmeet = {meet}", 1))
+    text = re.sub(r"^meet = .*$", "", text, flags=re.M)
+    path.write_text(text.replace("[[intruders]]", f"[[intruders]]\nmeet = {meet}", 1))
     return path
 
 

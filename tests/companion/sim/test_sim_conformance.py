@@ -51,7 +51,8 @@ async def _download_count(gcs: Client) -> int:
 # 16 INITIALISING, base_mode 17; STANDBY in MANUAL (base_mode 81) with "ArduPilot Ready" at 1.7 s. Copter first
 # HEARTBEAT 0.9 s system_status 1 BOOT, mode 0, base_mode 89; STANDBY (81) at 2.5 s. Until then a mission upload
 # gets MAV_MISSION_NO_SPACE + "Only 0 items are supported" (sent before the first HEARTBEAT: no answer at all), a
-# fence upload no answer until "ArduPilot Ready" (then its first MISSION_REQUEST), arming COMMAND_ACK FAILED + "Arm: System not initialised". After boot, until
+# fence upload no answer until "ArduPilot Ready" (then its first MISSION_REQUEST), arming COMMAND_ACK FAILED +
+# "Arm: System not initialised". After boot, until
 # home is set, a download says count 0 and arming fails with a pre-arm text ("Arm: AHRS: waiting for home" on the
 # plane, mostly "Arm: Gyros inconsistent" on the copter).
 BOOTING = {"plane": (mavlink.MAV_STATE_CALIBRATING, 16, 17), "copter": (mavlink.MAV_STATE_BOOT, 0, 89)}

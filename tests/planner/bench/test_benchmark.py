@@ -1,5 +1,6 @@
 """Benchmarks (pytest-benchmark). Off by default (runs once as a test); measure with
-``pytest tests/planner/bench/test_benchmark.py --benchmark-enable``. Speed targets live in the README, not in asserts."""
+``pytest tests/planner/bench/test_benchmark.py --benchmark-enable``. Speed targets live in the README, not in
+asserts."""
 
 from __future__ import annotations
 

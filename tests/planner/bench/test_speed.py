@@ -27,13 +27,13 @@ TINY = dataclasses.replace(
 
 
 @pytest.fixture(scope="module")
-def tiny_run(tmp_path_factory):  # noqa: ANN001, ANN201
+def tiny_run(tmp_path_factory):
     out = tmp_path_factory.mktemp("speed")
     records, reused = speed.run(TINY, out)
     return out, records, reused
 
 
-def test_every_part_runs_and_each_record_names_its_kernel_and_broad_phase(tiny_run) -> None:  # noqa: ANN001
+def test_every_part_runs_and_each_record_names_its_kernel_and_broad_phase(tiny_run) -> None:
     _, records, reused = tiny_run
     assert reused == 0 and len(records) == speed.n_jobs(TINY)
     head = [r for r in records if r["part"] == "headline"]
@@ -50,7 +50,7 @@ def test_every_part_runs_and_each_record_names_its_kernel_and_broad_phase(tiny_r
     assert {r["evaluations"] for r in spso} == {20 * 5} and {r["n_pop"] for r in spso} == {20}
 
 
-def test_costs_are_reproducible(tiny_run, tmp_path) -> None:  # noqa: ANN001
+def test_costs_are_reproducible(tiny_run, tmp_path) -> None:
     _, records, _ = tiny_run
     rep = speed.reproducible(records)
     assert rep["same_kernel"] and rep["groups"] > 0
@@ -65,7 +65,7 @@ def test_costs_are_reproducible(tiny_run, tmp_path) -> None:  # noqa: ANN001
     assert all(first[r["id"]] == r["cost"] for r in again)
 
 
-def test_report_has_headline_first_with_both_kernels_the_ratio_and_the_reference(tiny_run) -> None:  # noqa: ANN001
+def test_report_has_headline_first_with_both_kernels_the_ratio_and_the_reference(tiny_run) -> None:
     out, records, _ = tiny_run
     files = speed.report(out, records, TINY)
     assert [f.name for f in files] == ["speed.md", "speed.csv", "speed_runs.csv", "speed.png"]
@@ -88,7 +88,7 @@ def test_report_has_headline_first_with_both_kernels_the_ratio_and_the_reference
     assert "ratio" in csv[0].split(",") and any(line.startswith("reference,") for line in csv)
 
 
-def test_a_second_run_resumes_and_other_settings_are_refused(tiny_run) -> None:  # noqa: ANN001
+def test_a_second_run_resumes_and_other_settings_are_refused(tiny_run) -> None:
     out, records, _ = tiny_run
     again, reused = speed.run(TINY, out)
     assert reused == len(records) and again == records
@@ -96,13 +96,13 @@ def test_a_second_run_resumes_and_other_settings_are_refused(tiny_run) -> None: 
         speed.run(dataclasses.replace(TINY, seed_base=7), out)
 
 
-def test_jsonl_records_are_json_lines(tiny_run) -> None:  # noqa: ANN001
+def test_jsonl_records_are_json_lines(tiny_run) -> None:
     out, records, _ = tiny_run
     lines = (out / "speed.jsonl").read_text().splitlines()
     assert {json.loads(line)["id"] for line in lines} == {r["id"] for r in records}
 
 
-def test_command_line_runs_the_chosen_parts(tmp_path) -> None:  # noqa: ANN001
+def test_command_line_runs_the_chosen_parts(tmp_path) -> None:
     from companion.cli import main
 
     assert main(["bench", "speed", "--quick", "--parts", "headline,reference", "--runs", "1", "-o", str(tmp_path),
@@ -179,7 +179,7 @@ def test_reference_cost_by_hand() -> None:
 
 
 # --- the polygons part: prisms against cylinders of the same size ---------------------------------------------------
-def test_polygon_field_is_the_cylinder_field_drawn_as_polygons(tiny_run) -> None:  # noqa: ANN001
+def test_polygon_field_is_the_cylinder_field_drawn_as_polygons(tiny_run) -> None:
     f = speed.FieldSettings(count=30)
     for roofed in (False, True):
         cyl = speed.obstacle_field("cylinders", roofed, 7, f).cylinders

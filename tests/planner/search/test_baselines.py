@@ -24,7 +24,7 @@ OPTIMISERS = {"pso": CartesianPSO, "qpso": QPSO, "psogsa": PSOGSA, "bpso": BPSO}
 
 
 @pytest.fixture(scope="module")
-def rescue():  # noqa: ANN201
+def rescue():
     sc = load_scenario(Path(__file__).resolve().parents[3] / "sitl_scenarios" / "rescue_static.toml")
     small = dataclasses.replace(sc.planner.pso, n_pop=60, max_iter=30)
     return problem_from_scenario(sc), small

@@ -68,7 +68,7 @@ def warm() -> None:
 
 
 @pytest.fixture(scope="module")
-def static():  # noqa: ANN201
+def static():
     sc = load_scenario(SCENARIOS / "rescue_static.toml", ["planner.pso.n_pop=30"])
     return sc, problem_from_scenario(sc)
 
@@ -121,7 +121,7 @@ def test_run_swarm_on_an_injected_clock_stops_before_the_iteration_that_would_ov
     enc = make_encoding(problem, cfg)
     rng = np.random.default_rng(0)
 
-    def step(it: int, st) -> np.ndarray:  # noqa: ANN001
+    def step(it: int, st) -> np.ndarray:
         return np.clip(st.x + 0.01 * (enc.hi - enc.lo) * rng.standard_normal(st.x.shape), enc.lo, enc.hi)
 
     x0 = initial_swarm(enc, rng, cfg.n_pop)

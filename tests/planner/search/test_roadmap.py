@@ -304,7 +304,7 @@ def test_an_infeasible_pipeline_route_gives_way_to_the_papers_feasible_one(monke
     ev = pb.evaluate(straight[None])
     assert ev.n_violations[0] > 0
 
-    def failing_pipeline(self, problem, rng, initial_paths, deadline, progress, t0):  # noqa: ANN001, ANN202
+    def failing_pipeline(self, problem, rng, initial_paths, deadline, progress, t0):
         return FusionResult(straight, float(ev.total[0]), ev, [float(ev.total[0])], 1, "max_iterations", 0.01, 1,
                             None, {"roadmap": PhaseRecord(math.nan, 1, 0.01, 0, "1 routes at 25 m resolution"),
                                    "pso": PhaseRecord(float(ev.total[0]), 1, 0.01, 1, "max_iterations")}, "pso")

@@ -41,7 +41,7 @@ def cylinders(rows) -> Cylinders:
 
 
 def check(path, env: Environment, vehicle: VehicleLimits = VEH, timed: bool = False, t0: float = 0.0,
-          spacing: float = SPACING):  # noqa: ANN001, ANN201
+          spacing: float = SPACING):
     path = np.asarray(path, dtype=float)
     traj = smooth(path, spacing, vehicle.cruise_speed, t0)
     return check_trajectory(traj, path, env, HAZ, vehicle, timed=timed)

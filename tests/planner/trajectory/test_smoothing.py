@@ -286,7 +286,7 @@ def test_climb_angle_values():
     np.testing.assert_allclose(climb_angle(v), [0.0, math.pi / 4, -math.pi / 3, math.pi / 2], atol=1e-15)
 
 
-def _climb_check(r1, r2, g1, g2, head1, turn):  # noqa: ANN001, ANN202
+def _climb_check(r1, r2, g1, g2, head1, turn):
     u = direction(g1, head1)
     v = direction(g2, head1 + turn)
     path = np.array([[0.0, 0.0, 0.0], r1 * u, r1 * u + r2 * v])

@@ -67,13 +67,13 @@ def assert_exact(prisms: Prisms, a: np.ndarray, b: np.ndarray) -> None:
 
 @SETTINGS
 @given(point, point, st.lists(LEVELS, min_size=4, max_size=4), st.lists(CEILINGS, min_size=4, max_size=4))
-def test_segment_clearance_is_exact_to_the_sampler(a, b, floors, ceilings) -> None:  # noqa: ANN001
+def test_segment_clearance_is_exact_to_the_sampler(a, b, floors, ceilings) -> None:
     assert_exact(prisms_of(floors, ceilings), a, b)
 
 
 @SETTINGS
 @given(point, point)
-def test_keep_in_clearance_is_exact_to_the_sampler(a, b) -> None:  # noqa: ANN001
+def test_keep_in_clearance_is_exact_to_the_sampler(a, b) -> None:
     fence = Prisms.from_polygons([SHAPES[0] * 1.2 - 40.0, SHAPES[1] + 10.0], [-np.inf] * 2, [np.inf] * 2,
                                  [True, True])
     assert_exact(fence, a, b)
