@@ -79,6 +79,7 @@ async def _rates_answered(rates: TelemetryRates) -> None:
 @dataclass
 class FlyOptions:
     connect: str | None = None  # pymavlink URL of a real autopilot / SITL
+    baud: int = 57600  # a serial --connect's baud rate (a URL's own ,BAUD wins)
     sim: bool = False
     speedup: float = 1.0
     sim_loss: float = 0.0
@@ -258,7 +259,7 @@ def _link(url: str, opts: FlyOptions) -> Link:
     if opts.backend == "mavsdk":
         return MavsdkLink(url, source_system=opts.source_system, open_timeout=10.0)
     return Link(url, source_system=opts.source_system, open_timeout=10.0, signing_key=opts.signing_key,
-                target_system=opts.target_system)
+                target_system=opts.target_system, baud=opts.baud)
 
 
 def _write_mission_files(report: Path, plan_doc: dict[str, Any], scenario: Scenario, items: list, spec: Any,
