@@ -15,11 +15,12 @@ import math
 import sys
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from companion.flight import HEARTBEAT_WAIT_S
+from companion.mission.events import BY_NAME, ENDINGS, Event, Tone
 from planner import cli as planner_cli
 from planner import console
 from planner.cli import (
@@ -42,7 +43,9 @@ from planner.errors import FuseplanError, PlanRefused
 from planner.world.config import ALGORITHM_NAMES
 
 if TYPE_CHECKING:
+    from companion.mavlink.signing import SigningKey
     from companion.replanning.replan import ReplanConfig
+    from companion.status import Bind
 
 SCENARIOS = Path(__file__).resolve().parent.parent / "sitl_scenarios"
 
@@ -237,7 +240,7 @@ class StatusArgs:
         where = ns.serve if option == "--serve" else ns.status_page
         return cls(where, ns.status_token, tuple(ns.status_host or ()), ns.insecure_key_file, option)
 
-    def bind(self) -> tuple[object, str | None] | None:
+    def bind(self) -> tuple[Bind, str | None] | None:
         """(Bind, token), checked before any work; None when no page was asked for."""
         from companion.status import Bind, read_token
 
@@ -268,7 +271,7 @@ class SigningArgs:
     def given(self) -> bool:
         return self.key_file is not None or self.passphrase_file is not None
 
-    def key(self) -> object:
+    def key(self) -> SigningKey | None:
         from companion.mavlink.signing import key_from_files
 
         return key_from_files(self.key_file, self.passphrase_file, self.insecure_key_file)
@@ -669,7 +672,7 @@ def _check_report_dir(report: Path) -> None:
         raise FuseplanError(f"{report}: cannot create the report directory under {parent}")
 
 
-def _vehicle_world(args: FlyArgs, scenario: Path, key: object) -> tuple[object, Path]:
+def _vehicle_world(args: FlyArgs, scenario: Path, key: SigningKey | None) -> tuple[Any, Path]:
     """``--fence-from-vehicle`` / ``--goal-from-vehicle``: the fence, rally points and mission the operator left on
     the vehicle, downloaded over a link of its own before planning (read back by each autopilot's rules), written
     to the report as ``vehicle_world.json``; returns it and the scenario to plan: ``scenario`` with them."""
@@ -791,7 +794,7 @@ def cmd_fly(args: FlyArgs) -> int:
                                                       feasible_only=False, for_flight=True)))
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
     if world is not None:
-        events.log("vehicle_world", source=str(world.source), zones=[z.name for z in world.zones],
+        events.log(Event.VEHICLE_WORLD, source=str(world.source), zones=[z.name for z in world.zones],
                    rally=len(world.rally), goal=None if world.goal is None else [world.goal.lat, world.goal.lon],
                    scenario=str(scenario))
     try:
@@ -804,12 +807,12 @@ def cmd_fly(args: FlyArgs) -> int:
             flight = asyncio.run(serve_flight(lambda: fly(doc, sc, opts, events), events, bind, token,
                                               lambda url: _announce(url, token)))
     except CompanionError as e:  # before the vehicle was armed (after it, fly reports the flight as it went)
-        events.log("failed", error=str(e))
+        events.log(Event.FAILED, error=str(e))
         write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e)}, indent=1) + "\n")
         print(f"fuseplan: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT if isinstance(e, FenceTooLarge) else EXIT_LINK  # the user's zones, not the link
     except KeyboardInterrupt:
-        events.log("aborted", reason="interrupted by the user")
+        events.log(Event.ABORTED, reason="interrupted by the user")
         write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": "interrupted"}) + "\n")
         print("fuseplan: interrupted; the vehicle keeps its current mode and mission", file=sys.stderr)
         return 130
@@ -837,38 +840,28 @@ def cmd_fly(args: FlyArgs) -> int:
     return EXIT_OK
 
 
-_ECHOED = ("reached", "statustext", "mode", "armed", "upload_verified", "mission_start", "ready", "connected",
-           "finished", "timeout", "arm_refused", "waiting_for_pilot_arm", "failed", "track",
-           "track_expired", "conflict_predicted", "hold", "resume", "threat_cleared", "replan_upload_failed",
-           "set_current", "replanner_failed", "upload_failed", "backup_failed", "mission_restored",
-           "mission_restore_failed", "link_lost", "link_restored", "resync", "resync_mismatch", "booting", "booted")
-
-
-_STYLES = {"conflict": "bold red", "conflict_predicted": "red", "replan_planned": "yellow", "replanned": "green",
-           "failed": "bold red", "upload_failed": "red", "replan_upload_failed": "red", "link_lost": "red",
-           "arm_refused": "red", "timeout": "red", "finished": "bold green", "hold": "yellow", "resume": "green",
-           "link_restored": "green", "mission_start": "cyan", "upload_verified": "cyan"}  # on a terminal only
+_STYLES = {Tone.BAD: "red", Tone.WARN: "yellow", Tone.GOOD: "green"}  # rich styles, on a terminal only
 
 
 def _echo_event(rec: dict) -> None:
     """Progress lines for the events a person watching the flight cares about; replans spelled out."""
-    e = rec["event"]
+    e = BY_NAME[rec["event"]]
+    if not e.echoed:
+        return
     detail = {k: v for k, v in rec.items() if k not in ("t", "event")}
-    if e == "conflict":
+    if e == Event.CONFLICT:
         text = (f"CONFLICT with {rec['threat']} in {rec['in_s']:.1f} s: predicted separation "
                 f"{rec['separation_m']:.1f} m (d_coll {rec['d_coll_m']:g} m) -> replan {rec['n']}")
-    elif e == "replan_planned":
+    elif e == Event.REPLAN_PLANNED:
         text = (f"replan {rec['n']}: {rec['status']} in {rec['plan_s']:.3f} s from {rec['commit']}, "
                 f"{rec['waypoints']} waypoints, predicted separation {rec['separation_after_m']:.1f} m")
-    elif e == "replanned":
+    elif e == Event.REPLANNED:
         text = (f"replan {rec['n']}: new mission current {rec['latency_s']:.3f} s after the conflict was seen "
                 f"(plan {rec['plan_s']:.3f} s, upload+verify+set-current {rec['upload_s']:.3f} s"
                 f"{', vehicle held meanwhile' if rec['held'] else ''})")
-    elif e in _ECHOED:
-        text = f"{e} " + " ".join(f"{k}={v}" for k, v in detail.items())
     else:
-        return
-    console.say(f"  [{rec['t']:6.1f} s] {text}".rstrip(), _STYLES.get(e))
+        text = f"{e} " + " ".join(f"{k}={v}" for k, v in detail.items())
+    console.say(f"  [{rec['t']:6.1f} s] {text}".rstrip(), _STYLES.get(e.tone))
 
 
 def cmd_sim(args: SimArgs) -> int:
@@ -933,8 +926,8 @@ def _summarise_report(directory: Path, records: list[dict]) -> int:
         flight = json.loads((directory / "flight.json").read_text())
     except (OSError, ValueError):
         flight = {}
-    scene = next((r for r in records if r["event"] == "scene"), {})
-    done = next((r for r in reversed(records) if r["event"] in ("finished", "failed", "aborted")), None)
+    scene = next((r for r in records if r["event"] == Event.SCENE), {})
+    done = next((r for r in reversed(records) if r["event"] in ENDINGS), None)
     print(f"{directory}: {scene.get('name', 'unknown scenario')}, {len(records)} events over "
           f"{records[-1]['t'] if records else 0:.1f} s")
     if done is not None:

@@ -140,7 +140,8 @@ class Event(StrEnum):
 
 
 ENDINGS = frozenset({Event.FINISHED, Event.FAILED, Event.ABORTED})  # the last word on a flight
-NAMES: frozenset[str] = frozenset(e.value for e in Event)
+BY_NAME: dict[str, Event] = {e.value: e for e in Event}
+NAMES = frozenset(BY_NAME)
 
 
 class EventLog:
