@@ -66,7 +66,8 @@ def _parser() -> argparse.ArgumentParser:
                                 formatter_class=planner_cli.HelpFormatter)
     p.add_argument("--version", action="version", version=f"%(prog)s {_version()}",
                    help="print fuseplan's version and exit")
-    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                           help="what to do (`fuseplan COMMAND --help`: its options)")
     planner_parsers = planner_cli.add_commands(sub)
     planner_parsers["plan"].set_defaults(func=command(PlanArgs, cmd_plan))
     planner_parsers["bench"].set_defaults(func=command(CompanionBenchArgs, cmd_bench))

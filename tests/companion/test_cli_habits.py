@@ -59,8 +59,7 @@ def test_v_and_q_work_before_and_after_every_subcommand(name: str, flag: str, de
 
 
 def _options(parser: argparse.ArgumentParser) -> list[tuple[str, argparse.Action]]:
-    found = [(parser.prog, a) for a in parser._actions
-             if not isinstance(a, (argparse._HelpAction, argparse._SubParsersAction))]
+    found = [(parser.prog, a) for a in parser._actions if not isinstance(a, argparse._HelpAction)]
     for sub in _subparsers(parser).values():
         found += [(sub.prog, a) for a in sub._actions if not isinstance(a, argparse._HelpAction)]
     return found
