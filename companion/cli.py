@@ -13,62 +13,91 @@ import json
 import logging
 import math
 import sys
+from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from companion.flight import HEARTBEAT_WAIT_S
+from companion.mission.events import BY_NAME, ENDINGS, Event, Tone
 from planner import cli as planner_cli
 from planner import console
 from planner.cli import (
     EXIT_BAD_INPUT,
     EXIT_INFEASIBLE,
     EXIT_OK,
+    BenchArgs,
+    PlanArgs,
+    SourceArgs,
+    add_command,
     add_paper_option,
+    add_set_option,
     check_writable,
+    command,
     mode_overrides,
+    options_from,
     write_text,
 )
 from planner.distribution import shipped_scenarios
 from planner.errors import FuseplanError, PlanRefused
-from planner.world.config import ALGORITHM_NAMES, PAPER_MODE
+from planner.world.config import ALGORITHM_NAMES
 
 if TYPE_CHECKING:
+    from companion.mavlink.signing import SigningKey
     from companion.replanning.replan import ReplanConfig
+    from companion.status import Bind
 
 SCENARIOS = shipped_scenarios()
 
 
+def _version() -> str:
+    """The installed distribution's version (``fuseplan --version``)."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("fuseplan")
+    except PackageNotFoundError:  # a source tree that was never installed
+        return "unknown (not installed)"
+
+
 def _parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(prog="fuseplan", description="Plan safe 3-D UAV routes and fly them over MAVLink.")
-    p.add_argument("-v", "--verbose", action="store_true", help="debug logging")
-    sub = p.add_subparsers(dest="command", required=True)
+    p = argparse.ArgumentParser(prog="fuseplan", description="Plan safe 3-D UAV routes and fly them over MAVLink.",
+                                parents=[planner_cli.verbosity_options(top=True)],
+                                formatter_class=planner_cli.HelpFormatter)
+    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}",
+                   help="print fuseplan's version and exit")
+    sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND",
+                           help="what to do (`fuseplan COMMAND --help`: its options)")
     planner_parsers = planner_cli.add_commands(sub)
-    ex = sub.add_parser("export", help="write a mission file (.waypoints, QGroundControl .plan, GeoJSON)")
+    planner_parsers["plan"].set_defaults(func=command(PlanArgs, cmd_plan))
+    planner_parsers["bench"].set_defaults(func=command(CompanionBenchArgs, cmd_bench))
+    ex = add_command(sub, "export", "write a mission file (.waypoints, QGroundControl .plan, GeoJSON)",
+                     command(ExportArgs, cmd_export))
     ex.add_argument("source", type=Path, help="a scenario TOML or a ground station's mission (planned first), "
                     "or a PLAN.json")
-    ex.add_argument("--format", required=True, choices=("waypoints", "plan", "geojson"))
-    ex.add_argument("-o", "--output", type=Path, required=True)
+    ex.add_argument("--format", required=True, choices=("waypoints", "plan", "geojson"),
+                    help="the file written: Mission Planner .waypoints, QGroundControl .plan or GeoJSON")
+    ex.add_argument("-o", "--output", type=Path, required=True, help="the mission file to write")
     ex.add_argument("--autopilot", choices=("ardupilot", "px4", "px4-vtol"), default="ardupilot",
-                    help="the mission layout: ArduPilot, PX4, or a PX4 VTOL (VTOL take-off and landing; default "
-                         "ardupilot)")
+                    help="the mission layout: ArduPilot, PX4, or a PX4 VTOL (VTOL take-off and landing)")
     ex.add_argument("--scenario", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
     ex.add_argument("--densify", action="store_true", help="add points of the smoothed trajectory")
-    ex.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
-    ex.add_argument("--seed", type=int, default=None)
+    add_set_option(ex, "override a scenario value when planning (repeatable)")
+    ex.add_argument("--seed", type=int, default=None, help="random seed when planning (default: the scenario's)")
     add_paper_option(ex)
     ex.add_argument("--force", action="store_true",
                     help="write a PLAN.json that fails its check against the scenario anyway, marked UNCHECKED in "
                          "the file (never for flying)")
     planner_cli.add_source_options(ex)
-    fl = sub.add_parser("fly", help="plan, upload, start and monitor a mission over MAVLink")
+    fl = add_command(sub, "fly", "plan, upload, start and monitor a mission over MAVLink", command(FlyArgs, cmd_fly))
     fl.add_argument("scenario", type=Path, help="scenario TOML or a ground station's mission (planned now), or a "
                     "PLAN.json")
     where = fl.add_mutually_exclusive_group(required=True)
     where.add_argument("--connect", metavar="URL", help="autopilot link, e.g. tcp:127.0.0.1:5760 (ArduPilot SITL), "
-                       "udpin:0.0.0.0:14550, /dev/ttyACM0")
+                       "udpin:0.0.0.0:14550, /dev/ttyACM0 (with --baud, or /dev/ttyACM0,BAUD)")
     where.add_argument("--sim", action="store_true", help="fly on the built-in simulated autopilot (arming implied)")
+    _baud_option(fl)
     fl.add_argument("--speedup", type=float, default=1.0, help="simulator speed-up (with --sim)")
     fl.add_argument("--sim-loss", type=float, default=0.0, help="simulator packet loss probability (with --sim)")
     fl.add_argument("--arm", action="store_true", help="let the companion arm the vehicle (never without this)")
@@ -84,7 +113,7 @@ def _parser() -> argparse.ArgumentParser:
                     "receiver (component 156) on this spare MAVLink port of it, e.g. tcp:127.0.0.1:5763 (SITL "
                     "SERIAL2), and measure separation from its positions")
     fl.add_argument("--backend", choices=("pymavlink", "mavsdk"), default="pymavlink",
-                    help="how the companion talks to the autopilot: its own pymavlink link (default), or MAVSDK "
+                    help="how the companion talks to the autopilot: its own pymavlink link, or MAVSDK "
                     "(mission_raw, action, mavlink_direct); planning, replanning and the report stay the same")
     fl.add_argument("--flight-timeout", type=float, default=None, metavar="S",
                     help="wall seconds to supervise the flight before reporting it incomplete (exit 5; the vehicle "
@@ -96,11 +125,11 @@ def _parser() -> argparse.ArgumentParser:
                          "HEARTBEATs from a second autopilot refuse the flight before any upload")
     fl.add_argument("--report", type=Path, default=Path("fuseplan-report"), help="report directory")
     fl.add_argument("--scenario-file", type=Path, help="the scenario of a PLAN.json (default: the one it names)")
-    fl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
-    fl.add_argument("--seed", type=int, default=None)
-    fl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None)
+    add_set_option(fl, "override a scenario value when planning (repeatable)")
+    fl.add_argument("--seed", type=int, default=None, help="random seed when planning (default: the scenario's)")
+    fl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None,
+                    help="optimiser of the first plan (default: the scenario's planner.algorithm, else fusion)")
     add_paper_option(fl)
-    fl.add_argument("-q", "--quiet", action="store_true")
     planner_cli.add_source_options(fl)
     fl.add_argument("--fence-from-vehicle", action="store_true",
                     help="download the fence (and rally points) the operator uploaded with a ground station and plan "
@@ -108,11 +137,11 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--goal-from-vehicle", action="store_true",
                     help="the goal is the last navigation item of the mission on the vehicle (with --connect)")
     _status_options(fl)
-    sm = sub.add_parser("sim", help="run the built-in simulated autopilot alone")
-    sm.add_argument("scenario", type=Path)
+    sm = add_command(sub, "sim", "run the built-in simulated autopilot alone", command(SimArgs, cmd_sim))
+    sm.add_argument("scenario", type=Path, help="the scenario TOML whose vehicle, home and intruders are simulated")
     sm.add_argument("--listen", default="udpin:127.0.0.1:14550", help="udpin:HOST:PORT or tcp:HOST:PORT "
                     "(loopback unless you name another address)")
-    sm.add_argument("--speedup", type=float, default=1.0)
+    sm.add_argument("--speedup", type=float, default=1.0, help="simulated seconds per wall second")
     sm.add_argument("--loss", type=float, default=0.0, help="packet loss probability")
     sm.add_argument("--latency", type=float, default=0.0, help="extra outgoing latency, s")
     _signing_options(sm)
@@ -126,10 +155,10 @@ def _parser() -> argparse.ArgumentParser:
                          "instead of the roadmap pipeline, for comparison")
     bn.add_argument("--cpu-hog", type=int, default=0, metavar="N",
                     help="bench replan and bench flights: N busy processes beside the flights (deadlines under "
-                         "load, issue 16; default 0)")
+                         "load, issue 16)")
     bn.add_argument("--backend", choices=("sim", "sitl-plane", "sitl-copter", "px4", "px4-vtol"), default="sim",
                     help="bench flights only: what flies: the built-in simulator (20x), ArduPilot SITL plane or "
-                         "copter (10x), PX4 SITL quadrotor or standard VTOL (10x) (default sim)")
+                         "copter (10x), PX4 SITL quadrotor or standard VTOL (10x)")
     bn.add_argument("--scenarios", default=None, metavar="A,B",
                     help="bench flights only: comma-separated subset of the shipped scenarios with moving threats "
                          "(default: all of them)")
@@ -141,12 +170,13 @@ def _parser() -> argparse.ArgumentParser:
     bn.add_argument("--sitl-dir", type=Path, default=None, metavar="DIR",
                     help="bench flights only: the autopilot's folder (default $FUSEPLAN_SITL_DIR for ArduPilot, "
                          "$FUSEPLAN_PX4_DIR for PX4)")
-    dm = sub.add_parser("demo", help="plan the dynamic rescue scenario and fly it on the built-in simulated "
-                        "autopilot at 20x, replanning around an intruder")
+    dm = add_command(sub, "demo", "plan the dynamic rescue scenario and fly it on the built-in simulated autopilot "
+                     "at 20x, replanning around an intruder", command(DemoArgs, cmd_demo))
     _status_options(dm)
     dm.add_argument("--insecure-key-file", action="store_true",
                     help="use a --status-token file that other users can read (with a warning)")
-    rp = sub.add_parser("report", help="summarise a `fuseplan fly` report directory, or serve its status page")
+    rp = add_command(sub, "report", "summarise a `fuseplan fly` report directory, or serve its status page",
+                     command(ReportArgs, cmd_report))
     rp.add_argument("directory", type=Path, help="the report directory (holds events.jsonl, flight.json)")
     rp.add_argument("--serve", nargs="?", const=STATUS_DEFAULT, metavar="[HOST:]PORT",
                     help=f"serve the flight's status page until Ctrl-C (default {STATUS_DEFAULT})")
@@ -160,6 +190,12 @@ def _parser() -> argparse.ArgumentParser:
 
 
 STATUS_DEFAULT = "127.0.0.1:8765"
+DEFAULT_BAUD = 57600  # SiK telemetry radios and most autopilots' TELEM ports
+
+
+def _baud_option(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--baud", type=int, default=DEFAULT_BAUD, metavar="N",
+                   help="serial links: the port's baud rate (a URL's own ,BAUD wins); ignored on network links")
 
 
 def _signing_options(p: argparse.ArgumentParser) -> None:
@@ -188,22 +224,182 @@ def _status_options(p: argparse.ArgumentParser) -> None:
                         "gets 421")
 
 
-def _status_bind(args: argparse.Namespace, option: str = "status_page") -> tuple[object, str | None] | None:
-    """(Bind, token) for the status page options, checked before any work; None when no page was asked for."""
-    from companion.status import Bind, read_token
+# -- the commands' options: one dataclass each, built from the parsed arguments in its from_args -----------------
 
-    where = getattr(args, option, None)
-    token_file = getattr(args, "status_token", None)
-    hosts = getattr(args, "status_host", None) or []
-    if where is None:
-        for given, name in ((token_file, "--status-token"), (hosts, "--status-host")):
-            if given:
-                raise FuseplanError(f"{name} goes with " + ("--serve" if option == "serve" else "--status-page"))
-        return None
-    bind = Bind.parse(where, hosts)
-    token = read_token(token_file, bind, getattr(args, "insecure_key_file", False))
-    bind.check_free()
-    return bind, token
+
+@dataclass(frozen=True)
+class StatusArgs:
+    """The status page's options (fly, demo: ``--status-page``; report: ``--serve``)."""
+
+    where: str | None = None
+    token_file: Path | None = None
+    hosts: tuple[str, ...] = ()
+    insecure_key_file: bool = False
+    option: str = "--status-page"  # what the page is asked for with, for messages
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace, option: str = "--status-page") -> StatusArgs:
+        where = ns.serve if option == "--serve" else ns.status_page
+        return cls(where, ns.status_token, tuple(ns.status_host or ()), ns.insecure_key_file, option)
+
+    def bind(self) -> tuple[Bind, str | None] | None:
+        """(Bind, token), checked before any work; None when no page was asked for."""
+        from companion.status import Bind, read_token
+
+        if self.where is None:
+            for given, name in ((self.token_file, "--status-token"), (self.hosts, "--status-host")):
+                if given:
+                    raise FuseplanError(f"{name} goes with {self.option}")
+            return None
+        bind = Bind.parse(self.where, list(self.hosts))
+        token = read_token(self.token_file, bind, self.insecure_key_file)
+        bind.check_free()
+        return bind, token
+
+
+@dataclass(frozen=True)
+class SigningArgs:
+    """``--signing-key`` / ``--signing-passphrase`` (fly, sim)."""
+
+    key_file: Path | None = None
+    passphrase_file: Path | None = None
+    insecure_key_file: bool = False
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> SigningArgs:
+        return cls(ns.signing_key, ns.signing_passphrase, ns.insecure_key_file)
+
+    @property
+    def given(self) -> bool:
+        return self.key_file is not None or self.passphrase_file is not None
+
+    def key(self) -> SigningKey | None:
+        from companion.mavlink.signing import key_from_files
+
+        return key_from_files(self.key_file, self.passphrase_file, self.insecure_key_file)
+
+
+@dataclass(frozen=True)
+class FlyArgs:
+    """``fuseplan fly``; the defaults are the parser's (``demo`` builds one directly)."""
+
+    scenario: Path
+    connect: str | None = None
+    sim: bool = False
+    baud: int = DEFAULT_BAUD
+    speedup: float = 1.0
+    sim_loss: float = 0.0
+    arm: bool = False
+    no_fence: bool = False
+    densify: bool = False
+    signing: SigningArgs = SigningArgs()
+    no_replan: bool = False
+    replan_budget: float | None = None
+    traffic: str | None = None
+    backend: str = "pymavlink"
+    flight_timeout: float | None = None
+    heartbeat_timeout: float | None = None
+    target_system: int | None = None
+    report: Path = Path("fuseplan-report")
+    scenario_file: Path | None = None
+    overrides: tuple[str, ...] = ()
+    seed: int | None = None
+    algorithm: str | None = None
+    paper: bool = False
+    quiet: bool = False
+    sources: SourceArgs = SourceArgs()
+    fence_from_vehicle: bool = False
+    goal_from_vehicle: bool = False
+    status: StatusArgs = StatusArgs()
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> FlyArgs:
+        return options_from(cls, ns, overrides=tuple(ns.overrides), signing=SigningArgs.from_args(ns),
+                            sources=SourceArgs.from_args(ns), status=StatusArgs.from_args(ns))
+
+
+@dataclass(frozen=True)
+class DemoArgs:
+    """``fuseplan demo``."""
+
+    quiet: bool
+    status: StatusArgs
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> DemoArgs:
+        return cls(ns.quiet, StatusArgs.from_args(ns))
+
+
+@dataclass(frozen=True)
+class SimArgs:
+    """``fuseplan sim``."""
+
+    scenario: Path
+    listen: str
+    speedup: float
+    loss: float
+    latency: float
+    quiet: bool
+    signing: SigningArgs
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> SimArgs:
+        return options_from(cls, ns, signing=SigningArgs.from_args(ns))
+
+
+@dataclass(frozen=True)
+class ExportArgs:
+    """``fuseplan export``."""
+
+    source: Path
+    format: str
+    output: Path
+    autopilot: str
+    scenario: Path | None
+    densify: bool
+    overrides: tuple[str, ...]
+    seed: int | None
+    paper: bool
+    force: bool
+    quiet: bool
+    sources: SourceArgs
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> ExportArgs:
+        return options_from(cls, ns, overrides=tuple(ns.overrides), sources=SourceArgs.from_args(ns))
+
+
+@dataclass(frozen=True)
+class ReportArgs:
+    """``fuseplan report``."""
+
+    directory: Path
+    quiet: bool
+    status: StatusArgs
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> ReportArgs:
+        return cls(ns.directory, ns.quiet, StatusArgs.from_args(ns, "--serve"))
+
+
+@dataclass(frozen=True)
+class CompanionBenchArgs:
+    """``fuseplan bench NAME``: the planner's options and the companion benches' (replan, flights)."""
+
+    planner: BenchArgs
+    speedup: float
+    whole: bool
+    replan_paper: bool
+    cpu_hog: int
+    backend: str
+    scenarios: str | None
+    no_replan_too: bool
+    replan_budget: float | None
+    sitl_dir: Path | None
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> CompanionBenchArgs:
+        return options_from(cls, ns, planner=BenchArgs.from_args(ns))
 
 
 def _announce(url: str, token: str | None) -> None:
@@ -213,44 +409,53 @@ def _announce(url: str, token: str | None) -> None:
 REPLAN_BENCH_SCENARIOS = ("rescue_dynamic.toml", "crossing_traffic.toml")
 
 
-def cmd_bench_replan(args: argparse.Namespace) -> int:
+def cmd_bench(args: CompanionBenchArgs) -> int:
+    """``fuseplan bench NAME``: the companion's benches by name, else the planner's."""
+    own = {"replan": cmd_bench_replan, "flights": cmd_bench_flights}
+    run = own.get(args.planner.name)
+    return run(args) if run is not None else planner_cli.cmd_bench(args.planner, other_benches=tuple(own))
+
+
+def cmd_bench_replan(args: CompanionBenchArgs) -> int:
     """Replan latency on the simulated autopilot (companion.flight.latency_bench)."""
     from companion.flight.latency_bench import run_flight_bench, run_latency_bench
     from companion.replanning.replan import ReplanConfig
 
-    planner_cli.local_only(args, "bench replan")
-    runs = 5 if args.runs is None else args.runs
-    hog = getattr(args, "cpu_hog", 0)
+    bench = args.planner
+    planner_cli.local_only(bench.executor, "bench replan")
+    runs = 5 if bench.runs is None else bench.runs
+    hog = args.cpu_hog
     if runs < 1 or not (math.isfinite(args.speedup) and args.speedup > 0) or hog < 0:
         raise FuseplanError("--runs must be >= 1, --speedup a finite number > 0 and --cpu-hog >= 0")
-    paper = getattr(args, "replan_paper", False)  # the first routes and the replans by the paper's planners
-    plans = [_plan_doc_for(SCENARIOS / name, None, list(args.overrides) + ([PAPER_MODE] if paper else []), None,
+    paper = args.replan_paper  # the first routes and the replans by the paper's planners
+    plans = [_plan_doc_for(SCENARIOS / name, None, list(bench.overrides) + mode_overrides(paper), None,
                            for_flight=True)
              for name in REPLAN_BENCH_SCENARIOS]
-    say = (lambda _t: None) if args.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
-    whole = getattr(args, "whole", False)
+    say = (lambda _t: None) if bench.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
+    whole = args.whole
     say(f"bench replan: {len(plans)} scenarios × {runs} flights at {args.speedup:g}× "
         + ("to the end" if whole else "until the first replan") + (f", {hog} busy processes beside" if hog else ""))
     try:
         cfg = ReplanConfig(roadmap=not paper)
         if whole:
-            run_flight_bench(plans, runs, args.speedup, args.output, cfg, progress=say, hog=hog)
+            run_flight_bench(plans, runs, args.speedup, bench.output, cfg, progress=say, hog=hog)
         else:
-            run_latency_bench(plans, runs, args.speedup, args.output, cfg, progress=say, hog=hog)
+            run_latency_bench(plans, runs, args.speedup, bench.output, cfg, progress=say, hog=hog)
     except OSError as e:
-        raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
-    console.show_markdown((args.output / ("replan_flights.md" if whole else "replan.md")).read_text())
+        raise FuseplanError(f"{bench.output}: cannot write results: {e.strerror or e}") from e
+    console.show_markdown((bench.output / ("replan_flights.md" if whole else "replan.md")).read_text())
     return EXIT_OK
 
 
-def cmd_bench_flights(args: argparse.Namespace) -> int:
+def cmd_bench_flights(args: CompanionBenchArgs) -> int:
     """Whole flights of the scenarios with moving threats on one backend (companion.flight.flights_bench)."""
     from companion.flight import flights_bench as fb
     from planner.bench.load import cpu_hog
     from planner.world.scenario import load_scenario
 
-    planner_cli.local_only(args, "bench flights")
-    runs = fb.DEFAULT_RUNS if args.runs is None else args.runs
+    bench = args.planner
+    planner_cli.local_only(bench.executor, "bench flights")
+    runs = fb.DEFAULT_RUNS if bench.runs is None else bench.runs
     if runs < 1:
         raise FuseplanError("--runs must be >= 1")
     folder = fb.autopilot_folder(args.backend, args.sitl_dir)
@@ -263,25 +468,25 @@ def cmd_bench_flights(args: argparse.Namespace) -> int:
     if unknown or not names:
         raise FuseplanError(f"--scenarios: {', '.join(unknown) or 'none named'}: choose from the scenarios with "
                             f"moving threats: {', '.join(shipped)}")
-    hog = getattr(args, "cpu_hog", 0)
+    hog = args.cpu_hog
     if hog < 0:
         raise FuseplanError("--cpu-hog must be >= 0")
     settings = fb.FlightsSettings(args.backend, runs, tuple(shipped[n] for n in dict.fromkeys(names)),
-                                  args.no_replan_too, args.output, tuple(args.overrides), folder, hog,
-                                  _seconds(args, "replan_budget"))
+                                  args.no_replan_too, bench.output, bench.overrides, folder, hog,
+                                  _seconds(args.replan_budget, "--replan-budget"))
     for path in settings.scenarios:  # bad --set fails here, once, not in every flight
         load_scenario(path, list(settings.fly_overrides))
-    planner_cli.make_output_dir(args.output)
-    say = (lambda _t: None) if args.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
+    planner_cli.make_output_dir(bench.output)
+    say = (lambda _t: None) if bench.quiet else (lambda t: print(t, file=sys.stderr, flush=True))
     try:
         with cpu_hog(hog):
             _records, reused = fb.run_flights_bench(settings, main, progress=say)
     except KeyboardInterrupt:
-        return planner_cli._interrupted(args.output / "flights.jsonl", "flights")
+        return planner_cli._interrupted(bench.output / "flights.jsonl", "flights")
     except OSError as e:
-        raise FuseplanError(f"{args.output}: cannot write results: {e.strerror or e}") from e
-    console.show_markdown((args.output / "flights.md").read_text())
-    print(f"wrote {args.output / 'flights.md'}, flights.csv, flights_runs.csv, flights.jsonl ({reused} flights "
+        raise FuseplanError(f"{bench.output}: cannot write results: {e.strerror or e}") from e
+    console.show_markdown((bench.output / "flights.md").read_text())
+    print(f"wrote {bench.output / 'flights.md'}, flights.csv, flights_runs.csv, flights.jsonl ({reused} flights "
           "reused)")
     return EXIT_OK
 
@@ -368,7 +573,7 @@ def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
         at += int(hits[0]) + 1
 
 
-def cmd_plan(args: argparse.Namespace) -> int:
+def cmd_plan(args: PlanArgs) -> int:
     """``fuseplan plan``: a scenario or a ground station's mission (with any zones) planned, written as PLAN.json
     or, with ``-o SAFE.plan``, as a QGroundControl plan of the safe route that keeps the mission's own fence,
     rally points and settings (written whole or not at all)."""
@@ -384,24 +589,24 @@ def cmd_plan(args: argparse.Namespace) -> int:
         if not is_mission(source):
             raise FuseplanError(f"{out}: -o *.plan keeps a ground station's mission: plan a .plan or .waypoints "
                                 "mission (for a scenario, `fuseplan export --format plan`)")
-    args.scenario = planner_cli.source_scenario(args, source, out)
-    args.overrides = with_flight_margins(args.scenario, args.overrides)
+    scenario = args.sources.scenario(source, out)
+    args = replace(args, scenario=scenario, overrides=tuple(with_flight_margins(scenario, list(args.overrides))))
     if not as_qgc:
         return planner_cli.cmd_plan(args)
     from companion.mission.builder import mission_from_plan_json, spec_from_plan_json
     from companion.mission.exports import write_operator_plan
     from planner.world.scenario import load_scenario
 
-    mission = read_mission(source, args.fence, args.rally)
+    mission = read_mission(source, args.sources.fence, args.sources.rally)
     autopilot = "px4" if mission.extras.get("firmware_type") == PX4_FIRMWARE else "ardupilot"
     with tempfile.TemporaryDirectory(prefix="fuseplan-") as tmp:
-        args.output, args.output_is_temporary = Path(tmp) / "PLAN.json", True
-        code = planner_cli.cmd_plan(args)
+        plan_json = Path(tmp) / "PLAN.json"
+        code = planner_cli.cmd_plan(replace(args, output=plan_json), announce_output=False)
         if code != EXIT_OK:
             print(f"fuseplan: {out} not written: the route is not safe", file=sys.stderr)
             return code
-        doc = json.loads(args.output.read_text())
-    sc = load_scenario(args.scenario, args.overrides)
+        doc = json.loads(plan_json.read_text())
+    sc = load_scenario(scenario, list(args.overrides))
     part = out.with_name(out.name + ".part")
     try:
         write_operator_plan(part, mission_from_plan_json(doc, sc, autopilot), spec_from_plan_json(doc, sc, autopilot),
@@ -413,11 +618,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
         raise FuseplanError(f"{out}: cannot write: {e.strerror or e}") from e
     finally:
         part.unlink(missing_ok=True)
-    print(f"  wrote {out} ({autopilot}; its scenario: {args.scenario})")
+    print(f"  wrote {out} ({autopilot}; its scenario: {scenario})")
     return EXIT_OK
 
 
-def cmd_export(args: argparse.Namespace) -> int:
+def cmd_export(args: ExportArgs) -> int:
     """Write a mission file from a scenario (planned now) or a PLAN.json (checked again first; ``--force`` writes
     one that fails, marked unchecked in the file). Written to a temporary name and renamed: never half a file."""
     import os
@@ -426,15 +631,15 @@ def cmd_export(args: argparse.Namespace) -> int:
     from companion.mission.fence_fit import export_fence_warning
 
     check_writable(args.output)
-    args.source = planner_cli.source_scenario(args, args.source, args.output)
-    doc, sc = _plan_doc_for(args.source, args.scenario, list(args.overrides) + mode_overrides(args), args.seed,
+    source = args.sources.scenario(args.source, args.output)
+    doc, sc = _plan_doc_for(source, args.scenario, list(args.overrides) + mode_overrides(args.paper), args.seed,
                             force=args.force)
     part = args.output.with_name(args.output.name + ".part")
     try:
         export_from_plan_json(doc, sc, args.format, part, args.autopilot, densify=args.densify)
         os.replace(part, args.output)
     except (KeyError, ValueError) as e:
-        raise FuseplanError(f"{args.source}: cannot export: {e}") from e
+        raise FuseplanError(f"{source}: cannot export: {e}") from e
     except OSError as e:
         raise FuseplanError(f"{args.output}: cannot write: {e.strerror or e}") from e
     finally:
@@ -444,7 +649,8 @@ def cmd_export(args: argparse.Namespace) -> int:
               f"{doc['unchecked']}", file=sys.stderr)
     if args.format == "plan" and (too_big := export_fence_warning(doc, sc, args.autopilot)):
         print(f"fuseplan: warning: {args.output}: {too_big}", file=sys.stderr)
-    print(f"wrote {args.output} ({args.format}, {args.autopilot})")
+    if not args.quiet:
+        print(f"wrote {args.output} ({args.format}, {args.autopilot})")
     return EXIT_OK
 
 
@@ -452,11 +658,10 @@ EXIT_LINK, EXIT_ABORTED, EXIT_UNSAFE = 4, 5, 6
 PX4_FIRMWARE = 12  # MAV_AUTOPILOT_PX4, a .plan's firmwareType
 
 
-def _seconds(args: argparse.Namespace, name: str) -> float | None:
-    """Option ``--name`` of ``args`` (None when not given, or absent as in demo): a finite number of seconds > 0."""
-    value = getattr(args, name, None)
+def _seconds(value: float | None, option: str) -> float | None:
+    """``option``'s value (None when not given): a finite number of seconds > 0."""
     if value is not None and not (math.isfinite(value) and value > 0):
-        raise FuseplanError(f"--{name.replace('_', '-')} must be a finite number of seconds > 0")
+        raise FuseplanError(f"{option} must be a finite number of seconds > 0")
     return value
 
 
@@ -469,10 +674,10 @@ def _check_report_dir(report: Path) -> None:
         raise FuseplanError(f"{report}: cannot create the report directory under {parent}")
 
 
-def _vehicle_world(args: argparse.Namespace, key: object) -> object:
+def _vehicle_world(args: FlyArgs, scenario: Path, key: SigningKey | None) -> tuple[Any, Path]:
     """``--fence-from-vehicle`` / ``--goal-from-vehicle``: the fence, rally points and mission the operator left on
     the vehicle, downloaded over a link of its own before planning (read back by each autopilot's rules), written
-    to the report as ``vehicle_world.json``; ``args.scenario`` becomes the scenario with them."""
+    to the report as ``vehicle_world.json``; returns it and the scenario to plan: ``scenario`` with them."""
     import asyncio
     import dataclasses
 
@@ -484,26 +689,26 @@ def _vehicle_world(args: argparse.Namespace, key: object) -> object:
 
     if args.sim or args.connect is None:
         raise FuseplanError("--fence-from-vehicle and --goal-from-vehicle read a real autopilot (--connect)")
-    if args.scenario.suffix.lower() != ".toml":
-        raise FuseplanError(f"{args.scenario}: --fence-from-vehicle and --goal-from-vehicle plan a scenario TOML (its "
+    if scenario.suffix.lower() != ".toml":
+        raise FuseplanError(f"{scenario}: --fence-from-vehicle and --goal-from-vehicle plan a scenario TOML (its "
                             "vehicle, band and start) with what the vehicle holds")
-    wait = _seconds(args, "heartbeat_timeout") or HEARTBEAT_WAIT_S
+    wait = _seconds(args.heartbeat_timeout, "--heartbeat-timeout") or HEARTBEAT_WAIT_S
+    url = args.connect
 
     async def read() -> object:
-        async with Link(args.connect, open_timeout=10.0, signing_key=key,
-                        target_system=getattr(args, "target_system", None)) as link:
+        async with Link(url, open_timeout=10.0, signing_key=key, target_system=args.target_system,
+                        baud=args.baud) as link:
             await link.wait_heartbeat(wait)
-            return await download_world(MissionClient(link), args.connect)
+            return await download_world(MissionClient(link), url)
 
     try:
         world = asyncio.run(read())
     except (CompanionError, TimeoutError, OSError) as e:
-        raise FuseplanError(f"{args.connect}: cannot read the vehicle's fence and mission: {e}") from e
+        raise FuseplanError(f"{url}: cannot read the vehicle's fence and mission: {e}") from e
     args.report.mkdir(parents=True, exist_ok=True)
     write_text(args.report / "vehicle_world.json", json.dumps(dataclasses.asdict(world), indent=1, default=str) + "\n")
-    args.scenario = vehicle_scenario(args.scenario, world, args.fence_from_vehicle, args.goal_from_vehicle,
-                                     args.report / args.scenario.name)
-    return world
+    return world, vehicle_scenario(scenario, world, args.fence_from_vehicle, args.goal_from_vehicle,
+                                   args.report / scenario.name)
 
 
 def _replan_config(budget: float | None, paper: bool) -> ReplanConfig | None:
@@ -516,59 +721,57 @@ def _replan_config(budget: float | None, paper: bool) -> ReplanConfig | None:
     return ReplanConfig(**({} if budget is None else {"budget_s": budget}), roadmap=not paper)
 
 
-def cmd_fly(args: argparse.Namespace) -> int:
+def cmd_fly(args: FlyArgs) -> int:
     import asyncio
 
     from companion.flight.fly import FlyOptions, fly
     from companion.mavlink.errors import CompanionError, FenceTooLarge
-    from companion.mavlink.signing import key_from_files
     from companion.mission.events import EventLog
 
     if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.sim_loss < 1:
         raise FuseplanError("--speedup must be a finite number > 0 and --sim-loss in [0, 1)")
     if not args.sim and (args.speedup != 1.0 or args.sim_loss):
         raise FuseplanError("--speedup and --sim-loss apply to the built-in simulator (--sim) only")
-    if getattr(args, "traffic", None) and args.sim:
+    if args.traffic and args.sim:
         raise FuseplanError("--traffic is for a real autopilot (--connect): the simulator flies the intruders itself")
-    backend = getattr(args, "backend", "pymavlink")
-    if backend == "mavsdk":
+    if not 0 < args.baud <= 10_000_000:
+        raise FuseplanError(f"--baud {args.baud}: a baud rate is a positive number")
+    if args.backend == "mavsdk":
         from companion.mavlink.mavsdk_backend import unsupported_options
 
-        signing = getattr(args, "signing_key", None) or getattr(args, "signing_passphrase", None)
-        why = unsupported_options(signing=signing is not None,
-                                  target_system=getattr(args, "target_system", None) is not None)
+        why = unsupported_options(signing=args.signing.given, target_system=args.target_system is not None)
         if why:
             raise FuseplanError(why)
-    key = key_from_files(getattr(args, "signing_key", None), getattr(args, "signing_passphrase", None),
-                         getattr(args, "insecure_key_file", False))
-    budget = _seconds(args, "replan_budget")  # every option is checked before any planning or writing
-    heartbeat = _seconds(args, "heartbeat_timeout")
-    flight_timeout = _seconds(args, "flight_timeout")
+    key = args.signing.key()
+    budget = _seconds(args.replan_budget, "--replan-budget")  # every option is checked before any planning or writing
+    heartbeat = _seconds(args.heartbeat_timeout, "--heartbeat-timeout")
+    flight_timeout = _seconds(args.flight_timeout, "--flight-timeout")
     from companion.mavlink.link import check_url
 
-    for option, url in (("--connect", args.connect), ("--traffic", getattr(args, "traffic", None))):
+    for option, url in (("--connect", args.connect), ("--traffic", args.traffic)):
         if url is not None:
             check_url(url, option)
     _check_report_dir(args.report)
     from planner.world.sources import is_mission
 
-    if planner_cli.has_source_options(args) or is_mission(args.scenario):
+    scenario = args.scenario
+    if args.sources.given() or is_mission(scenario):
         args.report.mkdir(parents=True, exist_ok=True)
-        args.scenario = planner_cli.source_scenario(args, args.scenario, args.report / args.scenario.name)
+        scenario = args.sources.scenario(scenario, args.report / scenario.name)
     world = None
-    if getattr(args, "fence_from_vehicle", False) or getattr(args, "goal_from_vehicle", False):
-        world = _vehicle_world(args, key)
-    target = getattr(args, "target_system", None)
+    if args.fence_from_vehicle or args.goal_from_vehicle:
+        world, scenario = _vehicle_world(args, scenario, key)
+    target = args.target_system
     if target is not None and not 1 <= target <= 255:
         raise FuseplanError(f"--target-system {target}: a MAVLink system id is 1-255")
     if target is not None and args.sim:
         raise FuseplanError("--target-system is for a real autopilot (--connect): the simulator is system 1")
-    status = _status_bind(args)
-    overrides = (list(args.overrides) + mode_overrides(args)
+    status = args.status.bind()
+    overrides = (list(args.overrides) + mode_overrides(args.paper)
                  + ([f'planner.algorithm="{args.algorithm}"'] if args.algorithm else []))
     say = (lambda *_: None) if args.quiet else (lambda text: print(text, flush=True))
-    say(f"{'checking' if args.scenario.suffix.lower() == '.json' else 'planning'} {args.scenario.name} ...")
-    doc, sc = _plan_doc_for(args.scenario, args.scenario_file, overrides, args.seed, feasible_only=False,
+    say(f"{'checking' if scenario.suffix.lower() == '.json' else 'planning'} {scenario.name} ...")
+    doc, sc = _plan_doc_for(scenario, args.scenario_file, overrides, args.seed, feasible_only=False,
                             for_flight=True)
     try:
         args.report.mkdir(parents=True, exist_ok=True)
@@ -581,22 +784,21 @@ def cmd_fly(args: argparse.Namespace) -> int:
         print(f"fuseplan: no feasible plan ({doc['status']}); not flying. See {args.report / 'PLAN.json'}",
               file=sys.stderr)
         return EXIT_INFEASIBLE
-    opts = FlyOptions(connect=args.connect, sim=args.sim, speedup=args.speedup, sim_loss=args.sim_loss,
-                      arm=args.arm, fence=not (args.no_fence or getattr(args, "fence_from_vehicle", False)),
-                      densify=args.densify, report=args.report,
-                      replan=not getattr(args, "no_replan", False),
-                      replan_config=_replan_config(budget, getattr(args, "paper", False)),
-                      signing_key=key, traffic=getattr(args, "traffic", None), backend=backend,
+    opts = FlyOptions(connect=args.connect, sim=args.sim, baud=args.baud, speedup=args.speedup,
+                      sim_loss=args.sim_loss, arm=args.arm, fence=not (args.no_fence or args.fence_from_vehicle),
+                      densify=args.densify, report=args.report, replan=not args.no_replan,
+                      replan_config=_replan_config(budget, args.paper),
+                      signing_key=key, traffic=args.traffic, backend=args.backend,
                       heartbeat_timeout=HEARTBEAT_WAIT_S if heartbeat is None else heartbeat, target_system=target,
                       flight_timeout=flight_timeout,
-                      plan_again=None if args.scenario.suffix.lower() == ".json" else (
-                          lambda extra: _plan_doc_for(args.scenario, args.scenario_file, overrides + extra, args.seed,
+                      plan_again=None if scenario.suffix.lower() == ".json" else (
+                          lambda extra: _plan_doc_for(scenario, args.scenario_file, overrides + extra, args.seed,
                                                       feasible_only=False, for_flight=True)))
     events = EventLog(args.report / "events.jsonl", echo=None if args.quiet else _echo_event)
     if world is not None:
-        events.log("vehicle_world", source=str(world.source), zones=[z.name for z in world.zones],
+        events.log(Event.VEHICLE_WORLD, source=str(world.source), zones=[z.name for z in world.zones],
                    rally=len(world.rally), goal=None if world.goal is None else [world.goal.lat, world.goal.lon],
-                   scenario=str(args.scenario))
+                   scenario=str(scenario))
     try:
         if status is None:
             flight = asyncio.run(fly(doc, sc, opts, events))
@@ -607,12 +809,12 @@ def cmd_fly(args: argparse.Namespace) -> int:
             flight = asyncio.run(serve_flight(lambda: fly(doc, sc, opts, events), events, bind, token,
                                               lambda url: _announce(url, token)))
     except CompanionError as e:  # before the vehicle was armed (after it, fly reports the flight as it went)
-        events.log("failed", error=str(e))
+        events.log(Event.FAILED, error=str(e))
         write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e)}, indent=1) + "\n")
         print(f"fuseplan: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT if isinstance(e, FenceTooLarge) else EXIT_LINK  # the user's zones, not the link
     except KeyboardInterrupt:
-        events.log("aborted", reason="interrupted by the user")
+        events.log(Event.ABORTED, reason="interrupted by the user")
         write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": "interrupted"}) + "\n")
         print("fuseplan: interrupted; the vehicle keeps its current mode and mission", file=sys.stderr)
         return 130
@@ -640,44 +842,33 @@ def cmd_fly(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-_ECHOED = ("reached", "statustext", "mode", "armed", "upload_verified", "mission_start", "ready", "connected",
-           "finished", "timeout", "arm_refused", "waiting_for_pilot_arm", "failed", "track",
-           "track_expired", "conflict_predicted", "hold", "resume", "threat_cleared", "replan_upload_failed",
-           "set_current", "replanner_failed", "upload_failed", "backup_failed", "mission_restored",
-           "mission_restore_failed", "link_lost", "link_restored", "resync", "resync_mismatch", "booting", "booted")
-
-
-_STYLES = {"conflict": "bold red", "conflict_predicted": "red", "replan_planned": "yellow", "replanned": "green",
-           "failed": "bold red", "upload_failed": "red", "replan_upload_failed": "red", "link_lost": "red",
-           "arm_refused": "red", "timeout": "red", "finished": "bold green", "hold": "yellow", "resume": "green",
-           "link_restored": "green", "mission_start": "cyan", "upload_verified": "cyan"}  # on a terminal only
+_STYLES = {Tone.BAD: "red", Tone.WARN: "yellow", Tone.GOOD: "green"}  # rich styles, on a terminal only
 
 
 def _echo_event(rec: dict) -> None:
     """Progress lines for the events a person watching the flight cares about; replans spelled out."""
-    e = rec["event"]
+    e = BY_NAME[rec["event"]]
+    if not e.echoed:
+        return
     detail = {k: v for k, v in rec.items() if k not in ("t", "event")}
-    if e == "conflict":
+    if e == Event.CONFLICT:
         text = (f"CONFLICT with {rec['threat']} in {rec['in_s']:.1f} s: predicted separation "
                 f"{rec['separation_m']:.1f} m (d_coll {rec['d_coll_m']:g} m) -> replan {rec['n']}")
-    elif e == "replan_planned":
+    elif e == Event.REPLAN_PLANNED:
         text = (f"replan {rec['n']}: {rec['status']} in {rec['plan_s']:.3f} s from {rec['commit']}, "
                 f"{rec['waypoints']} waypoints, predicted separation {rec['separation_after_m']:.1f} m")
-    elif e == "replanned":
+    elif e == Event.REPLANNED:
         text = (f"replan {rec['n']}: new mission current {rec['latency_s']:.3f} s after the conflict was seen "
                 f"(plan {rec['plan_s']:.3f} s, upload+verify+set-current {rec['upload_s']:.3f} s"
                 f"{', vehicle held meanwhile' if rec['held'] else ''})")
-    elif e in _ECHOED:
-        text = f"{e} " + " ".join(f"{k}={v}" for k, v in detail.items())
     else:
-        return
-    console.say(f"  [{rec['t']:6.1f} s] {text}".rstrip(), _STYLES.get(e))
+        text = f"{e} " + " ".join(f"{k}={v}" for k, v in detail.items())
+    console.say(f"  [{rec['t']:6.1f} s] {text}".rstrip(), _STYLES.get(e.tone))
 
 
-def cmd_sim(args: argparse.Namespace) -> int:
+def cmd_sim(args: SimArgs) -> int:
     import asyncio
 
-    from companion.mavlink.signing import key_from_files
     from companion.sim import serve
     from planner.world.scenario import load_scenario
 
@@ -685,9 +876,10 @@ def cmd_sim(args: argparse.Namespace) -> int:
     if not (math.isfinite(args.speedup) and args.speedup > 0) or not 0 <= args.loss < 1 or not (
             math.isfinite(args.latency) and args.latency >= 0):
         raise FuseplanError("--speedup must be a finite number > 0, --loss in [0, 1), --latency >= 0")
-    key = key_from_files(args.signing_key, args.signing_passphrase, args.insecure_key_file)
-    print(f"simulated {sc.vehicle.type} for {sc.name} on {args.listen} (speed-up {args.speedup:g}); Ctrl-C stops",
-          flush=True)
+    key = args.signing.key()
+    if not args.quiet:
+        print(f"simulated {sc.vehicle.type} for {sc.name} on {args.listen} (speed-up {args.speedup:g}); Ctrl-C stops",
+              flush=True)
     try:
         asyncio.run(serve(sc, args.listen, args.speedup, args.loss, args.latency, signing_key=key))
     except KeyboardInterrupt:
@@ -697,31 +889,33 @@ def cmd_sim(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def cmd_demo(args: argparse.Namespace) -> int:
-    """fly sitl_scenarios/rescue_dynamic.toml --sim --speedup 20 --report fuseplan-demo/"""
-    here = SCENARIOS / "rescue_dynamic.toml"
-    print("fuseplan demo: planning the dynamic rescue scenario and flying it on the built-in simulated autopilot "
-          "(20x); an intruder reported over ADS-B will cross the route, and the companion holds and replans around "
-          "it, or waits until it has passed when no clear route comes in time")
-    ns = argparse.Namespace(scenario=here, connect=None, sim=True, speedup=20.0, sim_loss=0.0, arm=False,
-                            no_fence=False, densify=False, report=Path("fuseplan-demo"), scenario_file=None,
-                            overrides=[], seed=None, algorithm=None, quiet=False, no_replan=False,
-                            replan_budget=None, status_page=args.status_page, status_token=args.status_token,
-                            status_host=args.status_host, insecure_key_file=args.insecure_key_file)
-    return cmd_fly(ns)
+def demo_flight(args: DemoArgs) -> FlyArgs:
+    """What ``demo`` flies: ``fly sitl_scenarios/rescue_dynamic.toml --sim --speedup 20 --report fuseplan-demo``,
+    with demo's own -q and status page."""
+    return FlyArgs(scenario=SCENARIOS / "rescue_dynamic.toml", sim=True, speedup=20.0, report=Path("fuseplan-demo"),
+                   quiet=args.quiet, status=args.status)
 
 
-def cmd_report(args: argparse.Namespace) -> int:
+def cmd_demo(args: DemoArgs) -> int:
+    if not args.quiet:
+        print("fuseplan demo: planning the dynamic rescue scenario and flying it on the built-in simulated autopilot "
+              "(20x); an intruder reported over ADS-B will cross the route, and the companion holds and replans "
+              "around it, or waits until it has passed when no clear route comes in time")
+    return cmd_fly(demo_flight(args))
+
+
+def cmd_report(args: ReportArgs) -> int:
     """A report directory's summary (flight.json), or its status page served until Ctrl-C (``--serve``)."""
     import asyncio
 
     from companion.status import load_events, serve_report
 
-    status = _status_bind(args, "serve")
+    status = args.status.bind()
     if status is None:
         return _summarise_report(args.directory, load_events(args.directory))
     bind, token = status
-    print(f"serving the status page of {args.directory}; Ctrl-C stops", flush=True)
+    if not args.quiet:
+        print(f"serving the status page of {args.directory}; Ctrl-C stops", flush=True)
     try:
         asyncio.run(serve_report(args.directory, bind, token, lambda url: _announce(url, token)))
     except KeyboardInterrupt:
@@ -734,8 +928,8 @@ def _summarise_report(directory: Path, records: list[dict]) -> int:
         flight = json.loads((directory / "flight.json").read_text())
     except (OSError, ValueError):
         flight = {}
-    scene = next((r for r in records if r["event"] == "scene"), {})
-    done = next((r for r in reversed(records) if r["event"] in ("finished", "failed", "aborted")), None)
+    scene = next((r for r in records if r["event"] == Event.SCENE), {})
+    done = next((r for r in reversed(records) if r["event"] in ENDINGS), None)
     print(f"{directory}: {scene.get('name', 'unknown scenario')}, {len(records)} events over "
           f"{records[-1]['t'] if records else 0:.1f} s")
     if done is not None:
@@ -755,25 +949,7 @@ def main(argv: list[str] | None = None) -> int:
     logging.basicConfig(level=logging.DEBUG if args.verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s")
     try:
-        if args.command == "plan":
-            return cmd_plan(args)
-        if args.command == "compare":
-            return planner_cli.cmd_compare(args)
-        if args.command == "export":
-            return cmd_export(args)
-        if args.command == "fly":
-            return cmd_fly(args)
-        if args.command == "sim":
-            return cmd_sim(args)
-        if args.command == "report":
-            return cmd_report(args)
-        if args.command == "bench":
-            if args.name == "replan":
-                return cmd_bench_replan(args)
-            if args.name == "flights":
-                return cmd_bench_flights(args)
-            return planner_cli.cmd_bench(args, other_benches=("replan", "flights"))
-        return cmd_demo(args)
+        return int(args.func(args))
     except PlanRefused as e:
         print(f"fuseplan: {e}", file=sys.stderr)
         return EXIT_INFEASIBLE

@@ -8,9 +8,12 @@ infeasible plan exits 3; success exits 0.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 import typing
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +24,51 @@ from planner.world.config import ALGORITHM_NAMES, PAPER_MODE, ACOConfig
 
 EXIT_OK, EXIT_BAD_INPUT, EXIT_INFEASIBLE = 0, 2, 3
 ACO_INITS: tuple[str, ...] = typing.get_args(typing.get_type_hints(ACOConfig)["init"])
+T = typing.TypeVar("T")
+
+
+class HelpFormatter(argparse.ArgumentDefaultsHelpFormatter):
+    """Every option's default in its help, unless the help already says it or there is nothing to show (a flag,
+    no value, an empty list)."""
+
+    def _get_help_string(self, action: argparse.Action) -> str | None:
+        text = action.help or ""
+        none = action.default is None or isinstance(action.default, bool) or action.default in ([], argparse.SUPPRESS)
+        if none or "default" in text.lower() or not action.option_strings:
+            return text
+        return super()._get_help_string(action)
+
+
+def verbosity_options(top: bool = False) -> argparse.ArgumentParser:
+    """``-v`` and ``-q`` as a parent parser: on the top parser (defaults False) and on every subcommand (no
+    default, so that ``fuseplan -v fly ...`` is not undone by the subcommand's own parse)."""
+    p = argparse.ArgumentParser(add_help=False)
+    default = False if top else argparse.SUPPRESS
+    p.add_argument("-v", "--verbose", action="store_true", default=default, help="debug logging on stderr")
+    p.add_argument("-q", "--quiet", action="store_true", default=default,
+                   help="no progress output: results, warnings and errors only")
+    return p
+
+
+def add_command(sub: argparse._SubParsersAction, name: str, help: str, run: Callable[[argparse.Namespace], int],
+                ) -> argparse.ArgumentParser:
+    """A subcommand with ``-v``/``-q`` and defaults shown in its help; ``main`` calls ``run(parsed args)``."""
+    p = sub.add_parser(name, help=help, description=help, parents=[verbosity_options()],
+                       formatter_class=HelpFormatter)
+    p.set_defaults(func=run)
+    return p
+
+
+def options_from(cls: type[T], ns: argparse.Namespace, **given: typing.Any) -> T:
+    """A command's options dataclass from the parsed ``ns``: each field from the attribute of its name (a field
+    the parser lacks fails here, loudly), except those ``given``."""
+    fields = [f.name for f in dataclasses.fields(cls) if f.name not in given]  # type: ignore[arg-type]
+    return cls(**{name: getattr(ns, name) for name in fields}, **given)
+
+
+def command(cls: type[T], cmd: Callable[[T], int]) -> Callable[[argparse.Namespace], int]:
+    """``cmd`` run on its options object, built from the parsed arguments (the one place they are read)."""
+    return lambda ns: cmd(cls.from_args(ns))  # type: ignore[attr-defined]
 
 
 def make_output_dir(path: Path) -> None:
@@ -39,9 +87,9 @@ def add_paper_option(parser: argparse.ArgumentParser) -> None:
                              "is the roadmap pipeline")
 
 
-def mode_overrides(args: argparse.Namespace) -> list[str]:
+def mode_overrides(paper: bool) -> list[str]:
     """The overrides that ``--paper`` stands for (none without it)."""
-    return [PAPER_MODE] if getattr(args, "paper", False) else []
+    return [PAPER_MODE] if paper else []
 
 
 def add_source_options(parser: argparse.ArgumentParser) -> None:
@@ -60,58 +108,138 @@ def add_source_options(parser: argparse.ArgumentParser) -> None:
                         help="a Mission Planner rally file for a .waypoints mission")
 
 
-def has_source_options(args: argparse.Namespace) -> bool:
-    return bool(getattr(args, "zones", ())) or any(getattr(args, k, None) is not None for k in ("base", "fence",
-                                                                                                   "rally"))
+@dataclass(frozen=True)
+class SourceArgs:
+    """``--zones``, ``--base``, ``--fence``, ``--rally`` (:func:`add_source_options`)."""
+
+    zones: tuple[Path, ...] = ()
+    base: Path | None = None
+    fence: Path | None = None
+    rally: Path | None = None
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> SourceArgs:
+        return cls(tuple(ns.zones), ns.base, ns.fence, ns.rally)
+
+    def given(self) -> bool:
+        return bool(self.zones) or any(v is not None for v in (self.base, self.fence, self.rally))
+
+    def scenario(self, source: Path, beside: Path | None) -> Path:
+        """The scenario file to load for ``source`` with these options (planner.world.sources); a PLAN.json is its
+        own source and takes none."""
+        from planner.world.sources import derived_scenario
+
+        if source.suffix.lower() == ".json":
+            if self.given():
+                raise FuseplanError(f"{source}: a PLAN.json was planned with its zones: --zones, --base, --fence and "
+                                    "--rally are for scenarios and missions")
+            return source
+        return derived_scenario(source, self.zones, self.base, self.fence, self.rally, beside)
 
 
-def source_scenario(args: argparse.Namespace, source: Path, beside: Path | None) -> Path:
-    """The scenario file to load for ``source`` with the source options (planner.world.sources); a PLAN.json
-    is its own source and takes none."""
-    from planner.world.sources import derived_scenario
+@dataclass(frozen=True)
+class PlanArgs:
+    """``fuseplan plan``."""
 
-    if source.suffix.lower() == ".json":
-        if has_source_options(args):
-            raise FuseplanError(f"{source}: a PLAN.json was planned with its zones: --zones, --base, --fence and "
-                                "--rally are for scenarios and missions")
-        return source
-    return derived_scenario(source, getattr(args, "zones", ()), getattr(args, "base", None),
-                            getattr(args, "fence", None), getattr(args, "rally", None), beside)
+    scenario: Path
+    algorithm: str | None = None
+    paper: bool = False
+    aco_init: str | None = None
+    seed: int | None = None
+    overrides: tuple[str, ...] = ()
+    output: Path | None = None
+    plot: Path | None = None
+    quiet: bool = False
+    sources: SourceArgs = SourceArgs()
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> PlanArgs:
+        return options_from(cls, ns, overrides=tuple(ns.overrides), sources=SourceArgs.from_args(ns))
+
+
+@dataclass(frozen=True)
+class ExecutorArgs:
+    """``--workers``, ``--executor``, ``--scheduler`` (compare and bench)."""
+
+    workers: int | None = None
+    executor: str = "local"
+    scheduler: str | None = None
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> ExecutorArgs:
+        return options_from(cls, ns)
+
+
+@dataclass(frozen=True)
+class CompareArgs:
+    """``fuseplan compare``."""
+
+    scenario: Path
+    runs: int
+    seed: int
+    algorithms: str
+    overrides: tuple[str, ...]
+    output: Path
+    quiet: bool
+    executor: ExecutorArgs
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> CompareArgs:
+        return options_from(cls, ns, overrides=tuple(ns.overrides), executor=ExecutorArgs.from_args(ns))
+
+
+@dataclass(frozen=True)
+class BenchArgs:
+    """``fuseplan bench NAME`` (the companion's benches extend it)."""
+
+    name: str
+    runs: int | None
+    seed_base: int
+    overrides: tuple[str, ...]
+    output: Path
+    quiet: bool
+    quick: bool
+    parts: str | None
+    latency_seeds: int | None
+    executor: ExecutorArgs
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> BenchArgs:
+        return options_from(cls, ns, overrides=tuple(ns.overrides), executor=ExecutorArgs.from_args(ns))
 
 
 def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.ArgumentParser]:
-    """Register plan, compare and bench on ``sub``; returns their parsers by name (the companion adds options)."""
-    pl = sub.add_parser("plan", help="plan a route for a scenario and write PLAN.json")
+    """Register plan, compare and bench on ``sub``; returns their parsers by name (the companion adds options and
+    may run them its own way: ``set_defaults(func=...)`` again)."""
+    pl = add_command(sub, "plan", "plan a route for a scenario and write PLAN.json", command(PlanArgs, cmd_plan))
     pl.add_argument("scenario", type=Path, help="scenario TOML file (see docs/scenario_format.md), or a ground "
                     "station's mission: QGroundControl .plan, Mission Planner .waypoints")
     pl.add_argument("--algorithm", choices=ALGORITHM_NAMES, default=None,
                     help="optimiser (default: the scenario's planner.algorithm, else fusion)")
     add_paper_option(pl)
     pl.add_argument("--aco-init", choices=ACO_INITS, default=None,
-                    help="fusion: ACO pheromone initialisation (default gkdm)")
+                    help="fusion: ACO pheromone initialisation (default: the scenario's, else gkdm)")
     pl.add_argument("--seed", type=int, default=None, help="random seed (default: the scenario's)")
-    pl.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                    help="override a scenario value, e.g. --set planner.pso.n_pop=100 (repeatable)")
+    add_set_option(pl, "override a scenario value, e.g. --set planner.pso.n_pop=100 (repeatable)")
     pl.add_argument("-o", "--output", type=Path, help="write the plan here: PLAN.json, or, named *.plan, a "
                     "QGroundControl plan of the safe route keeping a mission's fence and rally points")
     add_source_options(pl)
     pl.add_argument("--plot", type=Path, help="write a PNG of the route and the convergence curve")
-    pl.add_argument("-q", "--quiet", action="store_true", help="no progress output")
-    cp = sub.add_parser("compare", help="run every algorithm N times on a scenario and tabulate the results")
-    cp.add_argument("scenario", type=Path)
-    cp.add_argument("--runs", type=int, default=10, help="runs per algorithm (default 10)")
-    cp.add_argument("--seed", type=int, default=1, help="run r uses seed SEED + r (default 1)")
-    cp.add_argument("--algorithms", default=",".join(ALGORITHM_NAMES),
-                    help=f"comma-separated subset (default: {','.join(ALGORITHM_NAMES)})")
+    cp = add_command(sub, "compare", "run every algorithm N times on a scenario and tabulate the results",
+                     command(CompareArgs, cmd_compare))
+    cp.add_argument("scenario", type=Path, help="scenario TOML file")
+    cp.add_argument("--runs", type=int, default=10, help="runs per algorithm")
+    cp.add_argument("--seed", type=int, default=1, help="run r uses seed SEED + r")
+    cp.add_argument("--algorithms", default=",".join(ALGORITHM_NAMES), help="comma-separated subset")
     cp.add_argument("--workers", type=int, default=None,
                     help="local processes or dask-local workers (default: CPU count, at most 8)")
     add_executor_options(cp)
-    cp.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE")
+    add_set_option(cp, "override a scenario value for every run (repeatable)")
     cp.add_argument("-o", "--output", type=Path, default=Path("compare"),
                     help="directory for compare.jsonl (records, resumable), compare.md, compare.csv, "
-                    "compare_runs.csv, compare.png (default ./compare)")
-    cp.add_argument("-q", "--quiet", action="store_true")
-    bn = sub.add_parser("bench", help="reproduce one of the paper's experiments (e.g. ablation) and report it")
+                    "compare_runs.csv, compare.png")
+    bn = add_command(sub, "bench", "reproduce one of the paper's experiments (e.g. ablation) and report it",
+                     command(BenchArgs, cmd_bench))
     bn.add_argument("name", help="which bench (e.g. ablation)")
     bn.add_argument("--runs", type=int, default=None,
                     help="runs per variant (default: the bench's, 30; speed: repeats of each headline row, 5)")
@@ -119,13 +247,10 @@ def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.Argument
                     help="local processes or dask-local workers (default: CPU count, at most 8; speed: 1, one "
                     "plan at a time)")
     add_executor_options(bn)
-    bn.add_argument("--seed-base", type=int, default=2000, help="run r uses seed SEED_BASE + r (default 2000)")
-    bn.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
-                    help="override a scenario value for every variant (repeatable)")
+    bn.add_argument("--seed-base", type=int, default=2000, help="run r uses seed SEED_BASE + r")
+    add_set_option(bn, "override a scenario value for every variant (repeatable)")
     bn.add_argument("-o", "--output", type=Path, default=Path("bench-results"),
-                    help="directory for NAME.jsonl (records, resumable), NAME.md, NAME.csv, PNGs "
-                    "(default ./bench-results)")
-    bn.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+                    help="directory for NAME.jsonl (records, resumable), NAME.md, NAME.csv, PNGs")
     bn.add_argument("--quick", action="store_true",
                     help="bench speed only: reduced budgets, levels and seeds (a smoke test, about a minute)")
     bn.add_argument("--parts", default=None, metavar="LIST",
@@ -134,6 +259,12 @@ def add_commands(sub: argparse._SubParsersAction) -> dict[str, argparse.Argument
     bn.add_argument("--latency-seeds", type=int, default=None, metavar="N",
                     help="bench speed only: seeds per scenario and load in the latency part (default 20)")
     return {"plan": pl, "compare": cp, "bench": bn}
+
+
+def add_set_option(parser: argparse.ArgumentParser, help: str) -> None:
+    """``--set SECTION.KEY=VALUE`` (repeatable), collected in ``overrides``."""
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                        help=help)
 
 
 def add_executor_options(parser: argparse.ArgumentParser) -> None:
@@ -147,26 +278,27 @@ def add_executor_options(parser: argparse.ArgumentParser) -> None:
                         help="--executor dask: the scheduler's address (as `dask scheduler` prints it)")
 
 
-def executor_from(args: argparse.Namespace) -> typing.Any:
+def executor_from(opts: ExecutorArgs) -> typing.Any:
     """The executor the options choose (planner.bench.executor.ExecutorSpec), checked: a mistake is one line."""
     from planner.bench.executor import ExecutorSpec
 
-    spec = ExecutorSpec(getattr(args, "executor", "local"), args.workers, getattr(args, "scheduler", None))
+    spec = ExecutorSpec(opts.executor, opts.workers, opts.scheduler)
     spec.check()
     return spec
 
 
-def cmd_plan(args: argparse.Namespace) -> int:
+def cmd_plan(args: PlanArgs, announce_output: bool = True) -> int:
+    """``fuseplan plan`` (``announce_output`` False: the caller says what it wrote)."""
     from planner.legs import check_legs_workload, plan_scenario
     from planner.plan import plan_to_json, problem_from_scenario
     from planner.world.scenario import load_scenario
 
-    overrides = list(args.overrides) + mode_overrides(args)
+    overrides = list(args.overrides) + mode_overrides(args.paper)
     if args.algorithm:
         overrides.append(f'planner.algorithm="{args.algorithm}"')
     if args.seed is not None:
         overrides.append(f"planner.seed={args.seed}")
-    if getattr(args, "aco_init", None):
+    if args.aco_init:
         overrides.append(f'planner.aco.init="{args.aco_init}"')
     scenario = load_scenario(args.scenario, overrides)
     if args.plot is not None and args.plot.suffix.lower() != ".png":
@@ -220,7 +352,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
               + f"; winner {winner}")
     if args.output:
         write_text(args.output, json.dumps(doc, indent=1, allow_nan=False) + "\n")
-        if not getattr(args, "output_is_temporary", False):  # plan -o SAFE.plan: the caller says what it wrote
+        if announce_output:  # plan -o SAFE.plan: the caller says what it wrote
             print(f"  wrote {args.output}")
     if args.plot:
         from planner.plot import plot_plan
@@ -234,7 +366,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK if result.feasible else EXIT_INFEASIBLE
 
 
-def cmd_compare(args: argparse.Namespace) -> int:
+def cmd_compare(args: CompareArgs) -> int:
     import dataclasses
 
     from planner.bench import compare
@@ -245,14 +377,14 @@ def cmd_compare(args: argparse.Namespace) -> int:
 
     if args.runs < 1:
         raise FuseplanError("--runs must be >= 1")
-    executor = executor_from(args)
+    executor = executor_from(args.executor)
     if args.seed < 0:
         raise FuseplanError("--seed must be >= 0")
     try:
         algorithms = compare.check_algorithms([a.strip() for a in args.algorithms.split(",") if a.strip()])
     except ValueError as e:
         raise FuseplanError(str(e)) from e
-    scenario = load_scenario(args.scenario, args.overrides)  # bad input fails here, once, not in every worker
+    scenario = load_scenario(args.scenario, list(args.overrides))  # bad input fails here, once, not in every worker
     for name in algorithms:  # and so does a job too large for the machine
         check_workload(problem_from_scenario(scenario), dataclasses.replace(scenario.planner, algorithm=name),
                        source=str(args.scenario))
@@ -260,7 +392,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"comparing {', '.join(algorithms)} on {args.scenario.name}: {args.runs} runs each, "
               f"seeds {args.seed}..{args.seed + args.runs - 1}, on {executor.describe()}", file=sys.stderr)
-    specs = compare.specs_for(str(args.scenario), args.overrides, algorithms, args.runs, args.seed)
+    specs = compare.specs_for(str(args.scenario), list(args.overrides), algorithms, args.runs, args.seed)
     jsonl = args.output / "compare.jsonl"
     try:
         with console.run_progress("runs", args.quiet) as progress:
@@ -283,7 +415,7 @@ def cmd_compare(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> int:
+def cmd_bench(args: BenchArgs, other_benches: tuple[str, ...] = ()) -> int:
     """Run one of the planner's benches (``other_benches``: names the caller handles itself, for the message)."""
     import dataclasses
     import time
@@ -298,9 +430,10 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
         raise FuseplanError(f"unknown bench {args.name!r}; choose from "
                             f"{', '.join(sorted([*BENCHES, 'speed', *other_benches]))}")
     runs = bench.default_runs if args.runs is None else args.runs
-    if runs < 1 or (args.workers is not None and args.workers < 1) or args.seed_base < 0:
+    workers = args.executor.workers
+    if runs < 1 or (workers is not None and workers < 1) or args.seed_base < 0:
         raise FuseplanError("--runs and --workers must be >= 1 and --seed-base >= 0")
-    executor = executor_from(args)
+    executor = executor_from(args.executor)
     settings = BenchSettings(bench, runs, args.seed_base, tuple(args.overrides))
     for v in bench.variants:  # bad input fails here, once, not in every worker
         settings.check(v)
@@ -321,13 +454,13 @@ def cmd_bench(args: argparse.Namespace, other_benches: tuple[str, ...] = ()) -> 
     return _report(args.output, bench.name, lambda: bench.report(args.output, outcome.records, settings))
 
 
-def local_only(args: argparse.Namespace, what: str) -> None:
+def local_only(executor: ExecutorArgs, what: str) -> None:
     """``what`` (a timing bench) runs on this machine: any other executor is a user's mistake."""
-    if getattr(args, "executor", "local") != "local" or getattr(args, "scheduler", None):
+    if executor.executor != "local" or executor.scheduler:
         raise FuseplanError(f"{what} times plans on this machine and runs on --executor local only")
 
 
-def cmd_bench_speed(args: argparse.Namespace) -> int:
+def cmd_bench_speed(args: BenchArgs) -> int:
     """``fuseplan bench speed``: both cost kernels, the plain-numpy reference, scaling, replan latency under load
     (:mod:`planner.bench.speed`). --runs: repeats of each headline row (default 5); --workers: plans at a time
     (default 1, the times of one core)."""
@@ -335,9 +468,9 @@ def cmd_bench_speed(args: argparse.Namespace) -> int:
 
     from planner.bench import speed
 
-    local_only(args, "bench speed")
-    s = speed.settings_from(getattr(args, "quick", False), args.runs, args.seed_base, args.workers, args.overrides,
-                            getattr(args, "parts", None), getattr(args, "latency_seeds", None))
+    local_only(args.executor, "bench speed")
+    s = speed.settings_from(args.quick, args.runs, args.seed_base, args.executor.workers, list(args.overrides),
+                            args.parts, args.latency_seeds)
     speed.check(s)  # bad input fails here, once, not in every worker
     make_output_dir(args.output)
     if not args.quiet:

@@ -84,6 +84,7 @@ async def _rates_answered(rates: TelemetryRates) -> None:
 @dataclass
 class FlyOptions:
     connect: str | None = None  # pymavlink URL of a real autopilot / SITL
+    baud: int = 57600  # a serial --connect's baud rate (a URL's own ,BAUD wins)
     sim: bool = False
     speedup: float = 1.0
     sim_loss: float = 0.0
@@ -273,7 +274,7 @@ def _link(url: str, opts: FlyOptions) -> Link:
         (opts.report / TLOG).unlink(missing_ok=True)  # not an earlier flight's log beside this flight's report
         return MavsdkLink(url, source_system=opts.source_system, open_timeout=10.0)
     return Link(url, source_system=opts.source_system, open_timeout=10.0, signing_key=opts.signing_key,
-                target_system=opts.target_system, tlog=opts.report / TLOG)
+                target_system=opts.target_system, baud=opts.baud, tlog=opts.report / TLOG)
 
 
 def _flown_missions(sup: FlightSupervisor, replanner: LiveReplanner | None, events: EventLog) -> list[LiveMission]:

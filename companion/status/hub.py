@@ -19,11 +19,12 @@ from collections import deque
 from collections.abc import AsyncIterator, Iterable
 from typing import Any
 
+from companion.mission.events import Event
 from planner.plan import json_safe
 
 log = logging.getLogger(__name__)
 HISTORY = 20_000  # records kept for browsers that join late or fall behind (~4 MB at 200 bytes a record)
-PINNED = ("scene", "mission")  # kinds whose latest record every reader gets, even after it left the ring
+PINNED = (Event.SCENE, Event.MISSION)  # kinds whose latest record every reader gets, even after it left the ring
 CHUNK_BYTES = 64 * 1024  # at most this much per write to one browser
 
 
@@ -125,7 +126,7 @@ class StatusHub:
             missed = first - 1 - cursor
             if cursor:
                 self.skipped += missed
-                parts.append(sse(0, {"event": "status_skipped", "records": missed,
+                parts.append(sse(0, {"event": Event.STATUS_SKIPPED.value, "records": missed,
                                      "note": "this browser fell behind; the oldest records were dropped"}))
             parts.extend(b for s, b in sorted(self._pinned.values()) if s < first)
             cursor = first - 1

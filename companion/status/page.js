@@ -214,12 +214,9 @@ function renderReplan(r) {
   }
 }
 
-const BAD = new Set(["failed", "upload_failed", "replan_upload_failed", "timeout", "arm_refused", "link_lost",
-  "replanner_failed", "backup_failed", "mission_restore_failed", "resync_mismatch", "hold_failed"]);
-const WARN = new Set(["conflict", "hold", "replan_skipped", "replan_stale", "replan_not_live", "not_holding",
-  "not_resuming", "replanning_paused", "commit_point_passed", "status_skipped", "booting"]);
-const GOOD = new Set(["replanned", "resume", "link_restored", "upload_verified", "mission_start", "threat_cleared"]);
-const QUIET = new Set(["position", "contacts", "scene", "mission", "current", "reset"]);
+// EVENT_TONES (event -> quiet, plain, good, warn or bad) is the companion's event catalogue, served before this
+// script (companion/mission/events.py); an event it does not know is a plain line
+const tone = (e) => EVENT_TONES[e] || "plain";
 
 function apply(rec) {
   S.events += 1;
@@ -288,7 +285,8 @@ function apply(rec) {
     }
     default: break;
   }
-  if (!QUIET.has(e)) log(rec, describe(rec), BAD.has(e) ? "bad" : WARN.has(e) ? "warn" : GOOD.has(e) ? "good" : "");
+  const t = tone(e);
+  if (t !== "quiet") log(rec, describe(rec), t === "plain" ? "" : t);
 }
 
 function describe(rec) {

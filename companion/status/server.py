@@ -71,6 +71,7 @@ import contextlib
 import errno
 import hmac
 import ipaddress
+import json
 import logging
 import re
 import socket
@@ -84,6 +85,7 @@ from pathlib import Path
 from urllib.parse import parse_qsl, quote, unquote_to_bytes
 
 from companion.mavlink.signing import read_secret
+from companion.mission.events import Event
 from companion.status.hub import StatusHub
 from planner.errors import FuseplanError
 
@@ -113,6 +115,17 @@ _HEADERS = {
 _FILES = {"/": ("page.html", "text/html; charset=utf-8"), "/page.js": ("page.js", "text/javascript; charset=utf-8"),
           "/page.css": ("page.css", "text/css; charset=utf-8")}
 _EVENTS = "/events"
+
+
+def page_file(body: bytes, name: str) -> bytes:
+    """A file of the page as served: page.js after the event catalogue's tones, which it reads as ``EVENT_TONES``
+    (companion.mission.events: the page names no list of events of its own)."""
+    if name != "page.js":
+        return body
+    tones = json.dumps({e.value: e.tone.value for e in Event}, separators=(",", ":"))
+    return f"const EVENT_TONES = Object.freeze({tones});\n".encode() + body
+
+
 _TCHAR = frozenset("!#$%&'*+-.^_`|~0123456789ABCDEFGHIJKLMNOPQRSTUVWXYZabcdefghijklmnopqrstuvwxyz")  # RFC 9110 token
 _OUT_OF_RESOURCES = {errno.EMFILE, errno.ENFILE, errno.ENOBUFS, errno.ENOMEM}
 # accept() failing for the one connection it was taking, which went or broke before it was accepted (Linux's
@@ -400,7 +413,7 @@ class StatusServer:
     async def __aenter__(self) -> StatusServer:
         self.hub.bind(asyncio.get_running_loop())
         package = resources.files("companion.status")
-        self._files = {path: Answer(200, package.joinpath(name).read_bytes(), {"Content-Type": kind})
+        self._files = {path: Answer(200, page_file(package.joinpath(name).read_bytes(), name), {"Content-Type": kind})
                        for path, (name, kind) in _FILES.items()}
         try:
             self._listeners = self._listen()
