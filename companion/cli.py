@@ -39,7 +39,7 @@ from planner.cli import (
     options_from,
     write_text,
 )
-from planner.distribution import shipped_scenarios
+from planner.distribution import fuseplan_version, shipped_scenarios
 from planner.errors import FuseplanError, PlanRefused
 from planner.world.config import ALGORITHM_NAMES
 
@@ -51,21 +51,11 @@ if TYPE_CHECKING:
 SCENARIOS = shipped_scenarios()
 
 
-def _version() -> str:
-    """The installed distribution's version (``fuseplan --version``)."""
-    from importlib.metadata import PackageNotFoundError, version
-
-    try:
-        return version("fuseplan")
-    except PackageNotFoundError:  # a source tree that was never installed
-        return "unknown (not installed)"
-
-
 def _parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(prog="fuseplan", description="Plan safe 3-D UAV routes and fly them over MAVLink.",
                                 parents=[planner_cli.verbosity_options(top=True)],
                                 formatter_class=planner_cli.HelpFormatter)
-    p.add_argument("--version", action="version", version=f"%(prog)s {_version()}",
+    p.add_argument("--version", action="version", version=f"%(prog)s {fuseplan_version()}",
                    help="print fuseplan's version and exit")
     sub = p.add_subparsers(dest="command", required=True, metavar="COMMAND",
                            help="what to do (`fuseplan COMMAND --help`: its options)")

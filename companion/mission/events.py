@@ -46,6 +46,10 @@ class Event(StrEnum):
     VEHICLE_WORLD = "vehicle_world", "the fence, rally points and goal downloaded from the vehicle, planned around"
     PLAN_BEYOND_VEHICLE = "plan_beyond_vehicle", "the plan asks for more than the autopilot's parameters allow"
     PLANNED_AGAIN = "planned_again", "the scenario planned again within the vehicle's limits"
+    PLAN_ACCEPTED = ("plan_accepted", "the plan passed every check before the upload: its length and clearance",
+                     Tone.GOOD, True)
+    PLAN_REFUSED = ("plan_refused", "the plan was refused before the upload, and why (told to the ground station)",
+                    Tone.BAD, True)
     # the link and the autopilot
     SIM_STARTED = "sim_started", "the built-in simulated autopilot listens"
     SIGNING = "signing", "MAVLink 2 signing is on (the key's fingerprint)"
