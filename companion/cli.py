@@ -107,6 +107,11 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--goal-from-vehicle", action="store_true",
                     help="the goal is the last navigation item of the mission on the vehicle (with --connect)")
     _status_options(fl)
+    sv = sub.add_parser("serve", help="run as the companion's service: plan every mission the operator uploads "
+                        "round the vehicle's fence, replace it with the verified safe route while disarmed, supervise "
+                        "the flight (docs/serve.md)")
+    sv.add_argument("config", type=Path, help="the service's configuration file (TOML; docs/serve.example.toml)")
+    sv.add_argument("--check", action="store_true", help="check the configuration file and exit")
     sm = sub.add_parser("sim", help="run the built-in simulated autopilot alone")
     sm.add_argument("scenario", type=Path)
     sm.add_argument("--listen", default="udpin:127.0.0.1:14550", help="udpin:HOST:PORT or tcp:HOST:PORT "
@@ -673,6 +678,13 @@ def _echo_event(rec: dict) -> None:
     console.say(f"  [{rec['t']:6.1f} s] {text}".rstrip(), _STYLES.get(e))
 
 
+def cmd_serve(args: argparse.Namespace) -> int:
+    """``fuseplan serve CONFIG``: until SIGINT or SIGTERM (exit 0); a bad configuration is one line, exit 2."""
+    from companion.service.cli import run_service
+
+    return run_service(args.config, check_only=args.check, echo=_echo_event)
+
+
 def cmd_sim(args: argparse.Namespace) -> int:
     import asyncio
 
@@ -764,6 +776,8 @@ def main(argv: list[str] | None = None) -> int:
             return cmd_fly(args)
         if args.command == "sim":
             return cmd_sim(args)
+        if args.command == "serve":
+            return cmd_serve(args)
         if args.command == "report":
             return cmd_report(args)
         if args.command == "bench":

@@ -1,0 +1,90 @@
+"""``fuseplan serve`` on the built-in simulator (one TCP port, shared by the companion and a ground-station script,
+the simulator passing broadcast messages between them as ArduPilot routes them): an operator's upload is noticed,
+planned round the vehicle's fence and replaced by the verified route with a STATUSTEXT saying so; a goal inside a
+fence zone is refused and the operator's mission kept; an upload while armed is never replaced."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+from pathlib import Path
+
+from operator_course import CIRCLE, base_scenario, fence_items, goal_mission
+from pymavlink.dialects.v20 import common as mavlink
+from serve_gcs import GroundStation, write_config
+
+from companion.mavlink.items import MISSION
+from companion.service import Service, load_config
+from companion.service.serve import mission_key
+from companion.sim import SimAutopilot
+from planner.world.home import Home
+from planner.world.scenario import load_scenario
+
+HOME = Home(-35.363261, 149.165230, 584.0)
+
+
+def test_serve_replaces_refuses_and_leaves_an_armed_vehicle_alone(tmp_path: Path) -> None:
+    asyncio.run(_serve_on_the_simulator(tmp_path))  # its own loop: the planner's thread ends with it
+
+
+async def _serve_on_the_simulator(tmp_path: Path) -> None:
+    base = base_scenario(tmp_path / "base.toml", HOME, "plane", 18.0)
+    async with SimAutopilot(load_scenario(base), "tcp:127.0.0.1:0", speedup=20.0, seed=1) as sim:
+        url = f"tcp:127.0.0.1:{sim.port}"
+        cfg = load_config(write_config(tmp_path / "serve.toml", url, base, tmp_path / "logs", poll_s=1.0))
+        service = Service(cfg)
+        task = asyncio.create_task(service.run())
+        try:
+            async with GroundStation(url) as gcs:
+                await gcs.link.wait_heartbeat(10.0)
+                while service.seen is None:  # the service's first look at the vehicle: no request
+                    await asyncio.sleep(0.05)
+                # 1. a fence and a goal: the verified route replaces the mission, and the ground station is told
+                operator = goal_mission(HOME, home_item=True)
+                stored = await gcs.upload(operator, fence_items(HOME))
+                t_line, text = await gcs.line(lambda s: "safe route" in s, stored, 15.0)
+                accepted = service.handled[-1]
+                assert accepted.verdict == "accepted", accepted
+                got = await gcs.client.download(MISSION)
+                assert mission_key(got, True) != mission_key(operator, True) and len(got) > len(operator)
+                assert got[-1].command == mavlink.MAV_CMD_NAV_WAYPOINT or len(got) > 3
+                print(f"replaced {accepted.done_at - stored:.2f} s, told {t_line - stored:.2f} s after the upload: "
+                      f"{text!r}")
+                assert t_line - stored < 5.0
+                plan = json.loads((accepted.report / "PLAN.json").read_text())
+                assert plan["status"] in ("exact", "approximate")
+                events = [json.loads(x)["event"] for x in (accepted.report / "events.jsonl").read_text().split("\n")
+                          if x]
+                assert "plan_accepted" in events and "upload_verified" in events
+                n = len(service.handled)
+                await asyncio.sleep(2.5)  # its own upload, seen by its polls, is no new request
+                assert len(service.handled) == n
+
+                # 2. a goal inside the exclusion circle: refused, the operator's mission stays, the reason is told
+                inside = goal_mission(HOME, home_item=True)
+                from gcs_world import e7
+
+                x, y = e7(HOME, north=CIRCLE[1], east=CIRCLE[0])
+                inside[-1] = inside[-1].__class__(**{**inside[-1].__dict__, "x": x, "y": y})
+                stored = await gcs.upload(inside)
+                _, why = await gcs.line(lambda s: "refused" in s, stored, 15.0)
+                assert service.handled[-1].verdict == "refused"
+                got = await gcs.client.download(MISSION)
+                assert mission_key(got, True) == mission_key(inside, True)
+                print(f"refused: {why!r}")
+
+                # 3. armed: an upload is never replaced
+                await gcs.client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
+                while not sim.armed:
+                    await asyncio.sleep(0.05)
+                stored = await gcs.upload(operator)
+                _, why = await gcs.line(lambda s: "armed" in s, stored, 15.0)
+                got = await gcs.client.download(MISSION)
+                assert mission_key(got, True) == mission_key(operator, True), "replaced while armed"
+                await gcs.client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+    assert (cfg.log_folder / "service.jsonl").exists()
