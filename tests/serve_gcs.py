@@ -9,20 +9,39 @@ import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+import gcs_world
+from pymavlink.dialects.v20 import common as mavlink
+
+from companion.flight.supervisor import FlightSupervisor
+from companion.mavlink.errors import CompanionError
 from companion.mavlink.items import FENCE, MISSION, MissionItem
 from companion.mavlink.link import Link
 from companion.mavlink.protocol import MissionClient
 from companion.mavlink.statustext import Reassembler
+from companion.mission.events import EventLog
 from companion.service import MAV_COMP_ID_PATHPLANNER
+from planner.world.home import Home
 
 
-def write_config(path: Path, url: str, scenario: Path, log_folder: Path, poll_s: float = 2.0) -> Path:
+def two_item_mission(home: Home, home_item: bool, east: float, north: float, alt: float = 60.0) -> list[MissionItem]:
+    """A takeoff and the goal (``east``, ``north`` metres from home), as an operator plans it in a ground station;
+    on ArduPilot after the home placeholder at item 0."""
+    items = gcs_world.goal_mission(home, north=north, east=east, alt=alt, home_item=home_item)
+    takeoff = MissionItem(0, gcs_world.REL_INT, mavlink.MAV_CMD_NAV_TAKEOFF, x=items[-1].x,
+                          y=items[-1].y, z=alt)
+    items.insert(len(items) - 1, takeoff)
+    return [it.with_seq(k) for k, it in enumerate(items)]
+
+
+def write_config(path: Path, url: str, scenario: Path, log_folder: Path, poll_s: float = 2.0,
+                 budget_s: float = 1.0) -> Path:
     path.write_text(f"""[link]
 url = "{url}"
 heartbeat_timeout = 3.0
 [plan]
 scenario = "{scenario}"
 seed = 1
+budget_s = {budget_s}
 [service]
 log_folder = "{log_folder}"
 poll_s = {poll_s}
@@ -61,10 +80,25 @@ class GroundStation:
 
     async def upload(self, mission: Sequence[MissionItem], fence: Sequence[MissionItem] | None = None) -> float:
         """Fence (if any), then mission, each verified; returns time.monotonic() when the mission was stored."""
-        if fence is not None:
-            await self.client.upload_verified(fence, FENCE)
-        await self.client.upload_verified(mission, MISSION)
+        for items, kind in ((fence, FENCE), (mission, MISSION)):
+            for attempt in range(3):  # as a ground station retries: PX4 under load fails a transfer now and then
+                if items is None:
+                    break
+                try:
+                    await self.client.upload_verified(items, kind)
+                    break
+                except CompanionError:
+                    if attempt == 2:
+                        raise
+                    await asyncio.sleep(0.5)
         return time.monotonic()
+
+    async def arm_and_start(self, ready_timeout: float = 90.0) -> None:
+        """What the pilot does at the ground station: wait until the vehicle is ready, then its autopilot's own
+        start sequence (ArduPlane AUTO, arm, start; PX4 arm, mission mode, start) from the first item."""
+        sup = FlightSupervisor(self.link, self.client, EventLog(), arm=True)
+        await sup.wait_ready(ready_timeout)
+        await sup.start(1 if self.client.home_at_zero(MISSION) else 0)
 
     async def line(self, match: Callable[[str], bool], after: float, timeout: float) -> tuple[float, str]:
         """The first companion line since ``after`` that matches."""

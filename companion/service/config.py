@@ -49,6 +49,7 @@ class _Plan(BaseModel):
     zones: list[Annotated[str, Field(min_length=1)]] = []
     set: list[str] = []
     seed: Annotated[int, Field(ge=0)] | None = None
+    budget_s: Annotated[float, Field(ge=0, le=600)] = 3.0  # 0: no budget (the planner's own stop criteria)
 
 
 class _Service(BaseModel):
@@ -81,6 +82,7 @@ class ServeConfig:
     zones: tuple[Path, ...]
     overrides: tuple[str, ...]
     seed: int | None
+    budget_s: float | None  # wall seconds a request's search may take (the best route by then, checked)
     log_folder: Path
     status_page: str | None
     status_token: Path | None
@@ -117,6 +119,7 @@ def load_config(path: Path) -> ServeConfig:
         source=path, url=spec.link.url, baud=spec.link.baud, target_system=spec.link.target_system,
         heartbeat_timeout=spec.link.heartbeat_timeout, scenario=at(spec.plan.scenario),
         zones=tuple(at(z) for z in spec.plan.zones), overrides=tuple(spec.plan.set), seed=spec.plan.seed,
+        budget_s=spec.plan.budget_s or None,
         log_folder=at(spec.service.log_folder), status_page=spec.service.status_page,
         status_token=at(spec.service.status_token) if spec.service.status_token else None,
         poll_s=spec.service.poll_s, replan=spec.service.replan, flight_timeout=spec.service.flight_timeout)

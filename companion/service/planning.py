@@ -21,6 +21,7 @@ from planner.world.sources import derived_scenario, vehicle_scenario
 
 log = logging.getLogger(__name__)
 FEASIBLE = ("exact", "approximate")
+EDGE_SLACK_M = 5.0  # m outside the region a vehicle's position is taken as on its edge
 
 
 class PlanRefusal(FuseplanError):
@@ -46,14 +47,30 @@ def request_scenario(cfg: ServeConfig, world: OperatorMission, position: tuple[f
     except FuseplanError as e:
         raise PlanRefusal.of(e) from e
     east, north, _ = geodetic_to_enu(position[0], position[1], sc.home.alt, sc.home)
-    start = f"route.start=[{float(east):.1f}, {float(north):.1f}, {float(sc.start[2]):g}]"
+    env = sc.environment  # a vehicle on the region's edge (its home at the corner) within GPS noise is inside
+    east = _onto_edge(float(east), env.size_x)
+    north = _onto_edge(float(north), env.size_y)
+    start = f"route.start=[{east:.1f}, {north:.1f}, {float(sc.start[2]):g}]"
     return path, [*cfg.overrides, start]
 
 
-def plan_request(path: Path, overrides: list[str], seed: int | None) -> tuple[dict[str, Any], Scenario]:
-    """(PLAN.json document, scenario) of the request scenario ``path``; raises :class:`PlanRefusal` for a scenario
-    that cannot be built (the goal or the start outside the region, in a zone…) or with no feasible route."""
+def _onto_edge(v: float, size: float) -> float:
+    """``v`` moved onto [0, size] when it is within EDGE_SLACK_M outside (else left for the scenario to refuse)."""
+    if -EDGE_SLACK_M <= v < 0.0:
+        return 0.0
+    if size < v <= size + EDGE_SLACK_M:
+        return size
+    return v
+
+
+def plan_request(path: Path, overrides: list[str], seed: int | None,
+                 budget_s: float | None = None) -> tuple[dict[str, Any], Scenario]:
+    """(PLAN.json document, scenario) of the request scenario ``path``, the search stopped after ``budget_s`` wall
+    seconds (the best route found by then, checked as every plan is; None: the planner's own stop criteria); raises
+    :class:`PlanRefusal` for a scenario that cannot be built (the goal or the start outside the region, in a
+    zone…) or with no feasible route."""
     from companion.mission.builder import time_to_start
+    from planner.deadline import Deadline
     from planner.legs import plan_scenario
     from planner.plan import plan_to_json
 
@@ -64,7 +81,8 @@ def plan_request(path: Path, overrides: list[str], seed: int | None) -> tuple[di
     except FuseplanError as e:
         raise PlanRefusal.of(e) from e
     start_time = time_to_start(sc) if len(sc.environment.threats) else None
-    res = plan_scenario(sc, sc.planner, np.random.default_rng(sc.planner.seed), start_time, seed=sc.planner.seed)
+    res = plan_scenario(sc, sc.planner, np.random.default_rng(sc.planner.seed), start_time,
+                        Deadline.after(budget_s), seed=sc.planner.seed)
     doc = plan_to_json(res, sc, start_time)
     if doc["status"] not in FEASIBLE:
         raise PlanRefusal(f"no safe route ({doc['status']}): the goal or a via may be in a zone or walled off")

@@ -5,9 +5,10 @@
    back-off (a TCP peer that closed, a restarted autopilot), and each new connection or HEARTBEAT gap (``outages``)
    is a new session here: the autopilot booted, its parameters read again, its mission read back.
 2. **Requests.** While the vehicle is disarmed, a change of the vehicle's mission that is not the service's own
-   upload is a plan request: noticed from MISSION_CURRENT's ``total`` (the mission count; pymavlink 2.4.50 has no
-   mission id, so a new mission of the same length is found by a readback every ``poll_s``), read back until two
-   readbacks agree (the operator's upload may still be under way), then read with the vehicle's fence.
+   upload is a plan request: noticed from MISSION_CURRENT (its ``total``, and its ``mission_id`` where the
+   autopilot sends one, :mod:`companion.mavlink.mission_ids`: PX4; where it does not, ArduPilot, a new mission of
+   the same length is found by a readback every ``poll_s``), read back until two readbacks agree (the operator's
+   upload may still be under way), then read with the vehicle's fence.
 3. **Plan.** The base scenario with the configured zones, the fence as zones, the operator's goal and vias, the
    vehicle's position as the start (:mod:`companion.service.planning`), made again within the vehicle's limits as
    ``fly`` does, its departure checked from where the vehicle stands. Accepted: the verified safe route replaces the
@@ -50,6 +51,7 @@ from companion.flight.supervisor import DepartureRefused, FixedMission, FlightOu
 from companion.mavlink.errors import CompanionError, UploadAborted
 from companion.mavlink.items import FENCE, MISSION, RALLY, MissionItem, normalise_frame
 from companion.mavlink.link import Link
+from companion.mavlink.mission_ids import plan_ids
 from companion.mavlink.params import read_params
 from companion.mavlink.protocol import MissionClient
 from companion.mavlink.statustext import Severity, StatusTexts
@@ -73,14 +75,20 @@ SETTLE_S = 0.3  # wall seconds between the readbacks that must agree before a ch
 SETTLE_READS = 4  # readbacks tried before a mission that keeps changing is left for the next look
 POSITION_WAIT_S = 5.0
 PARAMS_WAIT_S = 10.0
+REBOOT_BACK_MS = 1000  # the autopilot's boot time going back more than this: it restarted
 
 
 def mission_key(items: Sequence[MissionItem], home_at_zero: bool) -> tuple:
     """What makes two readbacks of a mission the same mission: every item's command, frame (normalised),
     parameters and position, not its ``current`` flag, nor ArduPilot's home at item 0 (set again at arming)."""
     body = items[1:] if home_at_zero and items else items
-    return tuple((it.command, normalise_frame(it.frame), it.param1, it.param2, it.param3, it.param4, it.x, it.y,
-                  round(it.z, 3), it.autocontinue) for it in body)
+    return tuple((it.command, normalise_frame(it.frame), *(_same_nan(p) for p in (it.param1, it.param2, it.param3,
+                  it.param4)), it.x, it.y, round(it.z, 3), it.autocontinue) for it in body)
+
+
+def _same_nan(value: float) -> float | None:
+    """NaN (PX4's "unchanged" yaw) as None: NaN is unequal to itself, so two readbacks would never match."""
+    return None if math.isnan(value) else value
 
 
 def _armed(hb: Any) -> bool:
@@ -122,7 +130,9 @@ class _Session:
     """What the service knows of the autopilot on the current connection."""
 
     outages: int
-    total: int | None = None  # MISSION_CURRENT.total last heard
+    told: tuple[int, int] | None = None  # MISSION_CURRENT's total and mission id last heard
+    ids_known: bool = False  # the autopilot sends mission ids (PX4): no readback polls needed
+    boot_ms: int | None = None  # the autopilot's time since boot in its last GLOBAL_POSITION_INT
     changed_at: float | None = None  # when the total changed (a readback is due)
     poll_at: float = 0.0  # the next readback while disarmed
 
@@ -162,7 +172,7 @@ class Service:
         try:
             async with link:
                 self.link, self.client, self.texts = link, MissionClient(link), StatusTexts(link)
-                rates = TelemetryRates(link).start()
+                rates = self.rates = TelemetryRates(link).start()
                 try:
                     while True:
                         session = await self._connect()
@@ -181,7 +191,6 @@ class Service:
         """Wait for the autopilot (forever), then for its boot; read its limits and the mission it holds."""
         link = self.link
         assert link is not None
-        lost_at = time.monotonic()
         said = False
         while not await link.wait_back(5.0):
             if not said:
@@ -189,10 +198,9 @@ class Service:
                 said = True
         self.connections += 1
         session = _Session(outages=link.outages)
-        back = time.monotonic() - lost_at
         self.log.log("connected", n=self.connections, system=link.target_system, autopilot=link.autopilot,
                      vehicle_type=link.vehicle_type, outages=link.outages, reconnects=link.reconnects,
-                     waited_s=round(back, 2))
+                     outage_s=round(link.last_outage_s, 2) if link.outages else None)
         sup = FlightSupervisor(link, self.client, self.log, arm=False)
         await sup.wait_booted()
         try:
@@ -208,9 +216,15 @@ class Service:
             self.log.log("baseline", items=len(mission), note="a mission already on the vehicle is left alone; "
                          "upload one to ask for a plan")
             self.seen = key
-        elif key != self.seen and not (self.accepted is not None and key == self.accepted.key):
+        elif key and key != self.seen and not (self.accepted is not None and key == self.accepted.key):
             self.log.log("changed_while_away", items=len(mission))
-            await self._request(mission, time.monotonic())
+            if _armed(link.last_heartbeat_msg):
+                self.seen = key
+                self._refuse_armed(mission, time.monotonic())
+            else:
+                await self._request(mission, time.monotonic())
+        else:
+            self.seen = key
         session.poll_at = time.monotonic() + self.cfg.poll_s
         return session
 
@@ -220,25 +234,38 @@ class Service:
         supervise a flight of the accepted route once the pilot arms."""
         link = self.link
         assert link is not None
-        with link.subscribe("HEARTBEAT", "MISSION_CURRENT") as sub:
+        with link.subscribe("HEARTBEAT", "MISSION_CURRENT", "GLOBAL_POSITION_INT") as sub:
             while link.outages == session.outages:
                 try:
                     msg = await sub.get(0.25)
                 except TimeoutError:
                     msg = None
                 now = time.monotonic()
+                if msg is not None and msg.get_type() == "GLOBAL_POSITION_INT":
+                    if session.boot_ms is not None and msg.time_boot_ms + REBOOT_BACK_MS < session.boot_ms:
+                        # restarted faster than the HEARTBEAT timeout (a UDP link sees no gap): a new session
+                        self.log.log("autopilot_restarted", boot_ms=msg.time_boot_ms, before_ms=session.boot_ms)
+                        self.rates.stop()
+                        self.rates.start()  # it forgot the rates asked for
+                        return
+                    session.boot_ms = msg.time_boot_ms
+                    continue
                 armed = _armed(link.last_heartbeat_msg)
                 if msg is not None and msg.get_type() == "MISSION_CURRENT":
-                    if session.total is not None and msg.total != session.total:
+                    ids = plan_ids(msg)
+                    told = (msg.total, ids.mission)
+                    if told != session.told:  # the first one too: it may come after an upload since the readback
                         session.changed_at = now
-                    session.total = msg.total
+                    session.told, session.ids_known = told, session.ids_known or ids.known
                 if armed:
                     accepted = self.accepted
                     if accepted is not None and not accepted.flown and self.seen == accepted.key:
                         await self._supervise(accepted)
                         session.poll_at = time.monotonic() + self.cfg.poll_s
                         continue
-                due = session.changed_at is not None or (not armed and now >= session.poll_at)
+                # a readback every poll_s only where the autopilot gives no mission id (ArduPilot): on PX4 a
+                # readback would make a ground station's upload that begins meanwhile fail (MAV_MISSION_ERROR)
+                due = session.changed_at is not None or (not armed and not session.ids_known and now >= session.poll_at)
                 if not due or link.heartbeat_age > link.heartbeat_timeout:
                     continue
                 noticed = session.changed_at or now
@@ -255,6 +282,10 @@ class Service:
                     continue
                 if self.accepted is not None and key == self.accepted.key:
                     self.seen = key  # our own route (read back after a restart, or our upload's total)
+                    continue
+                if not key:  # cleared (or a fresh autopilot): nothing to plan to
+                    self.seen = key
+                    self.log.log("mission_cleared")
                     continue
                 if _armed(link.last_heartbeat_msg):
                     self.seen = key
@@ -347,14 +378,14 @@ class Service:
         report = handled.report
         path, overrides = request_scenario(cfg, world, (pos.lat / 1e7, pos.lon / 1e7), report)
         events.log("planning", scenario=str(path))
-        doc, sc = await asyncio.to_thread(plan_request, path, overrides, cfg.seed)
+        doc, sc = await asyncio.to_thread(plan_request, path, overrides, cfg.seed, cfg.budget_s)
         events.log("planned", status=doc["status"], length_m=round(float(doc["metrics"]["length_m"]), 1),
                    plan_s=round(float(doc["metrics"]["plan_time_s"]), 2))
         write_json(report / "PLAN.json", doc)
         limits = self._limits or limits_from({}, link.profile.layout, sc.vehicle, DEFAULT_LOITER_RADIUS_M)
         opts = FlyOptions(connect=cfg.url, arm=False, fence=False, report=report, replan=cfg.replan,
                           flight_timeout=cfg.flight_timeout,
-                          plan_again=lambda extra: plan_request(path, [*overrides, *extra], cfg.seed))
+                          plan_again=lambda extra: plan_request(path, [*overrides, *extra], cfg.seed, cfg.budget_s))
         doc, sc = await _plan_within(doc, sc, limits, opts, events)
         sup = FlightSupervisor(link, client, events, arm=False, home=sc.home)
         _departure_check(doc, sc, limits, events)(*await sup.vehicle_fix())
