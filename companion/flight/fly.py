@@ -15,6 +15,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from companion.flight import HEARTBEAT_WAIT_S
+from companion.flight.announce import Announcer
 from companion.flight.departure import VehicleFix, check_departure
 from companion.flight.report import plot_track, write_json
 from companion.flight.safety import flown_safety
@@ -122,6 +123,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
         if opts.signing_key is not None:
             events.log("signing", key=opts.signing_key.fingerprint)
         async with _link(url, opts) as link, contextlib.AsyncExitStack() as early:
+            early.enter_context(Announcer(link, events))  # the decisions to the ground station (STATUSTEXT)
             # the planner process starts now: its start and imports (seconds on a busy companion) overlap the boot
             # wait, the parameter reads and the upload; the replanner warms it on the route and closes it
             clock_rate = opts.speedup if sim is not None else None  # vehicle s per wall s where known (our simulator)
@@ -235,6 +237,9 @@ def _departure_check(plan_doc: dict[str, Any], scenario: Scenario, limits: Autop
         events.log("departure", on_ground=on_ground, **verdict.summary())
         if verdict.refusal is not None:
             raise DepartureRefused(verdict.refusal)
+        metrics = plan_doc["metrics"]
+        events.log("plan_accepted", length_m=round(float(metrics["length_m"]), 1),
+                   min_clearance_m=round(float(metrics["min_clearance_m"]), 1), waypoints=len(route))
     return check
 
 

@@ -6,38 +6,38 @@ zone (the report's telemetry clearance, and the track's positions checked here).
 
 from __future__ import annotations
 
-import asyncio
 import json
 from pathlib import Path
 
 import numpy as np
 from operator_course import D_COLL, GOAL, POLYGONS, base_scenario, fence_items, goal_mission, track_clearance
 from px4_harness import FAST
+from statustext_gcs import StatusTextGcs, accepted_line
 
 from companion.cli import main
 from companion.mavlink.items import FENCE, MISSION
 from companion.mavlink.link import Link
 from companion.mavlink.protocol import MissionClient
+from companion.mavlink.statustext import Severity
 from planner.world.home import Home
 
 HOME = Home(-35.363261, 149.165230, 584.0)
 
 
-async def _ground_station(port: int) -> None:
-    async with Link(f"udpout:127.0.0.1:{port}", source_system=255, source_component=190, open_timeout=5.0) as link:
-        await link.wait_heartbeat(20.0)
-        client = MissionClient(link)
-        await client.upload_verified(fence_items(HOME), FENCE)
-        await client.upload_verified(goal_mission(HOME, home_item=False), MISSION)
+async def _upload(link: Link) -> None:
+    client = MissionClient(link)
+    await client.upload_verified(fence_items(HOME), FENCE)
+    await client.upload_verified(goal_mission(HOME, home_item=False), MISSION)
 
 
 def test_px4_flies_round_the_fence_and_to_the_goal_the_operator_uploaded(px4_factory_fn, tmp_path: Path) -> None:
     scenario = base_scenario(tmp_path / "base.toml", HOME, "copter", 10.0)
     px4 = px4_factory_fn(HOME, speedup=FAST)
-    asyncio.run(_ground_station(px4.gcs_port))
     report = tmp_path / "rep"
-    code = main(["fly", str(scenario), "--connect", px4.companion_url, "--fence-from-vehicle", "--goal-from-vehicle",
-                 "--arm", "--report", str(report), "-q"])
+    # the ground station stays on PX4's GCS link through the flight: PX4 forwards the companion's STATUSTEXT to it
+    with StatusTextGcs(f"udpout:127.0.0.1:{px4.gcs_port}", first=_upload) as gcs:
+        code = main(["fly", str(scenario), "--connect", px4.companion_url, "--fence-from-vehicle",
+                     "--goal-from-vehicle", "--arm", "--report", str(report), "-q"])
     flight = json.loads((report / "flight.json").read_text())
     events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
     assert code == 0 and flight["completed"] is True and flight["flown_safe"] is True, flight
@@ -52,3 +52,8 @@ def test_px4_flies_round_the_fence_and_to_the_goal_the_operator_uploaded(px4_fac
           f"by zone {gaps}")
     assert min(gaps.values()) >= D_COLL, gaps
     assert np.hypot(*(flown[-1] - np.asarray(GOAL))) < 100.0  # it got there
+    print(f"the ground station (streams off in {gcs.streams_off_s:.2f} s) heard:",
+          *(f"{ln.severity} {ln.text}" for ln in gcs.from_companion()), sep="\n  ")
+    said = [(ln.severity, ln.text) for ln in gcs.from_companion()]
+    assert said[:2] == [(Severity.INFO, accepted_line(report)),
+                        (Severity.INFO, "fuseplan: mission uploaded and verified")], gcs.lines

@@ -5,29 +5,28 @@ from every zone (the report's telemetry clearance, and the track's positions che
 
 from __future__ import annotations
 
-import asyncio
 import json
 from pathlib import Path
 
 import numpy as np
 from operator_course import D_COLL, POLYGONS, base_scenario, fence_items, goal_mission, track_clearance
+from statustext_gcs import StatusTextGcs, accepted_line
 
 from companion.cli import main
 from companion.mavlink.items import FENCE, MISSION
 from companion.mavlink.link import Link
 from companion.mavlink.protocol import MissionClient
+from companion.mavlink.statustext import Severity
 from planner.world.home import Home
 
 HOME = Home(-35.363261, 149.165230, 584.0)
 FAST = 20.0
 
 
-async def _ground_station(url: str) -> None:
-    async with Link(url, source_system=255, source_component=190, open_timeout=5.0) as link:
-        await link.wait_heartbeat(10.0)
-        client = MissionClient(link)
-        await client.upload_verified(fence_items(HOME), FENCE)
-        await client.upload_verified(goal_mission(HOME, home_item=True), MISSION)
+async def _upload(link: Link) -> None:
+    client = MissionClient(link)
+    await client.upload_verified(fence_items(HOME), FENCE)
+    await client.upload_verified(goal_mission(HOME, home_item=True), MISSION)
 
 
 def test_arduplane_flies_round_the_fence_and_to_the_goal_the_operator_uploaded(sitl_factory_fn,
@@ -35,8 +34,8 @@ def test_arduplane_flies_round_the_fence_and_to_the_goal_the_operator_uploaded(s
     scenario = base_scenario(tmp_path / "base.toml", HOME, "plane", 18.0)
     sitl = sitl_factory_fn("plane", HOME, speedup=FAST)
     report = tmp_path / "rep"
-    with sitl.hold_serial0():
-        asyncio.run(_ground_station(sitl.serial2_url))
+    # the ground station stays on SERIAL2 through the flight: ArduPilot routes the companion's STATUSTEXT to it
+    with sitl.hold_serial0(), StatusTextGcs(sitl.serial2_url, first=_upload) as gcs:
         code = main(["fly", str(scenario), "--connect", sitl.serial1_url, "--fence-from-vehicle",
                      "--goal-from-vehicle", "--arm", "--report", str(report), "-q"])
     flight = json.loads((report / "flight.json").read_text())
@@ -50,6 +49,12 @@ def test_arduplane_flies_round_the_fence_and_to_the_goal_the_operator_uploaded(s
     flown = np.array([[e["x"], e["y"]] for e in events if e["event"] == "position"])
     assert len(flown) > 20
     gaps = track_clearance(flown)
-    print(f"flown clearance {flight['min_static_clearance_m']:.1f} m ({flight.get('nearest_obstacle')}); by zone {gaps}")
+    print(f"flown clearance {flight['min_static_clearance_m']:.1f} m ({flight.get('nearest_obstacle')}); "
+          f"by zone {gaps}")
     assert min(gaps.values()) >= D_COLL, gaps
     assert np.hypot(*(flown[-1] - [1180.0, 720.0])) < 200.0  # it got there
+    print(f"the ground station (streams off in {gcs.streams_off_s:.2f} s) heard:",
+          *(f"{ln.severity} {ln.text}" for ln in gcs.from_companion()), sep="\n  ")
+    said = [(ln.system, ln.severity, ln.text) for ln in gcs.from_companion()]
+    assert said[:2] == [(1, Severity.INFO, accepted_line(report)),
+                        (1, Severity.INFO, "fuseplan: mission uploaded and verified")], gcs.lines
