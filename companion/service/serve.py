@@ -16,8 +16,10 @@
 4. **Flight.** When the pilot arms with the service's route on the vehicle, it is supervised as ``fly`` supervises
    (a :class:`FlightSupervisor` that never arms or starts; the live replanner and its flown-safety guard).
 5. **Telling.** Every decision is an event of the request's :class:`EventLog` (``plan_request``,
-   ``plan_accepted`` with length_m, clearance_m, items; ``plan_refused`` with reason; ``failed``), and a
-   STATUSTEXT line to the ground station (:func:`_status_line`, the one place that turns events into lines).
+   ``plan_accepted`` with length_m, min_clearance_m and waypoints once the departure check passes, as ``fly`` logs
+   it; ``upload_verified``; ``route_set``; ``plan_refused`` with reason; ``failed``), which the flight's
+   :class:`~companion.flight.announce.Announcer` sends to the ground station as STATUSTEXT lines (plan accepted
+   with its length and clearance, mission uploaded and verified, refused and why, the flight's decisions).
 
 Each request writes a report folder under the log folder (events.jsonl, the request's scenario, PLAN.json, the
 mission files and, after a flight, flight.json and track.png); the service's own events go to ``service.jsonl``.
@@ -38,6 +40,7 @@ from typing import Any
 
 from pymavlink.dialects.v20 import common as mavlink
 
+from companion.flight.announce import Announcer
 from companion.flight.fly import (
     DEFAULT_LOITER_RADIUS_M,
     FlyOptions,
@@ -54,7 +57,6 @@ from companion.mavlink.link import Link
 from companion.mavlink.mission_ids import plan_ids
 from companion.mavlink.params import read_params
 from companion.mavlink.protocol import MissionClient
-from companion.mavlink.statustext import Severity, StatusTexts
 from companion.mavlink.telemetry import TelemetryRates
 from companion.mavlink.vehicle_limits import AutopilotLimits, limits_from, parameter_names
 from companion.mission.builder import mission_from_plan_json, spec_from_plan_json
@@ -171,7 +173,7 @@ class Service:
                     open_timeout=math.inf)
         try:
             async with link:
-                self.link, self.client, self.texts = link, MissionClient(link), StatusTexts(link)
+                self.link, self.client = link, MissionClient(link)
                 rates = self.rates = TelemetryRates(link).start()
                 try:
                     while True:
@@ -313,7 +315,7 @@ class Service:
         report = self.cfg.log_folder / f"{stamp}-request-{self._requests:03d}"
         report.mkdir(parents=True, exist_ok=True)
         events = EventLog(report / "events.jsonl", echo=self._fan)
-        events.subscribe(self._status_line)
+        events.subscribe(Announcer(self.link, events))  # its decisions to the ground station, as fly's
         handled = Handled(self._requests, report, "", noticed_at=noticed)
         self.handled.append(handled)
         self.log.log("request", n=self._requests, report=str(report))
@@ -402,9 +404,7 @@ class Service:
         stored = await client.download(MISSION)
         key = mission_key(stored, home0)
         self.seen = key
-        clearance = float(doc["metrics"]["min_clearance_m"])
-        events.log("plan_accepted", length_m=round(float(doc["metrics"]["length_m"]), 1),
-                   clearance_m=round(clearance, 1), items=planned)
+        events.log("route_set", items=len(items), planned_items=planned, operator_items=len(mission))
         return Accepted(handled.number, report, events, doc, sc, list(items), planned, sup, key, list(mission))
 
     # -- a flight ----------------------------------------------------------------------------------
@@ -444,35 +444,5 @@ class Service:
                 h.flight = flight
         events.close()
 
-    # -- telling the ground station ------------------------------------------------------------------
-    def _status_line(self, rec: dict[str, Any]) -> None:
-        """THE place that turns the service's events into STATUSTEXT lines for the ground station (until the
-        flight announcer of companion/flight/announce.py takes this over)."""
-        line = status_line(rec)
-        if line is not None and self.link is not None:
-            self.texts.send(*line)
 
-
-def status_line(rec: dict[str, Any]) -> tuple[str, int] | None:
-    """(text, severity) told to the ground station for an event record, or None."""
-    e = rec["event"]
-    if e == "plan_request":
-        return "fuseplan: planning your mission", Severity.INFO
-    if e == "plan_accepted":
-        return (f"fuseplan: safe route set: {rec['length_m']:.0f} m, clear {rec['clearance_m']:.0f} m, "
-                f"{rec['items']} items", Severity.NOTICE)
-    if e == "plan_refused":
-        return f"fuseplan: plan refused, your mission kept: {rec['reason']}", Severity.WARNING
-    if e == "failed":
-        return f"fuseplan: failed: {rec['error']}", Severity.ERROR
-    if e == "mission_restored":
-        return "fuseplan: your mission was restored", Severity.WARNING
-    if e == "mission_restore_failed":
-        return "fuseplan: restore FAILED: do not start the mission", Severity.CRITICAL
-    if e == "finished":
-        return ("fuseplan: flight complete" if rec["completed"] else f"fuseplan: flight not complete: {rec['reason']}",
-                Severity.INFO if rec["completed"] else Severity.WARNING)
-    return None
-
-
-__all__ = ["Handled", "MAV_COMP_ID_PATHPLANNER", "Service", "mission_key", "status_line"]
+__all__ = ["Handled", "MAV_COMP_ID_PATHPLANNER", "Service", "mission_key"]

@@ -19,7 +19,7 @@ from px4_harness import FAST
 from serve_gcs import GroundStation, two_item_mission, write_config
 
 from companion.mavlink.items import MISSION
-from companion.service import Service, load_config
+from companion.service import Handled, Service, load_config
 from companion.service.serve import mission_key
 from planner.world.home import Home
 
@@ -27,17 +27,27 @@ HOME = Home(-35.363261, 149.165230, 584.0)
 REPLACED_WITHIN_S = 5.0
 
 
+async def _verdict(service: Service, n: int) -> Handled:
+    """Request ``n`` (from 0) once decided (the route is read back once more after the line)."""
+    for _ in range(100):
+        if len(service.handled) > n and service.handled[n].verdict:
+            return service.handled[n]
+        await asyncio.sleep(0.05)
+    raise AssertionError(f"request {n + 1} undecided: {service.handled}")
+
+
 async def _replaced(gcs: GroundStation, service: Service, mission: list, fence: list | None) -> dict[str, float]:
     """Upload; wait for the companion's line; check the vehicle holds the route. The times after the upload."""
     n = len(service.handled)
     stored = await gcs.upload(mission, fence)
-    t_line, text = await gcs.line(lambda s: "safe route" in s, stored, 20.0)
-    handled = service.handled[n]
+    t_line, text = await gcs.line(lambda s: "uploaded and verified" in s, stored, 20.0)
+    _, accepted = await gcs.line(lambda s: "plan accepted" in s, stored, 1.0)
+    handled = await _verdict(service, n)
     assert handled.verdict == "accepted", handled
     got = await gcs.client.download(MISSION)
     assert mission_key(got, False) != mission_key(mission, False) and len(got) > len(mission)
     times = {"replaced_s": round(handled.done_at - stored, 2), "told_s": round(t_line - stored, 2)}
-    print(f"{times} {text!r}")
+    print(f"{times} {accepted!r} {text!r}")
     return times
 
 

@@ -43,14 +43,17 @@ async def _serve_on_the_simulator(tmp_path: Path) -> None:
                 # 1. a fence and a goal: the verified route replaces the mission, and the ground station is told
                 operator = goal_mission(HOME, home_item=True)
                 stored = await gcs.upload(operator, fence_items(HOME))
-                t_line, text = await gcs.line(lambda s: "safe route" in s, stored, 15.0)
+                t_line, text = await gcs.line(lambda s: "uploaded and verified" in s, stored, 15.0)
+                _, said = await gcs.line(lambda s: "plan accepted" in s, stored, 1.0)
+                while not service.handled[-1].verdict:
+                    await asyncio.sleep(0.02)
                 accepted = service.handled[-1]
                 assert accepted.verdict == "accepted", accepted
                 got = await gcs.client.download(MISSION)
                 assert mission_key(got, True) != mission_key(operator, True) and len(got) > len(operator)
                 assert got[-1].command == mavlink.MAV_CMD_NAV_WAYPOINT or len(got) > 3
                 print(f"replaced {accepted.done_at - stored:.2f} s, told {t_line - stored:.2f} s after the upload: "
-                      f"{text!r}")
+                      f"{said!r}, {text!r}")
                 assert t_line - stored < 5.0
                 plan = json.loads((accepted.report / "PLAN.json").read_text())
                 assert plan["status"] in ("exact", "approximate")
@@ -69,6 +72,8 @@ async def _serve_on_the_simulator(tmp_path: Path) -> None:
                 inside[-1] = inside[-1].__class__(**{**inside[-1].__dict__, "x": x, "y": y})
                 stored = await gcs.upload(inside)
                 _, why = await gcs.line(lambda s: "refused" in s, stored, 15.0)
+                while not service.handled[-1].verdict:
+                    await asyncio.sleep(0.02)
                 assert service.handled[-1].verdict == "refused"
                 got = await gcs.client.download(MISSION)
                 assert mission_key(got, True) == mission_key(inside, True)
