@@ -36,7 +36,7 @@ async def _serve(cfg: ServeConfig, echo: Callable[[dict[str, Any]], None] | None
     service = Service(cfg, echo=echo)
     task = asyncio.create_task(service.run(), name="fuseplan-serve")
     for sig in (signal.SIGINT, signal.SIGTERM):
-        loop.add_signal_handler(sig, task.cancel)
+        loop.add_signal_handler(sig, service.stop, task)
     try:
         async with contextlib.AsyncExitStack() as stack:
             if cfg.status_page is not None:

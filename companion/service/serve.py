@@ -154,6 +154,15 @@ class Service:
     _requests: int = 0
     _limits: AutopilotLimits | None = None  # the autopilot's, read at each connect
     listeners: list[Callable[[dict[str, Any]], None]] = field(default_factory=list)  # every record (status page)
+    _busy: bool = False  # a request is being handled: a stop waits for its end (never a half-changed mission)
+    _stopping: bool = False
+
+    def stop(self, task: asyncio.Task) -> None:
+        """Stop ``task`` (running :meth:`run`) now, or once the request in hand is decided (planning is bounded by
+        plan.budget_s, then one upload, verified or restored), so that no mission is left half-changed."""
+        self._stopping = True
+        if not self._busy:
+            task.cancel()
 
     def _fan(self, rec: dict[str, Any]) -> None:
         """Every record of the service's logs to the echo and the listeners."""
@@ -342,6 +351,7 @@ class Service:
             self.accepted.events.log("superseded", by=handled.number)
             self.accepted.events.close()
         self.accepted = None
+        self._busy = True
         try:
             accepted = await self._plan_and_replace(mission, handled, events)
         except (PlanRefusal, DepartureRefused) as e:
@@ -357,9 +367,13 @@ class Service:
         else:
             self.accepted = accepted
             handled.verdict = "accepted"
+        finally:
+            self._busy = False
         handled.done_at = time.monotonic()
         if self.accepted is None:
             events.close()
+        if self._stopping:
+            raise asyncio.CancelledError  # the stop asked for while the request was in hand
 
     async def _plan_and_replace(self, mission: list[MissionItem], handled: Handled, events: EventLog) -> Accepted:
         link, client, cfg = self.link, self.client, self.cfg

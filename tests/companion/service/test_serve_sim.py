@@ -10,12 +10,13 @@ import contextlib
 import json
 from pathlib import Path
 
+import gcs_world
 from operator_course import CIRCLE, base_scenario, fence_items, goal_mission
 from pymavlink.dialects.v20 import common as mavlink
 from serve_gcs import GroundStation, write_config
 
 from companion.mavlink.items import MISSION
-from companion.service import Service, load_config
+from companion.service import MAV_COMP_ID_PATHPLANNER, Service, load_config
 from companion.service.serve import mission_key
 from companion.sim import SimAutopilot
 from planner.world.home import Home
@@ -40,8 +41,16 @@ async def _serve_on_the_simulator(tmp_path: Path) -> None:
                 await gcs.link.wait_heartbeat(10.0)
                 while service.seen is None:  # the service's first look at the vehicle: no request
                     await asyncio.sleep(0.05)
-                # 1. a fence and a goal: the verified route replaces the mission, and the ground station is told
-                operator = goal_mission(HOME, home_item=True)
+                # the companion is listed: its HEARTBEAT from the path planner's component, passed on by the autopilot
+                beat = await gcs.link.wait_for("HEARTBEAT", any_source=True, timeout=5.0,
+                                               predicate=lambda m: m.get_srcComponent() == MAV_COMP_ID_PATHPLANNER)
+                assert beat.type == mavlink.MAV_TYPE_ONBOARD_CONTROLLER
+
+                # 1. a fence, a via and a goal: the verified route replaces the mission, and the ground station is
+                # told
+                goal = goal_mission(HOME, home_item=True)
+                via = gcs_world.goal_mission(HOME, north=100.0, east=500.0, alt=60.0, home_item=False)[0]
+                operator = [it.with_seq(k) for k, it in enumerate([goal[0], via, goal[1]])]
                 stored = await gcs.upload(operator, fence_items(HOME))
                 t_line, text = await gcs.line(lambda s: "uploaded and verified" in s, stored, 15.0)
                 _, said = await gcs.line(lambda s: "plan accepted" in s, stored, 1.0)
@@ -57,6 +66,7 @@ async def _serve_on_the_simulator(tmp_path: Path) -> None:
                 assert t_line - stored < 5.0
                 plan = json.loads((accepted.report / "PLAN.json").read_text())
                 assert plan["status"] in ("exact", "approximate")
+                assert len(plan["vias"]) == 1, plan.get("vias")  # the operator's intermediate position
                 events = [json.loads(x)["event"] for x in (accepted.report / "events.jsonl").read_text().split("\n")
                           if x]
                 assert "plan_accepted" in events and "upload_verified" in events
@@ -66,9 +76,7 @@ async def _serve_on_the_simulator(tmp_path: Path) -> None:
 
                 # 2. a goal inside the exclusion circle: refused, the operator's mission stays, the reason is told
                 inside = goal_mission(HOME, home_item=True)
-                from gcs_world import e7
-
-                x, y = e7(HOME, north=CIRCLE[1], east=CIRCLE[0])
+                x, y = gcs_world.e7(HOME, north=CIRCLE[1], east=CIRCLE[0])
                 inside[-1] = inside[-1].__class__(**{**inside[-1].__dict__, "x": x, "y": y})
                 stored = await gcs.upload(inside)
                 _, why = await gcs.line(lambda s: "refused" in s, stored, 15.0)
