@@ -2,19 +2,22 @@
 ground-station script on PX4's GCS link. The script uploads a fence (issue 35's operator course; PX4 enforces it at
 once) and a two-item mission (takeoff, goal); within 5 s the vehicle's mission is the verified safe route and the
 script has the companion's STATUSTEXT saying so (PX4 forwards it: both links run with forwarding, -f). The script
-arms and starts; the service supervises the flight to the goal. PX4 is then power-cycled (PX4 SITL denies the
-reboot command; a fresh PX4 on the same ports); the service reconnects and handles a second upload (mission
-replaced, STATUSTEXT). This covers tests/px4/test_px4_operator_world_flight.py's flight (the fence and goal read from
-the vehicle, planned round, flown safe) except its track-by-zone check."""
+arms and starts; the service supervises the flight to the goal. PX4 is then power-cycled (PX4 SITL denies the reboot
+command; a fresh PX4 on the same ports); the service reconnects and handles a second upload (mission replaced,
+STATUSTEXT). This covers tests/px4/test_px4_operator_world_flight.py's flight (the fence and goal read from the
+vehicle, planned round, flown safe) and its track-by-zone check (the same independent check of the flown track
+against each zone)."""
 
 from __future__ import annotations
 
 import asyncio
 import contextlib
+import json
 import time
 from pathlib import Path
 
-from operator_course import D_COLL, base_scenario, fence_items
+import numpy as np
+from operator_course import D_COLL, GOAL, POLYGONS, base_scenario, fence_items, track_clearance
 from px4_harness import FAST
 from serve_gcs import GroundStation, two_item_mission, write_config
 
@@ -51,6 +54,23 @@ async def _replaced(gcs: GroundStation, service: Service, mission: list, fence: 
     return times
 
 
+def _flown_round_the_zones(report: Path, goal_within_m: float) -> None:
+    """As the operator-world flight checks it: the fence's five zones read from the vehicle, no fence uploaded,
+    the telemetry track clear of every zone by d_coll (the polygons and the circle, checked here independently),
+    and the goal reached."""
+    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    world = next(e for e in events if e["event"] == "vehicle_world")
+    assert len(world["zones"]) == len(POLYGONS) + 1 and world["goal"] is not None
+    flight = json.loads((report / "flight.json").read_text())
+    assert flight["fence_items"] == 0 and flight["track_source"] == "GLOBAL_POSITION_INT"
+    flown = np.array([[e["x"], e["y"]] for e in events if e["event"] == "position"])
+    assert len(flown) > 20
+    gaps = track_clearance(flown)
+    print(f"by zone {gaps}")
+    assert min(gaps.values()) >= D_COLL, gaps
+    assert np.hypot(*(flown[-1] - np.asarray(GOAL))) < goal_within_m  # it got there
+
+
 async def _scenario(tmp_path: Path, px4: object) -> None:
     base = base_scenario(tmp_path / "base.toml", HOME, "copter", 10.0)
     cfg = load_config(write_config(tmp_path / "serve.toml", px4.companion_url, base, tmp_path / "logs"))
@@ -75,6 +95,7 @@ async def _scenario(tmp_path: Path, px4: object) -> None:
                   f"clearance {flight['min_static_clearance_m']:.1f} m")
             assert flight["completed"] and flight["flown_safe"], flight
             assert flight["min_static_clearance_m"] >= D_COLL
+            _flown_round_the_zones(handled.report, 100.0)
 
             connections = service.connections
             t_restart = time.monotonic()
