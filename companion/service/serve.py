@@ -77,6 +77,7 @@ SETTLE_S = 0.3  # wall seconds between the readbacks that must agree before a ch
 SETTLE_READS = 4  # readbacks tried before a mission that keeps changing is left for the next look
 POSITION_WAIT_S = 5.0
 PARAMS_WAIT_S = 10.0
+SESSION_RETRY_S = 0.5  # wall s before a session that failed (a transfer the link broke) is begun again
 REBOOT_BACK_MS = 1000  # the autopilot's boot time going back more than this: it restarted
 
 
@@ -186,12 +187,11 @@ class Service:
                 rates = self.rates = TelemetryRates(link).start()
                 try:
                     while True:
-                        session = await self._connect()
                         try:
-                            await self._watch(session)
-                        except (CompanionError, TimeoutError) as e:  # the link went during a transfer
-                            self.log.log("session_error", error=str(e))
-                            await asyncio.sleep(0.5)
+                            await self._watch(await self._connect())
+                        except (CompanionError, TimeoutError, OSError) as e:  # the link went during a transfer
+                            self.log.log("session_error", error=str(e) or type(e).__name__)
+                            await asyncio.sleep(SESSION_RETRY_S)
                 finally:
                     rates.stop()
         finally:
@@ -274,8 +274,8 @@ class Service:
                         await self._supervise(accepted)
                         session.poll_at = time.monotonic() + self.cfg.poll_s
                         continue
-                # a readback every poll_s only where the autopilot gives no mission id (ArduPilot): on PX4 a
-                # readback would make a ground station's upload that begins meanwhile fail (MAV_MISSION_ERROR)
+                # a readback every poll_s only where the autopilot gives no mission id (ArduPilot); where it does
+                # (PX4), every change is told and nothing else is asked of the autopilot
                 due = session.changed_at is not None or (not armed and not session.ids_known and now >= session.poll_at)
                 if not due or link.heartbeat_age > link.heartbeat_timeout:
                     continue
