@@ -34,12 +34,13 @@ def two_item_mission(home: Home, home_item: bool, east: float, north: float, alt
 
 
 def write_config(path: Path, url: str, scenario: Path, log_folder: Path, poll_s: float = 2.0,
-                 budget_s: float = 1.0) -> Path:
+                 budget_s: float = 1.0, zones: Sequence[Path] = ()) -> Path:
     path.write_text(f"""[link]
 url = "{url}"
 heartbeat_timeout = 3.0
 [plan]
 scenario = "{scenario}"
+zones = [{", ".join(f'"{z}"' for z in zones)}]
 seed = 1
 budget_s = {budget_s}
 [service]

@@ -84,8 +84,10 @@ def plan_request(path: Path, overrides: list[str], seed: int | None,
     res = plan_scenario(sc, sc.planner, np.random.default_rng(sc.planner.seed), start_time,
                         Deadline.after(budget_s), seed=sc.planner.seed)
     doc = plan_to_json(res, sc, start_time)
+    if doc["status"] == "timeout":
+        raise PlanRefusal(f"no safe route found within plan.budget_s = {budget_s:g} s")
     if doc["status"] not in FEASIBLE:
-        raise PlanRefusal(f"no safe route ({doc['status']}): the goal or a via may be in a zone or walled off")
+        raise PlanRefusal(f"no safe route ({doc['status']}): the goal or a via may be walled off by zones")
     return doc, sc
 
 

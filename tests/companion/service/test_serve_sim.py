@@ -25,6 +25,15 @@ from planner.world.scenario import load_scenario
 HOME = Home(-35.363261, 149.165230, 584.0)
 
 
+def _zones_file(path: Path) -> Path:
+    """A configured zones file: a 50-m cylinder ("Tower") in the region, off the way to the goal."""
+    lat, lon = (v / 1e7 for v in gcs_world.e7(HOME, north=850.0, east=150.0))
+    path.write_text(json.dumps({"type": "FeatureCollection", "features": [{
+        "type": "Feature", "properties": {"name": "Tower", "radius_m": 50},
+        "geometry": {"type": "Point", "coordinates": [lon, lat]}}]}))
+    return path
+
+
 def test_serve_replaces_refuses_and_leaves_an_armed_vehicle_alone(tmp_path: Path) -> None:
     asyncio.run(_serve_on_the_simulator(tmp_path))  # its own loop: the planner's thread ends with it
 
@@ -33,7 +42,8 @@ async def _serve_on_the_simulator(tmp_path: Path) -> None:
     base = base_scenario(tmp_path / "base.toml", HOME, "plane", 18.0)
     async with SimAutopilot(load_scenario(base), "tcp:127.0.0.1:0", speedup=20.0, seed=1) as sim:
         url = f"tcp:127.0.0.1:{sim.port}"
-        cfg = load_config(write_config(tmp_path / "serve.toml", url, base, tmp_path / "logs", poll_s=1.0))
+        cfg = load_config(write_config(tmp_path / "serve.toml", url, base, tmp_path / "logs", poll_s=1.0, budget_s=3.0,
+                                       zones=[_zones_file(tmp_path / "zones.geojson")]))
         service = Service(cfg)
         task = asyncio.create_task(service.run())
         try:
@@ -64,6 +74,9 @@ async def _serve_on_the_simulator(tmp_path: Path) -> None:
                 print(f"replaced {accepted.done_at - stored:.2f} s, told {t_line - stored:.2f} s after the upload: "
                       f"{said!r}, {text!r}")
                 assert t_line - stored < 5.0
+                request = (accepted.report / "request.scenario.toml").read_text()
+                # the fence's zones and the configured zones file's cylinder (cylinders carry no names)
+                assert "vehicle fence items 0-5" in request and request.count("[[cylinders]]") == 2
                 plan = json.loads((accepted.report / "PLAN.json").read_text())
                 assert plan["status"] in ("exact", "approximate")
                 assert len(plan["vias"]) == 1, plan.get("vias")  # the operator's intermediate position
