@@ -1,7 +1,8 @@
 """``fuseplan serve`` on the built-in simulator (one TCP port, shared by the companion and a ground-station script,
 the simulator passing broadcast messages between them as ArduPilot routes them): an operator's upload is noticed,
 planned round the vehicle's fence and replaced by the verified route with a STATUSTEXT saying so; a goal inside a
-fence zone is refused and the operator's mission kept; an upload while armed is never replaced."""
+fence zone is refused and the operator's mission kept; an upload while armed is never replaced; a route refused
+part-way by the autopilot leaves the operator's mission restored and verified, and the failure told."""
 
 from __future__ import annotations
 
@@ -13,7 +14,7 @@ from pathlib import Path
 import gcs_world
 from operator_course import CIRCLE, base_scenario, fence_items, goal_mission
 from pymavlink.dialects.v20 import common as mavlink
-from serve_gcs import GroundStation, write_config
+from serve_gcs import GroundStation, two_item_mission, write_config
 
 from companion.mavlink.items import MISSION
 from companion.service import MAV_COMP_ID_PATHPLANNER, Service, load_config
@@ -109,6 +110,24 @@ async def _serve_on_the_simulator(tmp_path: Path) -> None:
                 got = await gcs.client.download(MISSION)
                 assert mission_key(got, True) == mission_key(operator, True), "replaced while armed"
                 await gcs.client.command_long(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 0)
+                while sim.armed:
+                    await asyncio.sleep(0.05)
+
+                # 4. the route's upload refused part-way (item 5, as ArduPilot refuses an item it cannot store): the
+                # operator's mission is put back and verified, and the ground station hears of the failure
+                sim.inject_item_refusal(5, mavlink.MAV_MISSION_NO_SPACE)
+                operator = two_item_mission(HOME, True, 1000.0, 800.0)
+                stored = await gcs.upload(operator)
+                _, why = await gcs.line(lambda s: "failure" in s, stored, 15.0)
+                while not service.handled[-1].verdict:
+                    await asyncio.sleep(0.02)
+                failed = service.handled[-1]
+                assert failed.verdict == "failed" and sim.refusals, failed
+                got = await gcs.client.download(MISSION)
+                assert mission_key(got, True) == mission_key(operator, True), "the operator's mission not restored"
+                events = [json.loads(x) for x in (failed.report / "events.jsonl").read_text().splitlines()]
+                assert any(e["event"] == "mission_restored" and e["which"] == "previous" for e in events)
+                print(f"failed: {why!r}")
         finally:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
