@@ -59,6 +59,7 @@ from companion.mavlink.params import read_params
 from companion.mavlink.protocol import MissionClient
 from companion.mavlink.telemetry import TelemetryRates
 from companion.mavlink.vehicle_limits import AutopilotLimits, limits_from, parameter_names
+from companion.mission import picture
 from companion.mission.builder import mission_from_plan_json, spec_from_plan_json
 from companion.mission.events import EventLog
 from companion.mission.vehicle_state import VehicleState, subscribe
@@ -403,6 +404,7 @@ class Service:
                           flight_timeout=cfg.flight_timeout,
                           plan_again=lambda extra: plan_request(path, [*overrides, *extra], cfg.seed, cfg.budget_s))
         doc, sc = await _plan_within(doc, sc, limits, opts, events)
+        events.log("scene", **picture.scene(sc, doc))  # the status page's map of this request
         sup = FlightSupervisor(link, client, events, arm=False, home=sc.home)
         _departure_check(doc, sc, limits, events)(*await sup.vehicle_fix())
         autopilot = link.profile.layout
@@ -415,6 +417,7 @@ class Service:
         if _armed(link.last_heartbeat_msg):
             raise PlanRefusal("vehicle armed while planning: the mission is not replaced in flight")
         await sup.upload(items)  # reads the operator's mission first, restores it if the upload fails
+        events.log("mission", **picture.mission(items, sc.home))
         stored = await client.download(MISSION)
         key = mission_key(stored, home0)
         self.seen = key
