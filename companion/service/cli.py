@@ -25,9 +25,24 @@ def run_service(config: Path, *, check_only: bool = False, echo: Callable[[dict[
               f"{cfg.log_folder}")
         return EXIT_OK
     print(f"fuseplan serve: link {cfg.url}, logs in {cfg.log_folder}; Ctrl-C or SIGTERM to stop", flush=True)
-    asyncio.run(_serve(cfg, echo))
+    asyncio.run(_serve(cfg, _with_service_lines(echo)))
     print("fuseplan serve: stopped", flush=True)
     return EXIT_OK
+
+
+# the service's own decisions, one progress line each (journald shows them); the flight's go to the CLI's echo
+SERVICE_LINES = ("serve_start", "waiting_for_autopilot", "connected", "autopilot_restarted", "baseline", "request",
+                 "plan_request", "planned", "plan_accepted", "plan_refused", "route_set", "session_error")
+
+
+def _with_service_lines(echo: Callable[[dict[str, Any]], None] | None) -> Callable[[dict[str, Any]], None]:
+    def say(rec: dict[str, Any]) -> None:
+        if rec["event"] in SERVICE_LINES:
+            detail = " ".join(f"{k}={v}" for k, v in rec.items() if k not in ("t", "event"))
+            print(f"{rec['event']} {detail}".rstrip(), flush=True)
+        elif echo is not None:
+            echo(rec)
+    return say
 
 
 async def _serve(cfg: ServeConfig, echo: Callable[[dict[str, Any]], None] | None) -> None:
