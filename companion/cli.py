@@ -127,6 +127,11 @@ def _parser() -> argparse.ArgumentParser:
     fl.add_argument("--goal-from-vehicle", action="store_true",
                     help="the goal is the last navigation item of the mission on the vehicle (with --connect)")
     _status_options(fl)
+    sv = add_command(sub, "serve", "run as the companion's service: plan every mission the operator uploads round the "
+                     "vehicle's fence, replace it with the verified safe route while disarmed, supervise the flight "
+                     "(docs/serve.md)", command(ServeArgs, cmd_serve))
+    sv.add_argument("config", type=Path, help="the service's configuration file (TOML; docs/serve.example.toml)")
+    sv.add_argument("--check", action="store_true", help="check the configuration file and exit")
     sm = add_command(sub, "sim", "run the built-in simulated autopilot alone", command(SimArgs, cmd_sim))
     sm.add_argument("scenario", type=Path, help="the scenario TOML whose vehicle, home and intruders are simulated")
     sm.add_argument("--listen", default="udpin:127.0.0.1:14550", help="udpin:HOST:PORT or tcp:HOST:PORT "
@@ -335,6 +340,19 @@ class SimArgs:
     @classmethod
     def from_args(cls, ns: argparse.Namespace) -> SimArgs:
         return options_from(cls, ns, signing=SigningArgs.from_args(ns))
+
+
+@dataclass(frozen=True)
+class ServeArgs:
+    """``fuseplan serve``."""
+
+    config: Path
+    check: bool
+    quiet: bool
+
+    @classmethod
+    def from_args(cls, ns: argparse.Namespace) -> ServeArgs:
+        return options_from(cls, ns)
 
 
 @dataclass(frozen=True)
@@ -854,6 +872,13 @@ def _echo_event(rec: dict) -> None:
     else:
         text = f"{e} " + " ".join(f"{k}={v}" for k, v in detail.items())
     console.say(f"  [{rec['t']:6.1f} s] {text}".rstrip(), _STYLES.get(e.tone))
+
+
+def cmd_serve(args: ServeArgs) -> int:
+    """``fuseplan serve CONFIG``: until SIGINT or SIGTERM (exit 0); a bad configuration is one line, exit 2."""
+    from companion.service.cli import run_service
+
+    return run_service(args.config, check_only=args.check, echo=None if args.quiet else _echo_event)
 
 
 def cmd_sim(args: SimArgs) -> int:

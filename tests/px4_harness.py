@@ -154,6 +154,7 @@ class Px4Instance:
     startup_s: float = 0.0  # start -> first HEARTBEAT on the companion link
     stop_s: float | None = None  # SIGTERM -> reaped, once stopped
     _started_at: float = field(default=0.0, repr=False)  # wall clock, to tell PX4's /tmp/px4-sock-N of this run
+    _launch: tuple[list[str], dict[str, str]] | None = field(default=None, repr=False)  # command and environment
     _lock: IO[bytes] | None = field(default=None, repr=False)
 
     @property
@@ -209,6 +210,42 @@ class Px4Instance:
         if not answered:
             raise self._fail(f"no HEARTBEAT from {self.system_id}/1 on {self.companion_url} after {timeout:.0f} s")
         return time.monotonic() - t0
+
+    def restart(self, timeout: float = READY_TIMEOUT) -> float:
+        """Power-cycle the autopilot (PX4 SITL denies MAV_CMD_PREFLIGHT_REBOOT_SHUTDOWN): stop this PX4 as
+        :meth:`stop` does, keeping its instance, ports and folder, and start it again with the same command; returns
+        once its startup script has run again (its companion port is not probed: a companion may hold it). A fresh
+        PX4: its parameters and mission storage are in a new working directory."""
+        assert self._launch is not None and self._lock is not None
+        terminate(self.process, STOP_GRACE, lambda: os.killpg(self.pid, signal.SIGKILL))
+        for pid in _process_group(self.pid):
+            if pid != self.pid:
+                with contextlib.suppress(ProcessLookupError):
+                    os.kill(pid, signal.SIGKILL)
+        with contextlib.suppress(OSError):
+            self._socket_file().unlink()
+        command, env = self._launch
+        t0 = time.monotonic()
+        with open(self.log_path, "ab") as log:
+            offset = log.tell()
+            log.write(f"$ {' '.join(command)}  (restart)\n".encode())
+            log.flush()
+            self.process = subprocess.Popen(command, cwd=self.root, env=env, stdin=subprocess.DEVNULL, stdout=log,
+                                            stderr=subprocess.STDOUT, start_new_session=True)
+        while True:
+            if self.process.poll() is not None:
+                raise self._fail(f"exited with code {self.process.returncode} after a restart")
+            with contextlib.suppress(OSError):
+                cwd = Path(os.readlink(f"/proc/{self.pid}/cwd"))
+                self.workdir = cwd if cwd != self.root else self.workdir
+            text = self.log_path.read_bytes()[offset:].decode(errors="replace")
+            if FAILED in text:
+                raise self._fail("startup script failed after a restart")
+            if STARTED in text:
+                return time.monotonic() - t0
+            if time.monotonic() - t0 > timeout:
+                raise self._fail(f"startup script not done {timeout:.0f} s after a restart")
+            time.sleep(0.02)
 
     def _socket_file(self) -> Path:
         """PX4's command socket for this instance (PX4 leaves it behind; fixed path, not under TMPDIR)."""
@@ -308,7 +345,8 @@ def start_px4(
             raise
     binary = (px4_dir / "bin" / "px4").resolve()
     px4 = Px4Instance(
-        instance, root, log_path, (lat, lon, alt), speedup, model, binary, process, _started_at=started_at, _lock=lock
+        instance, root, log_path, (lat, lon, alt), speedup, model, binary, process, _started_at=started_at, _lock=lock,
+        _launch=(command, env),
     )
     try:
         px4.wait_ready(timeout)

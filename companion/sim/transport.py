@@ -4,7 +4,9 @@ Pure asyncio: a :class:`asyncio.DatagramProtocol` (UDP) or an :func:`asyncio.sta
 pymavlink's parser (``MAVLink(file=None).parse_buffer``); no threads, no polling. Outgoing messages are packed with
 the autopilot's system/component id (or another component of the same system, e.g. an ADS-B receiver, with its
 own sequence numbers) and go to the last UDP sender, or to every connected TCP client (as ArduPilot SITL's
-serial-over-TCP port does).
+serial-over-TCP port does). A message one TCP client sends that is not addressed to the autopilot alone (a
+broadcast: HEARTBEAT, STATUSTEXT; or one for another system) is passed on to the other TCP clients as it came, as
+ArduPilot's MAVLink routing passes a companion's messages on to the ground station's link.
 
 Fault injection: each incoming datagram (TCP: each parsed message) and each outgoing packet is dropped with
 probability ``loss`` (one seeded ``numpy.random.Generator``); outgoing packets are delayed by ``latency_s`` with
@@ -209,7 +211,8 @@ class SimTransport:
 
     # --- incoming -------------------------------------------------------------------------------------------
 
-    def _feed(self, parser: mavlink.MAVLink, data: bytes, per_message_loss: bool) -> None:
+    def _feed(self, parser: mavlink.MAVLink, data: bytes, per_message_loss: bool,
+              source: asyncio.StreamWriter | None = None) -> None:
         if self._silent():
             return
         try:
@@ -223,7 +226,18 @@ class SimTransport:
             if per_message_loss and self._loss and self._rng.random() < self._loss:
                 continue
             self.received += 1
+            if source is not None and len(self._tcp_clients) > 1:
+                self._route(msg, source)
             self._on_message(msg)
+
+    def _route(self, msg: mavlink.MAVLink_message, source: asyncio.StreamWriter) -> None:
+        """Pass a message from one TCP client on to the others unless it is addressed to this system only."""
+        if getattr(msg, "target_system", 0) == self._packer.srcSystem:
+            return
+        buf = bytes(msg.get_msgbuf())
+        for writer in self._tcp_clients:
+            if writer is not source and not writer.is_closing():
+                writer.write(buf)
 
     def _datagram(self, data: bytes, addr: tuple[str, int]) -> None:
         if self._loss and self._rng.random() < self._loss:
@@ -239,7 +253,7 @@ class SimTransport:
         logger.info("simulator: TCP client %s connected", writer.get_extra_info("peername"))
         try:
             while data := await reader.read(4096):
-                self._feed(parser, data, per_message_loss=True)
+                self._feed(parser, data, per_message_loss=True, source=writer)
         except (ConnectionError, asyncio.IncompleteReadError):
             pass
         finally:
