@@ -138,6 +138,23 @@ class Event(StrEnum):
     RESUME = "resume", "the hold ends: AUTO again", Tone.GOOD, True
     RESUME_BLOCKED = "resume_blocked", "the way back to the route crosses an obstacle: planned again"
     NOT_RESUMING = "not_resuming", "someone else changed the mode: the companion leaves it", Tone.WARN
+    # the service (fuseplan serve): its own log, service.jsonl, and each request's events.jsonl
+    SERVE_START = "serve_start", "the service started: its link, configuration and component id", Tone.PLAIN, True
+    SERVE_STOP = "serve_stop", "the service stopped (SIGINT or SIGTERM)", Tone.PLAIN, True
+    WAITING_FOR_AUTOPILOT = "waiting_for_autopilot", "no autopilot on the link yet: the service waits", Tone.WARN, True
+    AUTOPILOT_RESTARTED = "autopilot_restarted", "the autopilot booted again: a new session", Tone.WARN, True
+    SESSION_ERROR = "session_error", "the link went during a transfer: the session starts again", Tone.WARN, True
+    PARAMS_FAILED = "params_failed", "the vehicle's limits could not be read: the scenario's are used", Tone.WARN
+    BASELINE = "baseline", "the mission on the vehicle when the service connected (left alone)", Tone.PLAIN, True
+    CHANGED_WHILE_AWAY = "changed_while_away", "the mission changed while the link was down", Tone.WARN
+    READBACK_FAILED = "readback_failed", "a mission readback failed (the operator's upload under way): looked again"
+    MISSION_CLEARED = "mission_cleared", "the operator cleared the mission: nothing to plan to"
+    REQUEST = "request", "a request opened: its report folder", Tone.PLAIN, True
+    PLAN_REQUEST = "plan_request", "the operator uploaded a mission: the service plans to its goal", Tone.PLAIN, True
+    SUPERSEDED = "superseded", "a route not flown, replaced by a later request", Tone.QUIET
+    PLANNING = "planning", "the request's scenario, planned now", Tone.QUIET
+    PLANNED = "planned", "the request planned: status, length, time", Tone.PLAIN, True
+    ROUTE_SET = "route_set", "the verified safe route replaced the operator's mission", Tone.GOOD, True
     # the status page's own
     STATUS_SKIPPED = "status_skipped", "records a slow browser missed (the page's own, never in events.jsonl)", \
         Tone.WARN

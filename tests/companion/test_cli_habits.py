@@ -30,7 +30,7 @@ QUICK_PLAN = ["--set", "planner.pso.n_pop=200", "--set", "planner.pso.max_iter=8
 # the fewest arguments each subcommand parses with
 MINIMAL = {"plan": ["s.toml"], "compare": ["s.toml"], "bench": ["ablation"],
            "export": ["s.toml", "--format", "plan", "-o", "x.plan"], "fly": ["s.toml", "--sim"], "sim": ["s.toml"],
-           "demo": [], "report": ["dir"]}
+           "demo": [], "report": ["dir"], "serve": ["serve.toml"]}
 
 
 def _subparsers(parser: argparse.ArgumentParser) -> dict[str, argparse.ArgumentParser]:
