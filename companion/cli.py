@@ -45,8 +45,12 @@ from planner.world.config import ALGORITHM_NAMES
 
 if TYPE_CHECKING:
     from companion.mavlink.signing import SigningKey
+    from companion.mission.builder import Autopilot
+    from companion.mission.exports import ExportFormat
     from companion.replanning.replan import ReplanConfig
     from companion.status import Bind
+    from planner.world.geo_inputs import OperatorMission
+    from planner.world.scenario import Scenario
 
 SCENARIOS = shipped_scenarios()
 
@@ -360,9 +364,9 @@ class ExportArgs:
     """``fuseplan export``."""
 
     source: Path
-    format: str
+    format: ExportFormat
     output: Path
-    autopilot: str
+    autopilot: Autopilot
     scenario: Path | None
     densify: bool
     overrides: tuple[str, ...]
@@ -500,7 +504,8 @@ def cmd_bench_flights(args: CompanionBenchArgs) -> int:
 
 
 def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str], seed: int | None,
-                  feasible_only: bool = True, for_flight: bool = False, force: bool = False) -> tuple[dict, object]:
+                  feasible_only: bool = True, for_flight: bool = False, force: bool = False,
+                  ) -> tuple[dict[str, Any], Scenario]:
     """(PLAN.json document, scenario) from a PLAN.json or by planning a scenario TOML now. ``for_flight``:
     dynamic threats are timed from the mission start (the vehicle reaches the route's start only after its
     takeoff), as the companion sees them in flight. A PLAN.json is checked again against its scenario and its
@@ -538,7 +543,7 @@ def _plan_doc_for(source: Path, scenario_path: Path | None, overrides: list[str]
     return plan_to_json(res, sc, start_time), sc
 
 
-def _plan_start_time(source: Path, doc: dict, sc: object, for_flight: bool) -> float | None:
+def _plan_start_time(source: Path, doc: dict, sc: Scenario, for_flight: bool) -> float | None:
     """The mission time at the route's start a PLAN.json is checked at: for a flight, the scenario's time to the
     start (as fly plans); otherwise the file's, which must be what `plan` (0) or `fly` (that time) wrote."""
     if not len(sc.environment.threats):
@@ -562,7 +567,7 @@ def with_flight_margins(source: Path, overrides: list[str]) -> list[str]:
     return list(overrides) + flight_overrides(load_scenario(source, overrides).vehicle)
 
 
-def _check_plan_matches(source: Path, doc: dict, sc: object) -> None:
+def _check_plan_matches(source: Path, doc: dict, sc: Scenario) -> None:
     """A PLAN.json is only flown or exported with its own scenario: same name, home, start and goal, and every via
     of the scenario a waypoint of the route, in order."""
     home = doc["home"]  # shape checked: finite numbers
@@ -599,14 +604,14 @@ def cmd_plan(args: PlanArgs) -> int:
                                 "mission (for a scenario, `fuseplan export --format plan`)")
     scenario = args.sources.scenario(source, out)
     args = replace(args, scenario=scenario, overrides=tuple(with_flight_margins(scenario, list(args.overrides))))
-    if not as_qgc:
+    if out is None or not as_qgc:  # as_qgc implies an out; testing it narrows out for mypy
         return planner_cli.cmd_plan(args)
     from companion.mission.builder import mission_from_plan_json, spec_from_plan_json
     from companion.mission.exports import write_operator_plan
     from planner.world.scenario import load_scenario
 
     mission = read_mission(source, args.sources.fence, args.sources.rally)
-    autopilot = "px4" if mission.extras.get("firmware_type") == PX4_FIRMWARE else "ardupilot"
+    autopilot: Autopilot = "px4" if mission.extras.get("firmware_type") == PX4_FIRMWARE else "ardupilot"
     with tempfile.TemporaryDirectory(prefix="fuseplan-") as tmp:
         plan_json = Path(tmp) / "PLAN.json"
         code = planner_cli.cmd_plan(replace(args, output=plan_json), announce_output=False)
@@ -703,7 +708,7 @@ def _vehicle_world(args: FlyArgs, scenario: Path, key: SigningKey | None) -> tup
     wait = _seconds(args.heartbeat_timeout, "--heartbeat-timeout") or HEARTBEAT_WAIT_S
     url = args.connect
 
-    async def read() -> object:
+    async def read() -> OperatorMission:
         async with Link(url, open_timeout=10.0, signing_key=key, target_system=args.target_system,
                         baud=args.baud) as link:
             await link.wait_heartbeat(wait)
@@ -726,7 +731,9 @@ def _replan_config(budget: float | None, paper: bool) -> ReplanConfig | None:
 
     if budget is None and not paper:
         return None
-    return ReplanConfig(**({} if budget is None else {"budget_s": budget}), roadmap=not paper)
+    if budget is None:
+        return ReplanConfig(roadmap=not paper)
+    return ReplanConfig(budget_s=budget, roadmap=not paper)
 
 
 def cmd_fly(args: FlyArgs) -> int:

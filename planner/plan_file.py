@@ -14,7 +14,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeGuard
 
 import numpy as np
 
@@ -47,7 +47,7 @@ def read_plan_document(path: Path) -> dict[str, Any]:
     return doc
 
 
-def _number(value: Any) -> bool:
+def _number(value: Any) -> TypeGuard[int | float]:
     """A finite JSON number (an integer too large for a float is not: JSON allows 10**400)."""
     if not isinstance(value, (int, float)) or isinstance(value, bool):
         return False
@@ -132,8 +132,8 @@ def recheck(doc: Mapping[str, Any], scenario: Scenario, start_time: float | None
     claimed = doc["status"]
     status = PlanStatus(claimed) if feasible and claimed in FEASIBLE else (
         PlanStatus.EXACT if feasible else PlanStatus.INFEASIBLE)
-    metrics = doc.get("metrics") if isinstance(doc.get("metrics"), dict) else {}
-    history = doc.get("history") if isinstance(doc.get("history"), list) else []
+    metrics = found if isinstance(found := doc.get("metrics"), dict) else {}
+    history = found if isinstance(found := doc.get("history"), list) else []
     opt = OptimiserResult(waypoints, float(evaluation.total[0]), evaluation,
                           [float(h) for h in history if _number(h)] or [float(evaluation.total[0])],
                           _count(metrics.get("iterations")), "read from a PLAN.json", 0.0,

@@ -73,7 +73,7 @@ class StatusTextGcs:
                         text = joiner.feed(msg)
                         if text is not None:
                             self.lines.append(Line(msg.get_srcSystem(), msg.get_srcComponent(), msg.severity, text))
-        except BaseException as e:  # noqa: BLE001 - handed to the test thread by __enter__ / close
+        except BaseException as e:  # handed to the test thread by __enter__ / close
             self.error = e
         finally:
             self._ready.set()

@@ -152,7 +152,7 @@ class Announcer:
                 return
             if self.say(text, severity) and key:
                 self._last[key] = now
-        except Exception:  # noqa: BLE001 - an announcement must never break the flight that logs the event
+        except Exception:  # an announcement must never break the flight that logs the event
             log.exception("announcing %s", record.get("event"))
 
     def say(self, text: str, severity: Severity) -> bool:

@@ -158,7 +158,7 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
                                 min_route_alt=0.0) if opts.fence and (len(env.cylinders) or len(env.prisms)) else []
             _write_mission_files(opts.report, plan_doc, scenario, items, spec, fence)
             _check_fence_fits(fence, link, params, scenario, top, events)
-            client = (MavsdkMissionClient if isinstance(link, MavsdkLink) else MissionClient)(link)  # the link's own
+            client = MavsdkMissionClient(link) if isinstance(link, MavsdkLink) else MissionClient(link)  # the link's
             planned = len(items)  # as in the mission files
             if opts.replan and client.writes_in_part:  # room for a replan's longer route (never flown)
                 items = with_room(items, (opts.replan_config or ReplanConfig()).spare_items)
@@ -348,7 +348,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
                           {k: v.separation for k, v in seps.items()})
     records = replanner.records if replanner is not None else []
     pace = replanner.prediction.pace if replanner is not None else None
-    done = [r for r in records if r.latency_s is not None]
+    latencies = [r.latency_s for r in records if r.latency_s is not None]  # one per replan done
     doc = {
         "fuseplan_version": fuseplan_version(),
         "completed": out.completed,
@@ -369,14 +369,14 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         "breaches": safety.breaches,
         "d_coll_m": scenario.hazard.d_coll,
         "replanning": bool(opts.replan),
-        "replans": len(done),
+        "replans": len(latencies),
         "replan_attempts": len(records),
         "min_separation_m": {k: round(v.separation, 2) for k, v in seps.items()},
         "min_separation_t_s": {k: round(v.t, 2) for k, v in seps.items()},
         "separation_source": "simulator truth" if sim is not None else (
             "GLOBAL_POSITION_INT against the scripted intruders (traffic feed)" if feed is not None else None),
         "pace_m_s": None if pace is None else round(pace, 2),
-        "replan_latency_s": _stats([r.latency_s for r in done]),
+        "replan_latency_s": _stats(latencies),
         "replan_plan_s": _stats([r.plan_s for r in records]),
         "replan_log": [r.summary() for r in records],
         "upload_s": round(out.upload_s, 3),
@@ -396,7 +396,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
     replans = [(np.array(r.old_route), np.array(r.new_route)) for r in records if r.new_route]
     plot_track(opts.report / "track.png", scenario.environment, np.asarray(plan_doc["trajectory"]["points"]),
                flown, f"{scenario.name}: planned vs flown ({'completed' if out.completed else 'not completed'}"
-               f", {len(done)} replans)", intr, replans)
+               f", {len(latencies)} replans)", intr, replans)
     return doc
 
 

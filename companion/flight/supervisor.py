@@ -218,7 +218,7 @@ class FlightSupervisor:
     async def wait_ready(self, timeout: float) -> None:
         """Wait for a 3-D GPS fix, a healthy pre-arm check and a good EKF (each only if the autopilot
         reports it), instead of retrying arming blindly (docs/autopilots.md §6.1–6.2: 'System not initialised')."""
-        state = {"gps": None, "prearm": None, "ekf": None}
+        state: dict[str, bool | None] = {"gps": None, "prearm": None, "ekf": None}  # None: not reported
 
         def ready() -> bool:
             return all(v is None or v for v in state.values()) and state["gps"] is not None

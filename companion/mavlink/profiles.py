@@ -20,6 +20,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from types import MappingProxyType
+from typing import Literal
 
 from pymavlink.dialects.v20 import common as mavlink
 
@@ -45,11 +46,14 @@ class Firmware(enum.Enum):
 
 # --- mission layout (the builder's key) --------------------------------------------------------------------------
 
+LayoutKey = Literal["ardupilot", "px4", "px4-vtol"]  # the keys of LAYOUTS (the builder's Autopilot)
+
+
 @dataclass(frozen=True)
 class MissionLayout:
     """How the builder lays out a mission for one layout key (PLAN.json's and the exports' ``autopilot``)."""
 
-    key: str
+    key: LayoutKey
     # item 0 is a NAV_WAYPOINT at home, frame GLOBAL, AMSL altitude (ArduPilot: ignored on upload, the autopilot's
     # home); PX4 has no home item, so its first item is the takeoff at seq 0
     home_item: bool
@@ -108,7 +112,7 @@ class AutopilotProfile:
     profiles by identity (``is``). Mode names are keys of ``modes``."""
 
     name: str
-    layout: str  # key of LAYOUTS the builder uses for this autopilot
+    layout: LayoutKey  # key of LAYOUTS the builder uses for this autopilot
 
     # -- boot: a HEARTBEAT in one of these states (or custom modes) is still booting; with ``boot_needs_status``
     #    a first SYS_STATUS must come too before the mission is touched (ArduPilot refuses every upload with
@@ -340,6 +344,6 @@ def profile_for(autopilot: int | None, vehicle_type: int | None) -> AutopilotPro
 
 __all__ = [
     "ARDUCOPTER", "ARDUPILOT_VTOL", "ARDUPLANE", "AutopilotProfile", "Firmware", "GENERIC", "GENERIC_FIXED_WING",
-    "LAYOUTS", "MissionLayout", "PROFILES", "PX4_FIXED_WING", "PX4_MULTICOPTER", "PX4_VTOL", "PX4_VTOL_LAYOUT",
-    "VTOL_TYPES", "mission_layout", "profile_for",
+    "LAYOUTS", "LayoutKey", "MissionLayout", "PROFILES", "PX4_FIXED_WING", "PX4_MULTICOPTER", "PX4_VTOL",
+    "PX4_VTOL_LAYOUT", "VTOL_TYPES", "mission_layout", "profile_for",
 ]

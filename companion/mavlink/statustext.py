@@ -72,7 +72,7 @@ class StatusTexts:
         try:
             for piece, pid, seq in parts:
                 self.link.send(self.link.dialect.MAVLink_statustext_message(int(severity), piece, pid, seq))
-        except Exception as exc:  # noqa: BLE001 - LinkError or a closed socket: the flight goes on without it
+        except Exception as exc:  # LinkError or a closed socket: the flight goes on without it
             log.info("STATUSTEXT not sent (%s): %s", exc, text)
             return False
         self.sent.append((int(severity), text))

@@ -165,7 +165,7 @@ class TelemetryRates:
     called with the answers at the end of each round (e.g. to put them in the flight's event log)."""
 
     def __init__(self, link: Link, rates: Sequence[Rate] = RATES, ack_timeout: float = ACK_TIMEOUT_S,
-                 on_results: Callable[[dict[str, str]], None] | None = None) -> None:
+                 on_results: Callable[[dict[str, str]], object] | None = None) -> None:
         self.link = link
         self.rates = tuple(rates)
         self.ack_timeout = ack_timeout

@@ -21,7 +21,7 @@ import logging
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike
@@ -37,7 +37,7 @@ from companion.mavlink.items import (
     MissionItem,
     normalise_frame,
 )
-from companion.mavlink.profiles import MissionLayout, mission_layout
+from companion.mavlink.profiles import LayoutKey, MissionLayout, mission_layout
 from companion.mission.geo import Circle, as_circles, enu_to_geodetic, geodetic_to_enu, to_int_e7
 from planner.trajectory.smoothing import sample_trajectory
 from planner.world.config import VehicleLimits
@@ -47,7 +47,7 @@ from planner.world.scenario import Scenario
 
 logger = logging.getLogger(__name__)
 
-Autopilot = Literal["ardupilot", "px4", "px4-vtol"]
+Autopilot = LayoutKey  # "ardupilot", "px4", "px4-vtol": the mission layout's key
 
 TAKEOFF_MIN_PITCH_DEG = 10.0  # plane NAV_TAKEOFF param1 (ArduPilot reads 0 as 4°)
 SPEED_TYPE_AIRSPEED = 0.0

@@ -16,7 +16,7 @@ import json
 import logging
 import threading
 from collections import deque
-from collections.abc import AsyncIterator, Iterable
+from collections.abc import AsyncGenerator, Iterable
 from typing import Any
 
 from companion.mission.events import Event
@@ -92,7 +92,7 @@ class StatusHub:
         """Bytes held in the ring (the hub's whole memory, whatever the number of readers)."""
         return sum(len(b) for _s, b in self._ring)
 
-    async def read(self, heartbeat_s: float = 15.0) -> AsyncIterator[bytes]:
+    async def read(self, heartbeat_s: float = 15.0) -> AsyncGenerator[bytes, None]:
         """Chunks for one reader: a ``reset``, the pinned records older than the ring, the ring, then each new
         record as it comes; an SSE comment every ``heartbeat_s`` of silence (a vanished reader shows up as a
         failed write). Ends when the hub closes."""

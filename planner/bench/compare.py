@@ -15,7 +15,7 @@ import numpy as np
 
 from planner.bench import runner
 from planner.bench.executor import ExecutorSpec
-from planner.world.config import ALGORITHM_NAMES
+from planner.world.config import ALGORITHM_NAMES, Algorithm, is_algorithm
 from planner.world.scenario_text import ScenarioText
 
 COLUMNS = ("cost", "length_m", "smoothness", "time_s", "robustness", "violations")
@@ -112,13 +112,14 @@ def plot_convergence(path: Path, records: Sequence[dict[str, Any]], algorithms: 
     plt.close(fig)
 
 
-def check_algorithms(names: Sequence[str]) -> list[str]:
+def check_algorithms(names: Sequence[str]) -> list[Algorithm]:
     """Known names, each once, in the order given."""
-    bad = [n for n in names if n not in ALGORITHM_NAMES]
+    known = [n for n in names if is_algorithm(n)]
+    bad = [n for n in names if not is_algorithm(n)]
     if bad:
         raise ValueError(f"unknown algorithm(s) {', '.join(bad)}; choose from {', '.join(ALGORITHM_NAMES)}")
-    if not names:
+    if not known:
         raise ValueError(f"no algorithm given; choose from {', '.join(ALGORITHM_NAMES)}")
-    return list(dict.fromkeys(names))
+    return list(dict.fromkeys(known))
 
 

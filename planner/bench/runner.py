@@ -60,7 +60,7 @@ class Bench:
     variants: tuple[Variant, ...]
     default_runs: int
     # (output dir, records in (variant, run) order, the run settings) -> files written
-    report: Callable[[Path, list[dict[str, Any]], "BenchSettings"], list[Path]]
+    report: Callable[[Path, list[dict[str, Any]], BenchSettings], list[Path]]
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import typing
 from dataclasses import dataclass, field
-from typing import Annotated, Literal
+from typing import Annotated, Literal, TypeGuard
 
 from pydantic import AfterValidator, ConfigDict
 
@@ -340,6 +340,11 @@ class BPSOConfig:
 # parameters; planner.search.aco.ColdColony), the cold-start arm of the GKDM bench
 Algorithm = Literal["fusion", "spso", "pso", "qpso", "psogsa", "bpso", "aco"]
 ALGORITHM_NAMES: tuple[str, ...] = typing.get_args(Algorithm)
+
+
+def is_algorithm(name: str) -> TypeGuard[Algorithm]:
+    """``name`` is one of :data:`ALGORITHM_NAMES`."""
+    return name in ALGORITHM_NAMES
 
 
 @dataclass(frozen=True)

@@ -63,7 +63,7 @@ def test_mode_numbers_from_pymavlink_and_the_profile() -> None:
     assert mode_number(AP, QUAD, "BRAKE") == 17 and mode_number(AP, QUAD, "POSHOLD") == 16
     assert mode_number(PX4, QUAD, "AUTO") == px4(4, 4) and mode_number(PX4, QUAD, "HOLD") == px4(4, 3)
     assert mode_number(PX4, QUAD, "POSCTL") == px4(3) and mode_number(PX4, QUAD, "MISSION") == px4(4, 4)
-    for autopilot, vtype, _, custom, name in CASES:
+    for autopilot, vtype, _, _, name in CASES:
         if not name.startswith("MODE_"):
             assert mode_name(autopilot, vtype, mode_number(autopilot, vtype, name)) == name
     with pytest.raises(KeyError):
