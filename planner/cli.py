@@ -62,13 +62,13 @@ def add_command(sub: argparse._SubParsersAction, name: str, help: str, run: Call
 def options_from(cls: type[T], ns: argparse.Namespace, **given: typing.Any) -> T:
     """A command's options dataclass from the parsed ``ns``: each field from the attribute of its name (a field
     the parser lacks fails here, loudly), except those ``given``."""
-    fields = [f.name for f in dataclasses.fields(cls) if f.name not in given]  # type: ignore[arg-type]
+    fields = [f.name for f in dataclasses.fields(cls) if f.name not in given]  # type: ignore[arg-type]  # cls is a dataclass type; a TypeVar bound cannot say so
     return cls(**{name: getattr(ns, name) for name in fields}, **given)
 
 
 def command(cls: type[T], cmd: Callable[[T], int]) -> Callable[[argparse.Namespace], int]:
     """``cmd`` run on its options object, built from the parsed arguments (the one place they are read)."""
-    return lambda ns: cmd(cls.from_args(ns))  # type: ignore[attr-defined]
+    return lambda ns: cmd(cls.from_args(ns))  # type: ignore[attr-defined]  # every options class has from_args; no Protocol for classmethods
 
 
 def make_output_dir(path: Path) -> None:

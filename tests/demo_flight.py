@@ -59,7 +59,7 @@ class Companion:
                                      stderr=subprocess.STDOUT, text=True)
         self.lines: list[str] = []
         self.url = ""
-        for line in self.proc.stdout:  # type: ignore[union-attr]
+        for line in self.proc.stdout:  # type: ignore[union-attr]  # Popen with stdout=PIPE
             self.lines.append(line)
             m = re.search(r"status page: (http://\S+)", line)
             if m:

@@ -75,7 +75,7 @@ class FlightOutcome:
 
 def _booting(hb: object) -> bool:
     """A HEARTBEAT of an autopilot that has not finished booting (its profile's ``booting``)."""
-    return profile_for(hb.autopilot, hb.type).booting(hb.system_status, hb.custom_mode)  # type: ignore[attr-defined]
+    return profile_for(hb.autopilot, hb.type).booting(hb.system_status, hb.custom_mode)  # type: ignore[attr-defined]  # pymavlink's HEARTBEAT
 
 
 def _mode_name(hb: object) -> str:

@@ -32,7 +32,7 @@ def mode_name(autopilot: int | None, vehicle_type: int | None, custom_mode: int)
 
 def heartbeat_mode(hb: object) -> str:
     """:func:`mode_name` of a HEARTBEAT message."""
-    return mode_name(hb.autopilot, hb.type, hb.custom_mode)  # type: ignore[attr-defined]
+    return mode_name(hb.autopilot, hb.type, hb.custom_mode)  # type: ignore[attr-defined]  # pymavlink's messages are untyped
 
 
 def mode_number(autopilot: int, vehicle_type: int, name: str) -> int:

@@ -7,7 +7,7 @@ import asyncio
 import contextlib
 import signal
 import sys
-from collections.abc import Callable
+from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
@@ -64,10 +64,11 @@ async def _serve(cfg: ServeConfig, echo: Callable[[dict[str, Any]], None] | None
 
 
 @contextlib.asynccontextmanager
-async def _status_page(cfg: ServeConfig, service: Service):  # noqa: ANN202
-    """The live status page over every request's events (the service's own log's too)."""
+async def _status_page(cfg: ServeConfig, service: Service) -> AsyncIterator[object]:
+    """The live status page over every request's events (the service's own log's too); ``cfg.status_page`` set."""
     from companion.status import Bind, StatusHub, StatusServer, read_token
 
+    assert cfg.status_page is not None  # entered only when the configuration names a page
     bind = Bind.parse(cfg.status_page)
     token = read_token(cfg.status_token, bind, False)
     hub = StatusHub()

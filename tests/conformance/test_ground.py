@@ -250,7 +250,7 @@ async def _abandoned_upload(vehicle, items: list[MissionItem], answered: int, mi
     link = vehicle.link
     ts, tc = link.target_system, link.target_component
     is_request = lambda m: m.get_type() in ("MISSION_REQUEST", "MISSION_REQUEST_INT") \
-        and m.mission_type == mission_type  # noqa: E731
+        and m.mission_type == mission_type  # noqa: E731 - a predicate kept beside its subscription
     with link.subscribe("MISSION_REQUEST", "MISSION_REQUEST_INT", "MISSION_ACK", "STATUSTEXT") as sub:
         link.send(mavlink.MAVLink_mission_count_message(ts, tc, len(items), mission_type))
         sent = 0

@@ -23,10 +23,10 @@ from pathlib import Path
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE.parent))  # tests/: sitl_harness
 
-from sitl_harness import start_sitl, unavailable  # noqa: E402
+from sitl_harness import start_sitl, unavailable  # noqa: E402 - after the sys.path line: run as a script
 
-from companion.cli import main as fuseplan  # noqa: E402
-from planner.world.scenario import load_scenario  # noqa: E402
+from companion.cli import main as fuseplan  # noqa: E402 - after the sys.path line: run as a script
+from planner.world.scenario import load_scenario  # noqa: E402 - after the sys.path line: run as a script
 
 SCENARIOS = HERE.parents[1] / "sitl_scenarios"
 

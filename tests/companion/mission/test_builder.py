@@ -38,7 +38,7 @@ C = mavlink
 
 def spec(autopilot: str = "ardupilot", vehicle: VehicleLimits = PLANE, **kw: object) -> MissionSpec:
     kw.setdefault("fly_to_start", False)  # most cases test the route items alone
-    return MissionSpec(autopilot, vehicle, HOME, **kw)  # type: ignore[arg-type]
+    return MissionSpec(autopilot, vehicle, HOME, **kw)  # type: ignore[arg-type]  # a parametrised name (str) where the Literal is wanted
 
 
 def commands(items: list[MissionItem]) -> list[int]:
@@ -307,7 +307,7 @@ def test_mission_from_plan_json():
 
 def test_bad_input_is_refused():
     with pytest.raises(ValueError):
-        MissionSpec("inav", PLANE, HOME)  # type: ignore[arg-type]
+        MissionSpec("inav", PLANE, HOME)  # type: ignore[arg-type]  # a value outside the Literal, on purpose
     with pytest.raises(ValueError):
         build_mission(WPS[:1], spec())
     with pytest.raises(ValueError):

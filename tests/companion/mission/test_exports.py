@@ -34,7 +34,7 @@ CYL = Cylinders([400.0, 600.0], [500.0, 200.0], [80.0, 70.0], [math.inf, 150.0],
 
 
 def spec(autopilot: str = "ardupilot", vehicle_type: str = "plane") -> MissionSpec:
-    return MissionSpec(autopilot, VehicleLimits(type=vehicle_type), HOME)  # type: ignore[arg-type]
+    return MissionSpec(autopilot, VehicleLimits(type=vehicle_type), HOME)  # type: ignore[arg-type]  # a parametrised name (str) where the Literal is wanted
 
 
 # --- .waypoints --------------------------------------------------------------------------------------------------
@@ -196,7 +196,7 @@ def test_export_from_plan_json_all_formats(tmp_path: Path, plan_doc):
     gj = json.loads(export_from_plan_json(doc, scenario, "geojson", tmp_path / "r.geojson").read_text())
     assert sum(f["geometry"]["type"] == "Polygon" for f in gj["features"]) == len(zones_of(scenario, scenario.home))
     with pytest.raises(ValueError):
-        export_from_plan_json(doc, scenario, "kml", tmp_path / "r.kml")  # type: ignore[arg-type]
+        export_from_plan_json(doc, scenario, "kml", tmp_path / "r.kml")  # type: ignore[arg-type]  # a value outside the Literal, on purpose
 
 
 @pytest.mark.asyncio

@@ -45,7 +45,7 @@ PRISMS = Prisms.from_polygons([SQUARE, TRIANGLE, AREA], [-math.inf, 20.0, -math.
 
 
 def spec(autopilot: str = "ardupilot") -> MissionSpec:
-    return MissionSpec(autopilot, VehicleLimits(), HOME)  # type: ignore[arg-type]
+    return MissionSpec(autopilot, VehicleLimits(), HOME)  # type: ignore[arg-type]  # a parametrised name (str) where the Literal is wanted
 
 
 def _enu(zone: Zone) -> np.ndarray:

@@ -61,7 +61,7 @@ STANDBY = (mavlink.MAV_STATE_STANDBY, 0, 81)
 
 @pytest.mark.asyncio
 @pytest.mark.parametrize("vehicle", ["plane", "copter"])
-async def test_boot_phase_as_sitl(static: Scenario, vehicle: str) -> None:  # noqa: F811
+async def test_boot_phase_as_sitl(static: Scenario, vehicle: str) -> None:  # noqa: F811 - the fixture imported from test_sim
     speedup = 2.0
     async with (SimAutopilot(static, "udpin:127.0.0.1:0", speedup=speedup, vehicle=vehicle, boot_s=None,
                              streams_unasked=None) as sim, Client(sim.port, wait_booted=False) as gcs):
@@ -96,13 +96,13 @@ async def test_boot_phase_as_sitl(static: Scenario, vehicle: str) -> None:  # no
 
 
 @pytest.mark.asyncio
-async def test_what_comes_before_the_first_heartbeat_is_lost(static: Scenario) -> None:  # noqa: F811
+async def test_what_comes_before_the_first_heartbeat_is_lost(static: Scenario) -> None:  # noqa: F811 - the fixture imported from test_sim
     """SITL (client on SERIAL0 at power-up): a MISSION_COUNT sent before the first HEARTBEAT is never answered,
     the next one after it gets MAV_MISSION_NO_SPACE. (No socket: the simulator's answers as handed to its
     transport.)"""
     sim = SimAutopilot(static, "udpin:127.0.0.1:0", boot_s=None)
     replies: list[mavlink.MAVLink_message] = []
-    sim._transport.send = lambda msg, component_id=None: replies.append(msg)  # type: ignore[method-assign]
+    sim._transport.send = lambda msg, component_id=None: replies.append(msg)  # type: ignore[method-assign]  # the test catches the replies
     sim._on_message(mavlink.MAVLink_mission_count_message(1, 1, 3, 0))
     sim.advance(0.2)
     assert not [m for m in replies if m.get_type() == "MISSION_ACK"]
@@ -117,7 +117,7 @@ async def test_what_comes_before_the_first_heartbeat_is_lost(static: Scenario) -
 
 @pytest.mark.asyncio
 @pytest.mark.parametrize("vehicle", ["plane", "copter"])
-async def test_readback_is_what_ardupilot_stores(static: Scenario, vehicle: str) -> None:  # noqa: F811
+async def test_readback_is_what_ardupilot_stores(static: Scenario, vehicle: str) -> None:  # noqa: F811 - the fixture imported from test_sim
     """SITL readbacks: plane NAV_WAYPOINT param1/param4 0, param2/param3 whole metres ≤ 255; copter keeps only
     the hold time (whole s); DO_CHANGE_SPEED in frame GLOBAL; a fence circle in frame GLOBAL, autocontinue 0,
     z 0, only param1 (sent 50, 7, 8, 9, z 33 → 50, 0, 0, 0, z 0)."""
@@ -160,7 +160,7 @@ async def test_readback_is_what_ardupilot_stores(static: Scenario, vehicle: str)
 
 @pytest.mark.asyncio
 @pytest.mark.parametrize("vehicle", ["plane", "copter"])
-async def test_parameters_as_ardupilot(static: Scenario, vehicle: str) -> None:  # noqa: F811
+async def test_parameters_as_ardupilot(static: Scenario, vehicle: str) -> None:  # noqa: F811 - the fixture imported from test_sim
     """SITL: FENCE_TYPE reads 4 (plane) / 7 (copter) as MAV_PARAM_TYPE_INT8 with index 65535 when asked by name;
     PARAM_SET FENCE_ENABLE 1 is echoed with PARAM_VALUE; PARAM_SET of a name it does not have gets no answer;
     with a fence stored and FENCE_ENABLE set, SYS_STATUS reports the geofence enabled."""
@@ -186,7 +186,7 @@ async def test_parameters_as_ardupilot(static: Scenario, vehicle: str) -> None: 
 
 
 @pytest.mark.asyncio
-async def test_time_waits_for_the_first_client_as_sitl(static: Scenario) -> None:  # noqa: F811
+async def test_time_waits_for_the_first_client_as_sitl(static: Scenario) -> None:  # noqa: F811 - the fixture imported from test_sim
     """SITL's clock starts with its first client on SERIAL0, so that client sees the whole boot."""
     async with SimAutopilot(static, "udpin:127.0.0.1:0", speedup=10.0, boot_s=None, wait_for_client=True) as sim:
         await asyncio.sleep(0.5)  # 5 s of simulated time, were the clock running
@@ -236,7 +236,7 @@ def _near(rate: float | None, hz: float) -> bool:
 
 @pytest.mark.asyncio
 @pytest.mark.parametrize("vehicle", ["plane", "copter"])
-async def test_streams_unasked_as_the_real_vehicle(static: Scenario, vehicle: str) -> None:  # noqa: F811
+async def test_streams_unasked_as_the_real_vehicle(static: Scenario, vehicle: str) -> None:  # noqa: F811 - the fixture imported from test_sim
     async with (SimAutopilot(static, "udpin:127.0.0.1:0", speedup=3.0, vehicle=vehicle, boot_s=None,
                              streams_unasked=None) as sim, Client(sim.port) as gcs):
         rates = await _rates(gcs, sim, 8.0)
@@ -247,7 +247,7 @@ async def test_streams_unasked_as_the_real_vehicle(static: Scenario, vehicle: st
 
 
 @pytest.mark.asyncio
-async def test_set_message_interval_as_ardupilot(static: Scenario) -> None:  # noqa: F811
+async def test_set_message_interval_as_ardupilot(static: Scenario) -> None:  # noqa: F811 - the fixture imported from test_sim
     async with (SimAutopilot(static, "udpin:127.0.0.1:0", speedup=2.0, vehicle="copter", streams_unasked=None) as sim,
                 Client(sim.port) as gcs):
         assert await gcs.command(mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, GPI, 100_000) == ACCEPTED
@@ -281,7 +281,7 @@ async def test_set_message_interval_as_ardupilot(static: Scenario) -> None:  # n
 
 
 @pytest.mark.asyncio
-async def test_request_data_stream_groups_as_ardupilot(static: Scenario) -> None:  # noqa: F811
+async def test_request_data_stream_groups_as_ardupilot(static: Scenario) -> None:  # noqa: F811 - the fixture imported from test_sim
     async with (SimAutopilot(static, "udpin:127.0.0.1:0", speedup=2.0, vehicle="copter", streams_unasked=None) as sim,
                 Client(sim.port) as gcs):
         for group, expected in GROUPS.items():
@@ -308,7 +308,7 @@ async def test_request_data_stream_groups_as_ardupilot(static: Scenario) -> None
 
 
 @pytest.mark.asyncio
-async def test_request_message_and_set_current_answers(static: Scenario) -> None:  # noqa: F811
+async def test_request_message_and_set_current_answers(static: Scenario) -> None:  # noqa: F811 - the fixture imported from test_sim
     """SITL (copter, no streams): REQUEST_MESSAGE of a known message → ACCEPTED and the message (HOME_POSITION
     before home is set, ADSB_VEHICLE with no traffic: ACCEPTED, nothing); an unknown one → FAILED;
     MISSION_SET_CURRENT → MISSION_CURRENT (its only acknowledgement), out of range → nothing;
@@ -348,7 +348,7 @@ async def test_request_message_and_set_current_answers(static: Scenario) -> None
 
 @pytest.mark.asyncio
 @pytest.mark.parametrize("receiver", [False, True])
-async def test_intruders_from_the_autopilot_or_an_adsb_receiver(dynamic: Scenario,  # noqa: F811
+async def test_intruders_from_the_autopilot_or_an_adsb_receiver(dynamic: Scenario,  # noqa: F811 - the fixture imported from test_sim
                                                                  receiver: bool) -> None:
     """A receiver on the companion's link is component 156 (MAV_COMP_ID_ADSB) of the vehicle's system, with its
     own HEARTBEAT (MAV_TYPE_ADSB, MAV_AUTOPILOT_INVALID); the autopilot then relays nothing itself."""
@@ -373,7 +373,7 @@ async def test_intruders_from_the_autopilot_or_an_adsb_receiver(dynamic: Scenari
 
 
 @pytest.mark.asyncio
-async def test_a_meet_intruder_meets_the_simulated_vehicle(dynamic: Scenario) -> None:  # noqa: F811
+async def test_a_meet_intruder_meets_the_simulated_vehicle(dynamic: Scenario) -> None:  # noqa: F811 - the fixture imported from test_sim
     """An intruder timed by a ``meet`` point (as TrafficFeed flies it against SITL) is scheduled from the
     vehicle's progress along the mission it started with, so it crosses the route as the vehicle passes."""
     wps = [(200.0, 200.0, 50.0), (500.0, 450.0, 80.0), (800.0, 800.0, 50.0)]
@@ -415,7 +415,7 @@ def _within(got: float, want: float) -> bool:
 
 @pytest.mark.asyncio
 async def test_plane_climb_out_matches_arduplane_sitl(static_plan_doc: Callable[..., dict],
-                                                      static: Scenario) -> None:  # noqa: F811
+                                                      static: Scenario) -> None:  # noqa: F811 - the fixture imported from test_sim
     items = mission_from_plan_json(static_plan_doc(), static, "ardupilot")
     assert [it.command for it in items[1:4]] == [mavlink.MAV_CMD_NAV_TAKEOFF, mavlink.MAV_CMD_DO_CHANGE_SPEED,
                                                  mavlink.MAV_CMD_NAV_WAYPOINT]

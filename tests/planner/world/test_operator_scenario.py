@@ -30,7 +30,7 @@ AIRSPACE = Zone("features[0]", centre=(47.3995, 8.554), radius_m=50.0, floor=Alt
 def _mission(**kw: object) -> OperatorMission:
     base = {"home": HOME, "goal": GeoPoint(47.401, 8.557, Altitude(60.0)), "vias": (GeoPoint(47.398, 8.55,
             Altitude(50.0)),), "zones": FENCE, "extras": {"vehicle_type": 1}}
-    return OperatorMission(Path("/somewhere/rescue.plan"), **{**base, **kw})  # type: ignore[arg-type]
+    return OperatorMission(Path("/somewhere/rescue.plan"), **{**base, **kw})  # type: ignore[arg-type]  # fields from a dict of mixed values
 
 
 def _load(tmp_path: Path, text: str) -> object:
