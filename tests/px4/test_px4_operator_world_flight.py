@@ -10,6 +10,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from operator_course import D_COLL, GOAL, POLYGONS, base_scenario, fence_items, goal_mission, track_clearance
 from px4_harness import FAST
 from statustext_gcs import StatusTextGcs, accepted_line
@@ -30,6 +31,9 @@ async def _upload(link: Link) -> None:
     await client.upload_verified(goal_mission(HOME, home_item=False), MISSION)
 
 
+# fuseplan serve's PX4 test flies the same course from the same operator's upload (fence and goal read from the
+# vehicle, planned round, flown safe, the track checked zone by zone, the STATUSTEXT at the ground station)
+@pytest.mark.slow(covered_by="px4/test_px4_serve.py::test_serve_on_px4_replaces_flies_and_survives_a_restart")
 def test_px4_flies_round_the_fence_and_to_the_goal_the_operator_uploaded(px4_factory_fn, tmp_path: Path) -> None:
     scenario = base_scenario(tmp_path / "base.toml", HOME, "copter", 10.0)
     px4 = px4_factory_fn(HOME, speedup=FAST)
