@@ -178,10 +178,13 @@ class Service:
         cfg.log_folder.mkdir(parents=True, exist_ok=True)
         self.base = load_scenario(cfg.scenario, list(cfg.overrides))
         self.log = EventLog(cfg.log_folder / "service.jsonl", echo=self._fan)
-        self.log.log("serve_start", link=cfg.url, config=str(cfg.source), component=MAV_COMP_ID_PATHPLANNER)
+        # the telemetry log of the service's whole link (every message both ways, as MAVProxy keeps one per session)
+        self.tlog = cfg.log_folder / datetime.now(UTC).strftime("service-%Y%m%dT%H%M%SZ.tlog")
+        self.log.log("serve_start", link=cfg.url, config=str(cfg.source), component=MAV_COMP_ID_PATHPLANNER,
+                     tlog=self.tlog.name)
         link = Link(cfg.url, source_system=self.source_system, source_component=MAV_COMP_ID_PATHPLANNER,
                     target_system=cfg.target_system, baud=cfg.baud, heartbeat_timeout=cfg.heartbeat_timeout,
-                    open_timeout=math.inf)
+                    open_timeout=math.inf, tlog=self.tlog)
         try:
             async with link:
                 self.link, self.client = link, MissionClient(link)

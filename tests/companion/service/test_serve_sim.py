@@ -13,10 +13,12 @@ from pathlib import Path
 
 import gcs_world
 from operator_course import CIRCLE, base_scenario, fence_items, goal_mission
+from pymavlink import mavutil
 from pymavlink.dialects.v20 import common as mavlink
+from readback import waypoints_file
 from serve_gcs import GroundStation, two_item_mission, write_config
 
-from companion.mavlink.items import MISSION
+from companion.mavlink.items import MISSION, MissionItem
 from companion.service import MAV_COMP_ID_PATHPLANNER, Service, load_config
 from companion.service.serve import mission_key
 from companion.sim import SimAutopilot
@@ -133,3 +135,13 @@ async def _serve_on_the_simulator(tmp_path: Path) -> None:
             with contextlib.suppress(asyncio.CancelledError):
                 await task
     assert (cfg.log_folder / "service.jsonl").exists()
+    # the service's telemetry log holds the route it uploaded, as pymavlink reads a MAVProxy .tlog
+    log = mavutil.mavlink_connection(str(service.tlog))
+    sent = set()
+    while (m := log.recv_match(type="MISSION_ITEM_INT")) is not None:
+        if m.get_srcComponent() == MAV_COMP_ID_PATHPLANNER and m.mission_type == MISSION:
+            it = MissionItem.from_message(m)
+            sent.add((it.seq, it.command, it.x, it.y))
+    log.close()
+    route = waypoints_file(accepted.report / "mission.waypoints")[1:]  # the first request's route (home aside)
+    assert route and {(it.seq, it.command, it.x, it.y) for it in route} <= sent
