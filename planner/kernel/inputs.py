@@ -10,6 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from planner.errors import FuseplanError
 from planner.kernel.jit import njit
 from planner.kernel.swarm import decode_spherical, pso_step
 from planner.trajectory.smoothing import PEAK_FACTOR, chord_sag
@@ -27,13 +28,18 @@ PRISM_COLUMNS = ("floor", "ceiling", "keep_in", "cx", "cy", "r")  # KernelInputs
 KEEP_IN_REACH = 1e300  # m: the broad-phase radius of a keep-in polygon (no-fly outside it: near every segment)
 
 
+class KernelChoiceError(FuseplanError, ValueError):
+    """FUSEPLAN_KERNEL or FUSEPLAN_BROAD_PHASE set to a value we do not know: one line (the CLI exits 2), not a
+    traceback."""
+
+
 def broad_phase() -> bool:
     """Whether the kernels visit only obstacles that can count (the default) or every obstacle
     (``FUSEPLAN_BROAD_PHASE=off``, for benches); the two give the same results bit for bit. The cost skips the
     obstacles out of reach of the swarm's box for each segment; segment_blocked finds obstacles in a uniform grid."""
     want = os.environ.get(BROAD_ENV_VAR, "on").strip().lower() or "on"
     if want not in ("on", "off"):
-        raise ValueError(f"{BROAD_ENV_VAR}={want!r}: expected on or off")
+        raise KernelChoiceError(f"{BROAD_ENV_VAR}={want!r}: expected on or off")
     return want == "on"
 
 
@@ -41,7 +47,7 @@ def chosen() -> str:
     """The kernel evaluations use: ``compiled`` unless FUSEPLAN_KERNEL says ``numpy`` or numba is missing."""
     want = os.environ.get(ENV_VAR, "compiled").strip().lower() or "compiled"
     if want not in KERNELS:
-        raise ValueError(f"{ENV_VAR}={want!r}: expected one of {', '.join(KERNELS)}")
+        raise KernelChoiceError(f"{ENV_VAR}={want!r}: expected one of {', '.join(KERNELS)}")
     return "compiled" if want == "compiled" and njit is not None else "numpy"
 
 

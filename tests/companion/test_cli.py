@@ -277,3 +277,11 @@ def test_plan_on_a_terminal_shows_the_search_progress(tmp_path, rescue_static) -
     assert code in (0, 3), drawn  # a budget this small may end infeasible; the bar is what is tested
     assert "iteration" in drawn and "best cost" in drawn and "8/8" in drawn
     assert "rescue_static: spso seed" in drawn
+
+
+@pytest.mark.parametrize("var,value", [("FUSEPLAN_KERNEL", "reference"), ("FUSEPLAN_BROAD_PHASE", "maybe")])
+def test_an_unknown_kernel_setting_is_one_line_and_exit_2(rescue_static, capsys, monkeypatch, var, value) -> None:
+    monkeypatch.setenv(var, value)
+    assert main(["plan", str(rescue_static), "-q"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{var}={value!r}" in err and "Traceback" not in err, err
