@@ -825,12 +825,12 @@ def cmd_fly(args: FlyArgs) -> int:
                                               lambda url: _announce(url, token)))
     except CompanionError as e:  # before the vehicle was armed (after it, fly reports the flight as it went)
         events.log(Event.FAILED, error=str(e))
-        write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": str(e)}, indent=1) + "\n")
+        _unflown(args.report, str(e))
         print(f"fuseplan: error: {e}", file=sys.stderr)
         return EXIT_BAD_INPUT if isinstance(e, FenceTooLarge) else EXIT_LINK  # the user's zones, not the link
     except KeyboardInterrupt:
         events.log(Event.ABORTED, reason="interrupted by the user")
-        write_text(args.report / "flight.json", json.dumps({"completed": False, "reason": "interrupted"}) + "\n")
+        _unflown(args.report, "interrupted")
         print("fuseplan: interrupted; the vehicle keeps its current mode and mission", file=sys.stderr)
         return 130
     finally:
@@ -858,6 +858,12 @@ def cmd_fly(args: FlyArgs) -> int:
 
 
 _STYLES = {Tone.BAD: "red", Tone.WARN: "yellow", Tone.GOOD: "green"}  # rich styles, on a terminal only
+
+
+def _unflown(report: Path, reason: str) -> None:
+    """flight.json of a flight that ended before the vehicle was armed (after it, fly writes the whole report)."""
+    doc = {"completed": False, "reason": reason, "fuseplan_version": fuseplan_version()}
+    write_text(report / "flight.json", json.dumps(doc, indent=1) + "\n")
 
 
 def _echo_event(rec: dict) -> None:

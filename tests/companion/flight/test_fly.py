@@ -13,6 +13,7 @@ import pytest
 from pymavlink import mavutil, mavwp
 
 from companion.cli import main
+from planner.distribution import fuseplan_version
 
 ROOT = Path(__file__).resolve().parents[3]
 STATIC = ROOT / "sitl_scenarios" / "rescue_static.toml"
@@ -273,7 +274,8 @@ def test_fly_with_a_fence_too_large_for_the_autopilot_exits_2_before_anything_is
     events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
     assert not [e for e in events if e["event"] in ("upload_start", "backup")]
     assert [e["fits"] for e in events if e["event"] == "fence_capacity"] == [False]
-    assert "does not fit" in _flight(report)["reason"]
+    refused = _flight(report)
+    assert "does not fit" in refused["reason"] and refused["fuseplan_version"] == fuseplan_version()
 
 
 def test_export_warns_when_the_plans_fence_will_not_fit_the_vehicle(tmp_path, capsys) -> None:
