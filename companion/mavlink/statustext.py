@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 import enum
 import logging
+import weakref
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
@@ -54,6 +55,11 @@ def chunks(text: str, ident: int) -> list[tuple[bytes, int, int]]:
     return [(p, ident, seq) for seq, p in enumerate(pieces)]
 
 
+# the next chunk id of each link: every sender on a link (one per request of `fuseplan serve`) counts on, so two
+# long lines on the same link never share an id, which a ground station reassembles by (source, id)
+_NEXT_ID: weakref.WeakKeyDictionary[Any, int] = weakref.WeakKeyDictionary()
+
+
 @dataclass
 class StatusTexts:
     """Sends the companion's lines on a link; ``send`` never raises (a lost link loses the line, logged here:
@@ -61,14 +67,13 @@ class StatusTexts:
 
     link: _Sender
     sent: list[tuple[int, str]] = field(default_factory=list)  # (severity, text) of every line sent whole
-    _next_id: int = 1
 
     def send(self, text: str, severity: int = Severity.INFO) -> bool:
         """True when every chunk went out."""
-        ident = self._next_id
+        ident = _NEXT_ID.get(self.link, 1)
         parts = chunks(text, ident)
         if parts[0][1]:
-            self._next_id = ident % 0xFFFF + 1
+            _NEXT_ID[self.link] = ident % 0xFFFF + 1
         try:
             for piece, pid, seq in parts:
                 self.link.send(self.link.dialect.MAVLink_statustext_message(int(severity), piece, pid, seq))

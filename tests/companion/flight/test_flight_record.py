@@ -22,6 +22,7 @@ from companion.cli import main
 from companion.mavlink.items import MISSION, MissionItem
 from companion.mavlink.link import MAV_COMP_ID_ONBOARD_COMPUTER
 from companion.sim import SimAutopilot
+from planner.distribution import fuseplan_version
 from planner.world.scenario import load_scenario
 
 ROOT = Path(__file__).resolve().parents[3]
@@ -57,7 +58,7 @@ def test_the_report_holds_a_tlog_of_the_link(tmp_path: Path) -> None:
     report = tmp_path / "rep"
     assert main(["fly", str(STATIC), "--sim", "--speedup", "20", "--report", str(report), "-q", *FAST]) == 0
     flight = json.loads((report / "flight.json").read_text())
-    assert flight["tlog"] == "flight.tlog" and flight["fuseplan_version"]
+    assert flight["tlog"] == "flight.tlog" and flight["fuseplan_version"] == fuseplan_version() != "unknown"
     assert [m["reason"] for m in flight["missions"]] == ["initial"]  # nothing moves in this scenario
     mission = waypoints_file(report / "mission.waypoints")
     assert mission == waypoints_file(report / flight["missions"][0]["file"])

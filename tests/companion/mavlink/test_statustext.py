@@ -51,9 +51,15 @@ async def test_lines_reach_a_receiver_whole_over_udp(raw_peer):
                     line = joiner.feed(m)
                     if line is not None:
                         lines.append((m.severity, line))
+        # a second sender on the same link (serve: one per request) goes on counting: its long line has another id
+        assert StatusTexts(link).send(long, Severity.WARNING)
+        more = []
+        while len(more) < 2:
+            more += [m for m in await raw_peer.recv(2.0) if m.get_type() == "STATUSTEXT"]
     assert lines == [(Severity.NOTICE, "plan accepted"), (Severity.WARNING, long)]
     assert all((m.get_srcSystem(), m.get_srcComponent()) == (1, 195) for m in raw)
     assert len(raw) == 3 and raw[1].id == raw[2].id != 0 and [m.chunk_seq for m in raw[1:]] == [0, 1]
+    assert more[0].id == more[1].id not in (0, raw[1].id)
     assert out.sent == [(Severity.NOTICE, "plan accepted"), (Severity.WARNING, long)]
 
 
