@@ -11,6 +11,7 @@ from pathlib import Path
 
 import pytest
 from pymavlink.dialects.v20 import ardupilotmega as mavlink
+from readback import assert_the_tlog_holds_the_flight
 
 from companion.flight.announce import PREFIX, Announcer, line_for, with_prefix
 from companion.flight.fly import FlyOptions, fly, truth_separations
@@ -163,4 +164,6 @@ async def test_a_replanning_flight_on_the_simulator_says_what_it_decides(tmp_pat
     assert tap.lines[-1] == (Severity.INFO, "fuseplan: flight complete: goal reached")
     assert all(len(t) <= TEXT_BYTES for t in texts)
     assert len(texts) < 20, texts  # rate-limited: not one line per replanning look
-    assert json.loads((tmp_path / "r" / "flight.json").read_text())["completed"]
+    flown = json.loads((tmp_path / "r" / "flight.json").read_text())
+    assert flown["completed"] and flown["tlog"] == "flight.tlog"
+    assert_the_tlog_holds_the_flight(tmp_path / "r")  # the flight record: every message of the link, replans too

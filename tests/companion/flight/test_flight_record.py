@@ -7,20 +7,14 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import json
-import shutil
-import subprocess
-import sys
 import threading
 from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
-from pymavlink import mavutil
-from readback import first_difference, same_item, vehicle_mission, waypoints_file
+from readback import assert_the_tlog_holds_the_flight, first_difference, vehicle_mission, waypoints_file
 
 from companion.cli import main
-from companion.mavlink.items import MISSION, MissionItem
-from companion.mavlink.link import MAV_COMP_ID_ONBOARD_COMPUTER
 from companion.sim import SimAutopilot
 from planner.distribution import fuseplan_version
 from planner.world.scenario import load_scenario
@@ -32,24 +26,8 @@ FAST = ["--set", "planner.pso.n_pop=200", "--set", "planner.pso.max_iter=80"]
 RETRIES = 1  # flights flown again when no replan was made live
 
 
-def _tlog(path: Path) -> list:
-    """Every message of a .tlog, read by pymavlink as MAVProxy's logs are."""
-    log = mavutil.mavlink_connection(str(path))
-    out = []
-    while (msg := log.recv_match()) is not None:
-        if msg.get_type() != "BAD_DATA":
-            out.append(msg)
-    log.close()
-    return out
-
-
-def _mavlogdump() -> list[str]:
-    script = shutil.which("mavlogdump.py")
-    if script is None:
-        pytest.skip("mavlogdump.py (installed with pymavlink) is not on PATH")
-    return [sys.executable, script]
-
-
+# test_announce's replanning flight checks its tlog with the same helper (a replanned mission: the last items sent)
+@pytest.mark.slow(covered_by="companion/flight/test_announce.py::test_a_replanning_flight_on_the_simulator_says_what_it_decides")
 def test_the_report_holds_a_tlog_of_the_link(tmp_path: Path) -> None:
     """`fly --sim`: flight.tlog holds every message of the companion's link. pymavlink reads it back with times that
     never go backwards, HEARTBEATs both ways (ours from the onboard computer's component, link 3 as MAVProxy marks
@@ -64,31 +42,7 @@ def test_the_report_holds_a_tlog_of_the_link(tmp_path: Path) -> None:
     assert mission == waypoints_file(report / flight["missions"][0]["file"])
     assert len(mission) == flight["mission_items"] + flight["room_items"] == flight["missions"][0]["items"]
 
-    msgs = _tlog(report / "flight.tlog")
-    times = [m._timestamp for m in msgs]
-    assert len(msgs) > 500 and times == sorted(times) and times[-1] - times[0] > 2.0
-    ours = (1, MAV_COMP_ID_ONBOARD_COMPUTER)
-    beats = [((m.get_srcSystem(), m.get_srcComponent()), m._link) for m in msgs if m.get_type() == "HEARTBEAT"]
-    assert (ours, 3) in beats and ((1, 1), 0) in beats  # ours, sent; the autopilot's, received
-    sent = [m for m in msgs if m.get_type() == "MISSION_ITEM_INT" and m.mission_type == MISSION
-            and (m.get_srcSystem(), m.get_srcComponent()) == ours]
-    uploaded = {m.seq: MissionItem.from_message(m) for m in sent}  # an item asked for twice is sent twice
-    assert sorted(uploaded) == list(range(len(mission)))
-    assert all(same_item(uploaded[it.seq], it) for it in mission[1:])  # item 0 is home in the file too
-
-    dump = subprocess.run([*_mavlogdump(), "--format", "json", "--types", "MISSION_ITEM_INT",
-                           str(report / "flight.tlog")], capture_output=True, text=True, timeout=60, check=True)
-    rows = [json.loads(line) for line in dump.stdout.splitlines() if line.startswith("{")]
-    # ours go to the autopilot (component 1); the vehicle's (its readback) come to us
-    to_vehicle = {r["data"]["seq"]: r["data"] for r in rows
-                  if r["data"]["target_component"] == 1 and r["data"]["mission_type"] == MISSION}
-    assert sorted(to_vehicle) == list(range(len(mission)))
-    for it in mission:
-        row = to_vehicle[it.seq]
-        assert (row["command"], row["x"], row["y"]) == (it.command, it.x, it.y), (it, row)
-        assert abs(row["z"] - it.z) < 1e-3
-    stamps = [r["meta"]["timestamp"] for r in rows]
-    assert stamps == sorted(stamps)
+    assert_the_tlog_holds_the_flight(report)
 
 
 @contextlib.contextmanager
