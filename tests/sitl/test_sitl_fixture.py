@@ -76,6 +76,9 @@ def test_busy_instance_is_skipped() -> None:
     first, lock = _claim_instance()
     lock.close()
     with socket.socket() as squatter:  # a hand-started SITL would hold its SERIAL0 like this
+        # as SITL binds it: a connection of an earlier test to that port may still be in TIME_WAIT (CI once failed
+        # here with EADDRINUSE right after the serve tests' SITL had stopped)
+        squatter.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
         squatter.bind(("127.0.0.1", ports(first)[0]))
         squatter.listen()
         other, lock = _claim_instance()
