@@ -57,6 +57,7 @@ from companion.mavlink.link import Link
 from companion.mavlink.mission_ids import plan_ids
 from companion.mavlink.params import read_params
 from companion.mavlink.protocol import MissionClient
+from companion.mavlink.storage import mission_difference
 from companion.mavlink.telemetry import TelemetryRates
 from companion.mavlink.vehicle_limits import AutopilotLimits, limits_from, parameter_names
 from companion.mission import picture
@@ -114,6 +115,8 @@ class Accepted:
     key: tuple  # mission_key of the route as the vehicle reads it back
     operator: list[MissionItem]  # the operator's mission, the backup
     flown: bool = False
+    verified: list[MissionItem] = field(default_factory=list)  # the mission last verified on the vehicle by us: the
+    # route, then after a flight the live replanner's last (a replan, or the mission it restored)
 
 
 @dataclass
@@ -231,7 +234,7 @@ class Service:
             self.log.log("baseline", items=len(mission), note="a mission already on the vehicle is left alone; "
                          "upload one to ask for a plan")
             self.seen = key
-        elif key and key != self.seen and not (self.accepted is not None and key == self.accepted.key):
+        elif key and key != self.seen and not self._own(mission, key):
             self.log.log("changed_while_away", items=len(mission))
             if _armed(link.last_heartbeat_msg):
                 self.seen = key
@@ -295,8 +298,8 @@ class Service:
                 key = mission_key(mission, self.client.home_at_zero(MISSION))
                 if key == self.seen:
                     continue
-                if self.accepted is not None and key == self.accepted.key:
-                    self.seen = key  # our own route (read back after a restart, or our upload's total)
+                if self._own(mission, key):
+                    self.seen = key  # our own route (read back after a restart, our upload's total, or a replan's)
                     continue
                 if not key:  # cleared (or a fresh autopilot): nothing to plan to
                     self.seen = key
@@ -308,6 +311,20 @@ class Service:
                     continue
                 await self._request(mission, noticed)
                 session.poll_at = time.monotonic() + self.cfg.poll_s
+
+    def _own(self, mission: list[MissionItem], key: tuple) -> bool:
+        """``mission`` (read back, ``key`` its mission_key) is the one the service last verified on the vehicle: its
+        route, or the live replanner's last mission after a flight (compared as the upload's readback is, item by
+        item as the autopilot stores them); it becomes the accepted key, so it is never taken for a request."""
+        accepted = self.accepted
+        if accepted is None:
+            return False
+        if key != accepted.key:
+            if not accepted.verified or mission_difference(accepted.verified, mission, self.client.home_at_zero(
+                    MISSION), self.client.firmware) is not None:
+                return False
+            accepted.key = key
+        return True
 
     async def _read_settled(self) -> list[MissionItem]:
         """The vehicle's mission once two readbacks agree (an upload in progress changes it between them)."""
@@ -425,7 +442,8 @@ class Service:
         key = mission_key(stored, home0)
         self.seen = key
         events.log("route_set", items=len(items), planned_items=planned, operator_items=len(mission))
-        return Accepted(handled.number, report, events, doc, sc, list(items), planned, sup, key, list(mission))
+        return Accepted(handled.number, report, events, doc, sc, list(items), planned, sup, key, list(mission),
+                        verified=list(items))
 
     # -- a flight ----------------------------------------------------------------------------------
     async def _supervise(self, accepted: Accepted) -> None:
@@ -456,6 +474,8 @@ class Service:
                     out.completed, out.reason = False, str(e)
                     events.log("failed", error=str(e), started=True)
         events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
+        if replanner is not None and replanner.history:  # the replans' (or a restore's) last verified mission: ours
+            accepted.verified = list(replanner.history[-1].items)
         opts = FlyOptions(connect=cfg.url, report=accepted.report, replan=cfg.replan)
         flight = await asyncio.to_thread(_write_flight_report, opts, doc, sc, out, None, link.profile.layout,
                                          (accepted.planned, len(items)), replanner, None, self._limits)
