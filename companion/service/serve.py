@@ -50,7 +50,7 @@ from companion.flight.fly import (
     _write_mission_files,
 )
 from companion.flight.report import write_json
-from companion.flight.supervisor import DepartureRefused, FixedMission, FlightOutcome, FlightSupervisor
+from companion.flight.supervisor import DepartureRefused, FixedMission, FlightOutcome, FlightSupervisor, Pilot
 from companion.mavlink.errors import CompanionError, UploadAborted
 from companion.mavlink.items import FENCE, MISSION, RALLY, MissionItem, normalise_frame
 from companion.mavlink.link import Link
@@ -81,6 +81,7 @@ POSITION_WAIT_S = 5.0
 PARAMS_WAIT_S = 10.0
 SESSION_RETRY_S = 0.5  # wall s before a session that failed (a transfer the link broke) is begun again
 REBOOT_BACK_MS = 1000  # the autopilot's boot time going back more than this: it restarted
+CHANGE_WAIT_S = 10.0  # wall s a stop waits for a replan in flight to finish its mission change (and the hold round it)
 
 
 def mission_key(items: Sequence[MissionItem], home_at_zero: bool) -> tuple:
@@ -161,13 +162,31 @@ class Service:
     listeners: list[Callable[[dict[str, Any]], None]] = field(default_factory=list)  # every record (status page)
     _busy: bool = False  # a request is being handled: a stop waits for its end (never a half-changed mission)
     _stopping: bool = False
+    _pilot: Pilot | None = None  # the pilot of the flight being supervised (the live replanner), else None
+    _stop_task: asyncio.Task | None = None
 
     def stop(self, task: asyncio.Task) -> None:
         """Stop ``task`` (running :meth:`run`) now, or once the request in hand is decided (planning is bounded by
-        plan.budget_s, then one upload, verified or restored), so that no mission is left half-changed."""
+        plan.budget_s, then one upload, verified or restored), or, in a supervised flight, once the live replanner's
+        mission change and the hold round it are over (at most CHANGE_WAIT_S): no mission is left half-changed
+        and the vehicle is let go flying its verified mission, not held."""
+        if self._stopping:
+            return  # already on its way out
         self._stopping = True
-        if not self._busy:
-            task.cancel()
+        pilot = self._pilot
+        if self._busy:
+            return
+        if pilot is not None and (pilot.changing or pilot.holding is not None):
+            self.log.log("stop_deferred", changing=pilot.changing, holding=pilot.holding)
+            self._stop_task = asyncio.get_running_loop().create_task(self._stop_after_change(task, pilot))
+            return
+        task.cancel()
+
+    async def _stop_after_change(self, task: asyncio.Task, pilot: Pilot) -> None:
+        deadline = time.monotonic() + CHANGE_WAIT_S
+        while (pilot.changing or pilot.holding is not None) and self._pilot is pilot and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+        task.cancel()
 
     def _fan(self, rec: dict[str, Any]) -> None:
         """Every record of the service's logs to the echo and the listeners."""
@@ -468,11 +487,14 @@ class Service:
                         limits=self._limits))
                 pilot = replanner if replanner is not None else FixedMission(items, VehicleState(sc.home))
                 pilot.state.mission_started(time.monotonic())
+                self._pilot = pilot
                 try:
                     await sup.monitor(pilot, timeout, out, sub)
                 except CompanionError as e:
                     out.completed, out.reason = False, str(e)
                     events.log("failed", error=str(e), started=True)
+                finally:
+                    self._pilot = None
         events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
         if replanner is not None and replanner.history:  # the replans' (or a restore's) last verified mission: ours
             accepted.verified = list(replanner.history[-1].items)

@@ -15,6 +15,7 @@ from pymavlink.dialects.v20 import common as mavlink
 from serve_gcs import GroundStation, two_item_mission, write_config
 
 from companion.service import Service, load_config
+from companion.service.serve import Handled
 from companion.sim import SimAutopilot
 from planner.world.scenario import load_scenario
 
@@ -27,26 +28,39 @@ def test_a_replanned_flight_is_no_new_request(tmp_path: Path) -> None:
     asyncio.run(_replanned_flight(tmp_path))  # its own loop: the planner's threads end with it
 
 
-async def _replanned_flight(tmp_path: Path) -> None:
+def test_a_stop_during_a_replan_lets_the_vehicle_go_on_its_verified_mission(tmp_path: Path) -> None:
+    asyncio.run(_stop_during_a_replan(tmp_path))
+
+
+def _config(tmp_path: Path, url: str) -> Path:
+    config = write_config(tmp_path / "serve.toml", url, DYNAMIC, tmp_path / "logs", poll_s=0.5, budget_s=3.0)
+    config.write_text(config.read_text().replace("zones = []", f"zones = []\nset = {json.dumps(QUICK_PLAN)}"))
+    return config
+
+
+async def _fly_the_route(service: Service, gcs: GroundStation) -> tuple[Handled, float]:
+    """The operator's upload of the scenario's goal, planned and verified; then the pilot's start."""
     sc = load_scenario(DYNAMIC)
-    async with SimAutopilot(sc, "tcp:127.0.0.1:0", speedup=20.0, seed=1) as sim:
+    await gcs.link.wait_heartbeat(10.0)
+    while service.seen is None:
+        await asyncio.sleep(0.05)
+    goal = sc.goal
+    stored = await gcs.upload(two_item_mission(sc.home, True, float(goal[0]), float(goal[1]), float(goal[2])))
+    await gcs.line(lambda s: "uploaded and verified" in s, stored, 30.0)
+    request = service.handled[-1]
+    assert request.verdict == "accepted", request
+    await gcs.arm_and_start(30.0)
+    return request, stored
+
+
+async def _replanned_flight(tmp_path: Path) -> None:
+    async with SimAutopilot(load_scenario(DYNAMIC), "tcp:127.0.0.1:0", speedup=20.0, seed=1) as sim:
         url = f"tcp:127.0.0.1:{sim.port}"
-        config = write_config(tmp_path / "serve.toml", url, DYNAMIC, tmp_path / "logs", poll_s=0.5, budget_s=3.0)
-        config.write_text(config.read_text().replace("zones = []", f"zones = []\nset = {json.dumps(QUICK_PLAN)}"))
-        service = Service(load_config(config))
+        service = Service(load_config(_config(tmp_path, url)))
         task = asyncio.create_task(service.run())
         try:
             async with GroundStation(url) as gcs:
-                await gcs.link.wait_heartbeat(10.0)
-                while service.seen is None:
-                    await asyncio.sleep(0.05)
-                goal = sc.goal
-                stored = await gcs.upload(two_item_mission(sc.home, True, float(goal[0]), float(goal[1]),
-                                                           float(goal[2])))
-                await gcs.line(lambda s: "uploaded and verified" in s, stored, 30.0)
-                request = service.handled[-1]
-                assert request.verdict == "accepted", request
-                await gcs.arm_and_start(30.0)
+                request, stored = await _fly_the_route(service, gcs)
                 await gcs.line(lambda s: s.startswith("fuseplan: flight "), stored, 60.0)
                 while request.flight is None:
                     await asyncio.sleep(0.05)
@@ -65,3 +79,34 @@ async def _replanned_flight(tmp_path: Path) -> None:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task
+
+
+async def _stop_during_a_replan(tmp_path: Path) -> None:
+    """SIGTERM (the CLI's handler calls Service.stop) as the replan is planned: the vehicle is held for it and its
+    upload follows; the stop waits for the verified replan and the resume, then lets go (AUTO, not GUIDED)."""
+    async with SimAutopilot(load_scenario(DYNAMIC), "tcp:127.0.0.1:0", speedup=20.0, seed=1) as sim:
+        url = f"tcp:127.0.0.1:{sim.port}"
+        service = Service(load_config(_config(tmp_path, url)))
+        task = asyncio.create_task(service.run())
+        seen: list[str] = []
+
+        def on_record(rec: dict) -> None:
+            seen.append(rec["event"])
+            if rec["event"] == "replan_planned" and not service._stopping:
+                service.stop(task)  # synchronously, mid-replan: the hold is on, the upload next
+
+        service.listeners.append(on_record)
+        try:
+            async with GroundStation(url) as gcs:
+                await _fly_the_route(service, gcs)
+                await asyncio.wait_for(asyncio.shield(task), 60.0)
+        except asyncio.CancelledError:
+            pass
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        assert "replan_planned" in seen, seen
+        assert sim.armed and sim.mode == "AUTO", sim.mode  # flying its verified mission, not held
+        after = seen[seen.index("replan_planned"):]
+        assert "stop_deferred" in after and "replan_verified" in after and "resume" in after, after
