@@ -141,7 +141,7 @@ class Event(StrEnum):
     # the service (fuseplan serve): its own log, service.jsonl, and each request's events.jsonl
     SERVE_START = "serve_start", "the service started: its link, configuration and component id", Tone.PLAIN, True
     SERVE_STOP = "serve_stop", "the service stopped (SIGINT or SIGTERM)", Tone.PLAIN, True
-    STOP_DEFERRED = "stop_deferred", "a stop waits for the replan in flight to finish its mission change", Tone.WARN, \
+    STOP_DEFERRED = "stop_deferred", "a stop waits for the mission change in hand (an upload, a replan)", Tone.WARN, \
         True
     WAITING_FOR_AUTOPILOT = "waiting_for_autopilot", "no autopilot on the link yet: the service waits", Tone.WARN, True
     AUTOPILOT_RESTARTED = "autopilot_restarted", "the autopilot booted again: a new session", Tone.WARN, True

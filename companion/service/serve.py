@@ -31,6 +31,7 @@ import asyncio
 import contextlib
 import logging
 import math
+import threading
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
@@ -82,6 +83,9 @@ PARAMS_WAIT_S = 10.0
 SESSION_RETRY_S = 0.5  # wall s before a session that failed (a transfer the link broke) is begun again
 REBOOT_BACK_MS = 1000  # the autopilot's boot time going back more than this: it restarted
 CHANGE_WAIT_S = 10.0  # wall s a stop waits for a replan in flight to finish its mission change (and the hold round it)
+UPLOAD_WAIT_S = 45.0  # wall s a stop waits for a request's upload to be verified or the operator's mission restored
+# (a link that breaks during it is waited for up to LINK_BACK_S = 30 s); docs/fuseplan-serve.service's TimeoutStopSec
+# is above both
 
 
 def mission_key(items: Sequence[MissionItem], home_at_zero: bool) -> tuple:
@@ -160,31 +164,41 @@ class Service:
     _requests: int = 0
     _limits: AutopilotLimits | None = None  # the autopilot's, read at each connect
     listeners: list[Callable[[dict[str, Any]], None]] = field(default_factory=list)  # every record (status page)
-    _busy: bool = False  # a request is being handled: a stop waits for its end (never a half-changed mission)
+    _busy: bool = False  # a request's upload is under way: a stop waits for its end (never a half-changed mission)
+    _uploaded: bool = False  # the request in hand has begun its upload
     _stopping: bool = False
     _pilot: Pilot | None = None  # the pilot of the flight being supervised (the live replanner), else None
     _stop_task: asyncio.Task | None = None
+    _plan_stop: threading.Event = field(default_factory=threading.Event)  # ends a search in its thread at a stop
 
     def stop(self, task: asyncio.Task) -> None:
-        """Stop ``task`` (running :meth:`run`) now, or once the request in hand is decided (planning is bounded by
-        plan.budget_s, then one upload, verified or restored), or, in a supervised flight, once the live replanner's
-        mission change and the hold round it are over (at most CHANGE_WAIT_S): no mission is left half-changed
-        and the vehicle is let go flying its verified mission, not held."""
+        """Stop ``task`` (running :meth:`run`): at once, but while the vehicle's mission is being changed. A request
+        being planned is dropped (nothing changed on the vehicle yet; its search ends at its next iteration); one
+        whose upload is under way is let finish, verified or the operator's mission restored (at most UPLOAD_WAIT_S);
+        in a supervised flight, the live replanner's mission change and the hold round it are let finish (at most
+        CHANGE_WAIT_S): no mission is left half-changed and the vehicle is let go flying its verified mission."""
         if self._stopping:
             return  # already on its way out
         self._stopping = True
+        self._plan_stop.set()
         pilot = self._pilot
+        wait: Callable[[], bool]
         if self._busy:
+            wait, bound = (lambda: self._busy), UPLOAD_WAIT_S
+        elif pilot is not None and (pilot.changing or pilot.holding is not None):
+            wait, bound = (lambda: self._pilot is pilot and (pilot.changing or pilot.holding is not None)), \
+                CHANGE_WAIT_S
+        else:
+            task.cancel()
             return
-        if pilot is not None and (pilot.changing or pilot.holding is not None):
-            self.log.log("stop_deferred", changing=pilot.changing, holding=pilot.holding)
-            self._stop_task = asyncio.get_running_loop().create_task(self._stop_after_change(task, pilot))
-            return
-        task.cancel()
+        self.log.log("stop_deferred", upload=self._busy, changing=pilot is not None and pilot.changing,
+                     holding=None if pilot is None else pilot.holding, up_to_s=bound)
+        self._stop_task = asyncio.get_running_loop().create_task(self._stop_when(task, wait, bound))
 
-    async def _stop_after_change(self, task: asyncio.Task, pilot: Pilot) -> None:
-        deadline = time.monotonic() + CHANGE_WAIT_S
-        while (pilot.changing or pilot.holding is not None) and self._pilot is pilot and time.monotonic() < deadline:
+    @staticmethod
+    async def _stop_when(task: asyncio.Task, busy: Callable[[], bool], bound: float) -> None:
+        deadline = time.monotonic() + bound
+        while busy() and time.monotonic() < deadline:
             await asyncio.sleep(0.02)
         task.cancel()
 
@@ -391,9 +405,17 @@ class Service:
             self.accepted.events.log("superseded", by=handled.number)
             self.accepted.events.close()
         self.accepted = None
-        self._busy = True
+        self._uploaded = False
         try:
             accepted = await self._plan_and_replace(mission, handled, events)
+        except asyncio.CancelledError:  # stopped before the upload (else the stop waits for it): nothing changed
+            if not self._uploaded:
+                events.log("failed", error="the service stopped before the upload: the operator's mission is "
+                           "unchanged", stage="planning")
+                handled.verdict, handled.reason = "failed", "stopped before the upload"
+                handled.done_at = time.monotonic()
+            events.close()
+            raise
         except (PlanRefusal, DepartureRefused) as e:
             reason = str(e)
             events.log("plan_refused", reason=reason)
@@ -407,8 +429,6 @@ class Service:
         else:
             self.accepted = accepted
             handled.verdict = "accepted"
-        finally:
-            self._busy = False
         handled.done_at = time.monotonic()
         if self.accepted is None:
             events.close()
@@ -434,14 +454,15 @@ class Service:
         report = handled.report
         path, overrides = request_scenario(cfg, world, (pos.lat / 1e7, pos.lon / 1e7), report)
         events.log("planning", scenario=str(path))
-        doc, sc = await asyncio.to_thread(plan_request, path, overrides, cfg.seed, cfg.budget_s)
+        doc, sc = await asyncio.to_thread(plan_request, path, overrides, cfg.seed, cfg.budget_s, self._plan_stop)
         events.log("planned", status=doc["status"], length_m=round(float(doc["metrics"]["length_m"]), 1),
                    plan_s=round(float(doc["metrics"]["plan_time_s"]), 2))
         write_json(report / "PLAN.json", doc)
         limits = self._limits or limits_from({}, link.profile.layout, sc.vehicle, DEFAULT_LOITER_RADIUS_M)
         opts = FlyOptions(connect=cfg.url, arm=False, fence=False, report=report, replan=cfg.replan,
                           flight_timeout=cfg.flight_timeout,
-                          plan_again=lambda extra: plan_request(path, [*overrides, *extra], cfg.seed, cfg.budget_s))
+                          plan_again=lambda extra: plan_request(path, [*overrides, *extra], cfg.seed, cfg.budget_s,
+                                                                self._plan_stop))
         doc, sc = await _plan_within(doc, sc, limits, opts, events)
         events.log("scene", **picture.scene(sc, doc))  # the status page's map of this request
         sup = FlightSupervisor(link, client, events, arm=False, home=sc.home)
@@ -455,9 +476,15 @@ class Service:
             items = with_room(items, ReplanConfig().spare_items)
         if _armed(link.last_heartbeat_msg):
             raise PlanRefusal("vehicle armed while planning: the mission is not replaced in flight")
-        await sup.upload(items)  # reads the operator's mission first, restores it if the upload fails
-        events.log("mission", **picture.mission(items, sc.home))
-        stored = await client.download(MISSION)
+        if self._stopping:
+            raise asyncio.CancelledError  # a stop that came as the plan was finished: nothing changed yet
+        self._busy = self._uploaded = True  # from here a stop waits: the mission is changed, verified or restored
+        try:
+            await sup.upload(items)  # reads the operator's mission first, restores it if the upload fails
+            events.log("mission", **picture.mission(items, sc.home))
+            stored = await client.download(MISSION)
+        finally:
+            self._busy = False
         key = mission_key(stored, home0)
         self.seen = key
         events.log("route_set", items=len(items), planned_items=planned, operator_items=len(mission))

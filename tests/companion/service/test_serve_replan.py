@@ -12,8 +12,10 @@ import time
 from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mavlink
+from readback import same_mission
 from serve_gcs import GroundStation, two_item_mission, write_config
 
+from companion.mavlink.items import MISSION
 from companion.service import Service, load_config
 from companion.service.serve import Handled
 from companion.sim import SimAutopilot
@@ -30,6 +32,10 @@ def test_a_replanned_flight_is_no_new_request(tmp_path: Path) -> None:
 
 def test_a_stop_during_a_replan_lets_the_vehicle_go_on_its_verified_mission(tmp_path: Path) -> None:
     asyncio.run(_stop_during_a_replan(tmp_path))
+
+
+def test_a_stop_while_planning_drops_the_request_and_leaves_the_operators_mission(tmp_path: Path) -> None:
+    asyncio.run(_stop_while_planning(tmp_path))
 
 
 def _config(tmp_path: Path, url: str) -> Path:
@@ -110,3 +116,40 @@ async def _stop_during_a_replan(tmp_path: Path) -> None:
         assert sim.armed and sim.mode == "AUTO", sim.mode  # flying its verified mission, not held
         after = seen[seen.index("replan_planned"):]
         assert "stop_deferred" in after and "replan_verified" in after and "resume" in after, after
+
+
+async def _stop_while_planning(tmp_path: Path) -> None:
+    """SIGTERM while a request is planned: nothing is on its way to the vehicle yet, so the service stops at once
+    (its search ends at its next iteration), the request is dropped and the operator's mission stays."""
+    sc = load_scenario(DYNAMIC)
+    async with SimAutopilot(sc, "tcp:127.0.0.1:0", speedup=20.0, seed=1) as sim:
+        url = f"tcp:127.0.0.1:{sim.port}"
+        service = Service(load_config(_config(tmp_path, url)))
+        task = asyncio.create_task(service.run())
+        stopped: list[float] = []
+
+        def on_record(rec: dict) -> None:
+            if rec["event"] == "planning" and not stopped:
+                stopped.append(time.monotonic())
+                service.stop(task)
+
+        service.listeners.append(on_record)
+        try:
+            async with GroundStation(url) as gcs:
+                await gcs.link.wait_heartbeat(10.0)
+                while service.seen is None:
+                    await asyncio.sleep(0.05)
+                goal = sc.goal
+                operator = two_item_mission(sc.home, True, float(goal[0]), float(goal[1]), float(goal[2]))
+                await gcs.upload(operator)
+                with contextlib.suppress(asyncio.CancelledError):
+                    await asyncio.wait_for(asyncio.shield(task), 30.0)
+                took = time.monotonic() - stopped[0]
+                assert same_mission(await gcs.client.download(MISSION), operator), "replaced after the stop"
+        finally:
+            task.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+    request = service.handled[-1]
+    assert request.verdict == "failed" and "stopped" in request.reason, request
+    assert took < 2.0, took
