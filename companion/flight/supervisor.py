@@ -168,6 +168,7 @@ class FlightSupervisor:
         self._position_at = -math.inf  # wall time of the last ``position`` record
         self.booted_at: float | None = None  # time.monotonic() when the autopilot was seen booted
         self.verified: list[MissionItem] = []  # the mission last verified on the vehicle
+        self.readback: list[MissionItem] = []  # the vehicle's readback that verified it (as the vehicle stores it)
         self._outages_checked = 0  # link.outages when the vehicle's mission was last known to be ``verified``
         self.started = False  # armed or started: from here on a failure leaves a flight, not just a refusal
         self.mismatch: MissionVerifyError | None = None  # the last resync's difference, if it found one
@@ -290,9 +291,10 @@ class FlightSupervisor:
                 continue
             previous = await self._backup(kind)
             t0 = time.monotonic()
+            got: list[MissionItem] = []
             for attempt in range(1, attempts + 1):
                 try:
-                    await self.client.upload_verified(payload, kind)
+                    got = await self.client.upload_verified(payload, kind)
                     break
                 except (MissionTimeout, MissionVerifyError, MissionUploadError, LinkError) as e:
                     booting = self._refused_while_booting(e, kind)
@@ -318,7 +320,7 @@ class FlightSupervisor:
             dt += time.monotonic() - t0
             stored.append((kind, previous))
             if kind == MISSION:
-                self.verified, self._outages_checked = list(payload), self.link.outages
+                self.verified, self.readback, self._outages_checked = list(payload), got, self.link.outages
             if kind == MISSION and self.link.profile.awaits_mission_verdict:
                 await self._mission_verdict(len(payload), settle=previous is None or len(previous) == len(payload))
         self.events.log("upload_verified", seconds=round(dt, 3))

@@ -481,11 +481,10 @@ class Service:
         self._busy = self._uploaded = True  # from here a stop waits: the mission is changed, verified or restored
         try:
             await sup.upload(items)  # reads the operator's mission first, restores it if the upload fails
-            events.log("mission", **picture.mission(items, sc.home))
-            stored = await client.download(MISSION)
         finally:
             self._busy = False
-        key = mission_key(stored, home0)
+        events.log("mission", **picture.mission(items, sc.home))
+        key = mission_key(sup.readback, home0)  # the readback that verified the upload: the route as stored
         self.seen = key
         events.log("route_set", items=len(items), planned_items=planned, operator_items=len(mission))
         return Accepted(handled.number, report, events, doc, sc, list(items), planned, sup, key, list(mission),
