@@ -272,14 +272,16 @@ class FlightSupervisor:
 
     # -- upload ------------------------------------------------------------------------------------
     async def upload(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (),
-                     attempts: int = UPLOAD_ATTEMPTS) -> float:
+                     attempts: int = UPLOAD_ATTEMPTS, before: Callable[[], None] | None = None) -> float:
         """Upload and verify by readback (mission, then fence if any); returns the seconds it took. Before the
         flight a transfer the link broke (timeout, the autopilot's own timeout cancelling it, a readback that
         differs) is simply done again, up to ``attempts`` times; a refusal of an item is not. Each list is read
         first, so that if its upload fails for good the previous one can be restored (the stored list may be
         part new, part old): raises :class:`UploadAborted` saying what the vehicle was left with. A list that fails
         after an earlier one was stored (the fence after the mission) has the earlier one restored too, so the
-        vehicle is not left with half of the upload."""
+        vehicle is not left with half of the upload. ``before`` is called after the backups are read, right before
+        the first transfer (nothing changed yet): raising there (the vehicle armed meanwhile) leaves every list as it
+        was."""
         self.events.log("upload_start", mission_items=len(items), fence_items=len(fence))
         dt = 0.0  # the uploads' own time, not the backups' (the replanner's first guess at a replan upload)
         if items and self.link.profile.first_item_current_on_upload:
@@ -290,6 +292,8 @@ class FlightSupervisor:
             if not payload:
                 continue
             previous = await self._backup(kind)
+            if before is not None and not stored:
+                before()
             t0 = time.monotonic()
             got: list[MissionItem] = []
             for attempt in range(1, attempts + 1):

@@ -480,7 +480,8 @@ class Service:
             raise asyncio.CancelledError  # a stop that came as the plan was finished: nothing changed yet
         self._busy = self._uploaded = True  # from here a stop waits: the mission is changed, verified or restored
         try:
-            await sup.upload(items)  # reads the operator's mission first, restores it if the upload fails
+            # reads the operator's mission first, restores it if the upload fails; the pilot may arm meanwhile
+            await sup.upload(items, before=self._refuse_if_armed)
         finally:
             self._busy = False
         events.log("mission", **picture.mission(items, sc.home))
@@ -489,6 +490,13 @@ class Service:
         events.log("route_set", items=len(items), planned_items=planned, operator_items=len(mission))
         return Accepted(handled.number, report, events, doc, sc, list(items), planned, sup, key, list(mission),
                         verified=list(items))
+
+    def _refuse_if_armed(self) -> None:
+        """Right before the route's transfer starts (the latest HEARTBEAT): armed, the operator's mission stays."""
+        link = self.link
+        assert link is not None
+        if _armed(link.last_heartbeat_msg):
+            raise PlanRefusal("vehicle armed before the upload: the mission is not replaced in flight")
 
     # -- a flight ----------------------------------------------------------------------------------
     async def _supervise(self, accepted: Accepted) -> None:
