@@ -68,7 +68,7 @@ from companion.mission.vehicle_state import VehicleState, subscribe
 from companion.mission.vehicle_world import operator_world
 from companion.replanning.replan import ReplanConfig, with_room
 from companion.replanning.replanner import LiveReplanner
-from companion.service.config import ServeConfig
+from companion.service.config import ConfigError, ServeConfig
 from companion.service.planning import PlanRefusal, plan_request, request_scenario
 from planner.errors import FuseplanError
 from planner.world.scenario import Scenario, load_scenario
@@ -211,16 +211,20 @@ class Service:
     async def run(self) -> None:
         """Serve until cancelled (SIGINT/SIGTERM in the CLI); a fault of one request never ends the service."""
         cfg = self.cfg
-        cfg.log_folder.mkdir(parents=True, exist_ok=True)
         self.base = load_scenario(cfg.scenario, list(cfg.overrides))
-        self.log = EventLog(cfg.log_folder / "service.jsonl", echo=self._fan)
         # the telemetry log of the service's whole link (every message both ways, as MAVProxy keeps one per session)
         self.tlog = cfg.log_folder / datetime.now(UTC).strftime("service-%Y%m%dT%H%M%SZ.tlog")
+        try:  # the log folder's files, made at start-up: a folder the service cannot write in is the config's fault
+            cfg.log_folder.mkdir(parents=True, exist_ok=True)
+            self.log = EventLog(cfg.log_folder / "service.jsonl", echo=self._fan)
+            link = Link(cfg.url, source_system=self.source_system, source_component=MAV_COMP_ID_PATHPLANNER,
+                        target_system=cfg.target_system, baud=cfg.baud, heartbeat_timeout=cfg.heartbeat_timeout,
+                        open_timeout=math.inf, tlog=self.tlog)
+        except OSError as e:
+            raise ConfigError(f"{cfg.source}: service.log_folder: cannot write {e.filename or cfg.log_folder}: "
+                              f"{e.strerror or e}") from None
         self.log.log("serve_start", link=cfg.url, config=str(cfg.source), component=MAV_COMP_ID_PATHPLANNER,
                      tlog=self.tlog.name)
-        link = Link(cfg.url, source_system=self.source_system, source_component=MAV_COMP_ID_PATHPLANNER,
-                    target_system=cfg.target_system, baud=cfg.baud, heartbeat_timeout=cfg.heartbeat_timeout,
-                    open_timeout=math.inf, tlog=self.tlog)
         try:
             async with link:
                 self.link, self.client = link, MissionClient(link)
