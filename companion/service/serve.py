@@ -49,6 +49,7 @@ from companion.flight.fly import (
     _plan_within,
     _write_flight_report,
     _write_mission_files,
+    record_flown_missions,
 )
 from companion.flight.report import write_json
 from companion.flight.supervisor import DepartureRefused, FixedMission, FlightOutcome, FlightSupervisor, Pilot
@@ -534,11 +535,15 @@ class Service:
                 finally:
                     self._pilot = None
         events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
-        if replanner is not None and replanner.history:  # the replans' (or a restore's) last verified mission: ours
-            accepted.verified = list(replanner.history[-1].items)
+        # the missions as flown, as fly records them: the last verified on the vehicle (the route, a replan's, or
+        # the one a replan restored) is mission.*, and the service's own from now on
+        missions, index = record_flown_missions(accepted.report, doc, sc, spec, [], sup, replanner, events)
+        if missions:
+            accepted.verified = list(missions[-1].items)
         opts = FlyOptions(connect=cfg.url, report=accepted.report, replan=cfg.replan)
         flight = await asyncio.to_thread(_write_flight_report, opts, doc, sc, out, None, link.profile.layout,
-                                         (accepted.planned, len(items)), replanner, None, self._limits)
+                                         (accepted.planned, len(items)), replanner, None, self._limits, index,
+                                         self.tlog)
         for h in self.handled:
             if h.number == accepted.number:
                 h.flight = flight

@@ -1,7 +1,9 @@
 """``fuseplan serve`` supervising a flight that replans (rescue_dynamic on the built-in simulator, its intruder timed
 to meet the route the vehicle starts with): the missions the live replanner verified on the vehicle are the
 service's own, so once the flight is over the next readbacks are no new request (before the fix: "plan refused:
-vehicle armed" while it loitered at the goal, then a plan from where it stood)."""
+vehicle armed" while it loitered at the goal, then a plan from where it stood); the request's report holds the
+missions as flown (mission.waypoints: the last one stored on the vehicle; flight.json's index of them, and the
+service's telemetry log). A stop while a request is planned drops it; a stop during a replan waits for it."""
 
 from __future__ import annotations
 
@@ -12,7 +14,7 @@ import time
 from pathlib import Path
 
 from pymavlink.dialects.v20 import common as mavlink
-from readback import same_mission
+from readback import same_mission, waypoints_file
 from serve_gcs import GroundStation, two_item_mission, write_config
 
 from companion.mavlink.items import MISSION
@@ -81,10 +83,18 @@ async def _replanned_flight(tmp_path: Path) -> None:
                 await asyncio.sleep(1.5)
                 assert [h.number for h in service.handled] == [request.number], \
                     [(h.number, h.verdict, h.reason) for h in service.handled]
+                flown = await gcs.client.download(MISSION)
         finally:
             task.cancel()
             with contextlib.suppress(asyncio.CancelledError):
                 await task
+    # the report holds the missions as flown: the last one verified on the vehicle as mission.waypoints, every one
+    # in missions/ and flight.json's index; its tlog is the service's (absolute: one per start of the service)
+    assert same_mission(waypoints_file(request.report / "mission.waypoints"), flown)
+    reasons = [m["reason"] for m in flight["missions"]]
+    assert reasons[0] == "initial" and any(r.startswith("replan ") for r in reasons), reasons
+    assert all((request.report / m["file"]).exists() for m in flight["missions"])
+    assert flight["tlog"] == str(service.tlog) and service.tlog.exists()
 
 
 async def _stop_during_a_replan(tmp_path: Path) -> None:
