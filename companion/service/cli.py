@@ -18,15 +18,17 @@ from planner.errors import FuseplanError
 EXIT_OK = 0
 
 
-def run_service(config: Path, *, check_only: bool = False, echo: Callable[[dict[str, Any]], None] | None = None) -> int:
-    """Load ``config`` (raises :class:`~companion.service.config.ConfigError`, one line) and serve until stopped."""
+def run_service(config: Path, *, check_only: bool = False, echo: Callable[[dict[str, Any]], None] | None = None,
+                quiet: bool = False) -> int:
+    """Load ``config`` (raises :class:`~companion.service.config.ConfigError`, one line) and serve until stopped.
+    ``quiet`` (-q): no progress lines, only the start and stop banners (and the status page's address)."""
     cfg = load_config(config)
     if check_only:
         print(f"{config}: ok: link {cfg.url}, scenario {cfg.scenario}, {len(cfg.zones)} zones files, logs in "
               f"{cfg.log_folder}")
         return EXIT_OK
     print(f"fuseplan serve: link {cfg.url}, logs in {cfg.log_folder}; Ctrl-C or SIGTERM to stop", flush=True)
-    asyncio.run(_serve(cfg, _with_service_lines(echo)))
+    asyncio.run(_serve(cfg, None if quiet else _with_service_lines(echo)))
     print("fuseplan serve: stopped", flush=True)
     return EXIT_OK
 

@@ -111,3 +111,29 @@ def test_serve_runs_until_sigterm_and_exits_0_with_its_status_page(tmp_path: Pat
     assert "fuseplan serve: stopped" in out
     events = (tmp_path / "logs" / "service.jsonl").read_text()
     assert '"serve_start"' in events and '"serve_stop"' in events
+
+
+def test_quiet_serve_prints_only_its_start_and_stop_banners(tmp_path: Path) -> None:
+    """-q: no progress lines (serve_start…), the two banners only; the events are still logged."""
+    config = tmp_path / "serve.toml"
+    config.write_text(f'[link]\nurl = "tcp:127.0.0.1:{_free_port()}"\n[plan]\nscenario = "{SCENARIO}"\n'
+                      f'[service]\nlog_folder = "{tmp_path / "logs"}"\n')
+    proc = subprocess.Popen([sys.executable, "-m", "companion.cli", "-q", "serve", str(config)], cwd=ROOT,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONPATH": str(ROOT)})
+    try:
+        assert proc.stdout is not None and proc.stdout.readline().startswith("fuseplan serve: link ")
+        log = tmp_path / "logs" / "service.jsonl"
+        deadline = time.monotonic() + 30.0
+        while '"serve_start"' not in (log.read_text() if log.exists() else "") and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(0.5)  # its progress line would be out by now
+        proc.send_signal(signal.SIGTERM)
+        out, err = proc.communicate(timeout=20)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.communicate()
+    assert proc.returncode == 0, err
+    assert out == "fuseplan serve: stopped\n" and not err, (out, err)
+    assert '"serve_start"' in log.read_text() and '"serve_stop"' in log.read_text()
