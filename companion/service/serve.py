@@ -14,7 +14,8 @@
    ``fly`` does, its departure checked from where the vehicle stands. Accepted: the verified safe route replaces the
    mission (the operator's read first, restored if the upload fails); refused: the operator's mission stays.
 4. **Flight.** When the pilot arms with the service's route on the vehicle, it is supervised as ``fly`` supervises
-   (a :class:`FlightSupervisor` that never arms or starts; the live replanner and its flown-safety guard).
+   (a :class:`FlightSupervisor` that never arms or starts; the live replanner and its flown-safety guard, which
+   replace the mission, hold the vehicle and resume it as in ``fly``).
 5. **Telling.** Every decision is an event of the request's :class:`EventLog` (``plan_request``,
    ``plan_accepted`` with length_m, min_clearance_m and waypoints once the departure check passes, as ``fly`` logs
    it; ``upload_verified``; ``route_set``; ``plan_refused`` with reason; ``failed``), which the flight's
@@ -506,7 +507,8 @@ class Service:
     # -- a flight ----------------------------------------------------------------------------------
     async def _supervise(self, accepted: Accepted) -> None:
         """The pilot armed with the accepted route on the vehicle: supervise it to its end as ``fly`` does (the
-        service never arms, changes mode or starts), then write flight.json in the request's folder."""
+        service never arms or starts; its live replanner replaces the mission, holds and resumes as ``fly``'s does),
+        then write flight.json in the request's folder."""
         link, cfg = self.link, self.cfg
         assert link is not None
         accepted.flown = True
