@@ -34,7 +34,7 @@ import logging
 import math
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -83,6 +83,7 @@ SETTLE_READS = 4  # readbacks tried before a mission that keeps changing is left
 POSITION_WAIT_S = 5.0
 PARAMS_WAIT_S = 10.0
 SESSION_RETRY_S = 0.5  # wall s before a session that failed (a transfer the link broke) is begun again
+WATCHED = ("HEARTBEAT", "MISSION_CURRENT", "GLOBAL_POSITION_INT")  # what the service watches between flights
 REBOOT_BACK_MS = 1000  # the autopilot's boot time going back more than this: it restarted
 CHANGE_WAIT_S = 10.0  # wall s a stop waits for a replan in flight to finish its mission change (and the hold round it)
 UPLOAD_WAIT_S = 45.0  # wall s a stop waits for a request's upload to be verified or the operator's mission restored
@@ -218,7 +219,8 @@ class Service:
         self.tlog = cfg.log_folder / datetime.now(UTC).strftime("service-%Y%m%dT%H%M%SZ.tlog")
         try:  # the log folder's files, made at start-up: a folder the service cannot write in is the config's fault
             cfg.log_folder.mkdir(parents=True, exist_ok=True)
-            self.log = EventLog(cfg.log_folder / "service.jsonl", echo=self._fan)
+            # the service's own log lasts as long as the service: written and fanned out, not kept in memory
+            self.log = EventLog(cfg.log_folder / "service.jsonl", echo=self._fan, keep=False)
             link = Link(cfg.url, source_system=self.source_system, source_component=MAV_COMP_ID_PATHPLANNER,
                         target_system=cfg.target_system, baud=cfg.baud, heartbeat_timeout=cfg.heartbeat_timeout,
                         open_timeout=math.inf, tlog=self.tlog)
@@ -291,7 +293,19 @@ class Service:
         supervise a flight of the accepted route once the pilot arms."""
         link = self.link
         assert link is not None
-        with link.subscribe("HEARTBEAT", "MISSION_CURRENT", "GLOBAL_POSITION_INT") as sub:
+        sub = link.subscribe(*WATCHED)
+
+        async def unwatched(work: Awaitable[None]) -> None:
+            """``work`` (a flight, a request's planning and upload) with the watch closed: nobody reads it meanwhile
+            and it would fill with 1000 stale messages (overflow warnings) to be read through afterwards."""
+            nonlocal sub
+            sub.close()
+            try:
+                await work
+            finally:
+                sub = link.subscribe(*WATCHED)
+
+        try:
             while link.outages == session.outages:
                 try:
                     msg = await sub.get(0.25)
@@ -317,7 +331,7 @@ class Service:
                 if armed:
                     accepted = self.accepted
                     if accepted is not None and not accepted.flown and self.seen == accepted.key:
-                        await self._supervise(accepted)
+                        await unwatched(self._supervise(accepted))  # the flight has its own subscription
                         session.poll_at = time.monotonic() + self.cfg.poll_s
                         continue
                 # a readback every poll_s only where the autopilot gives no mission id (ArduPilot); where it does
@@ -348,8 +362,10 @@ class Service:
                     self.seen = key
                     self._refuse_armed(mission, noticed)
                     continue
-                await self._request(mission, noticed)
+                await unwatched(self._request(mission, noticed))
                 session.poll_at = time.monotonic() + self.cfg.poll_s
+        finally:
+            sub.close()
 
     def _own(self, mission: list[MissionItem], key: tuple) -> bool:
         """``mission`` (read back, ``key`` its mission_key) is the one the service last verified on the vehicle: its

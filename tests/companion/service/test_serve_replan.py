@@ -13,6 +13,7 @@ import json
 import time
 from pathlib import Path
 
+import pytest
 from pymavlink.dialects.v20 import common as mavlink
 from readback import same_mission, waypoints_file
 from serve_gcs import GroundStation, two_item_mission, write_config
@@ -28,8 +29,10 @@ DYNAMIC = ROOT / "sitl_scenarios" / "rescue_dynamic.toml"
 QUICK_PLAN = ("planner.pso.n_pop=200", "planner.pso.max_iter=80")  # a feasible plan in ~2 s
 
 
-def test_a_replanned_flight_is_no_new_request(tmp_path: Path) -> None:
+def test_a_replanned_flight_is_no_new_request(tmp_path: Path, caplog: pytest.LogCaptureFixture) -> None:
     asyncio.run(_replanned_flight(tmp_path))  # its own loop: the planner's threads end with it
+    # the service's watch is closed while the flight (and the request) run: it does not fill up meanwhile
+    assert not [r.message for r in caplog.records if "overflowing" in r.message]
 
 
 def test_a_stop_during_a_replan_lets_the_vehicle_go_on_its_verified_mission(tmp_path: Path) -> None:
