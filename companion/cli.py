@@ -133,7 +133,9 @@ def _parser() -> argparse.ArgumentParser:
     _status_options(fl)
     sv = add_command(sub, "serve", "run as the companion's service: plan every mission the operator uploads round the "
                      "vehicle's fence, replace it with the verified safe route while disarmed, supervise the flight "
-                     "(docs/serve.md)", command(ServeArgs, cmd_serve))
+                     "(docs/serve.md); with -q only errors, the status page's address and the one-line start and "
+                     "stop banners are printed (they say where the service is and that it stopped cleanly)",
+                     command(ServeArgs, cmd_serve))
     sv.add_argument("config", type=Path, help="the service's configuration file (TOML; docs/serve.example.toml)")
     sv.add_argument("--check", action="store_true", help="check the configuration file and exit")
     sm = add_command(sub, "sim", "run the built-in simulated autopilot alone", command(SimArgs, cmd_sim))
@@ -891,7 +893,8 @@ def cmd_serve(args: ServeArgs) -> int:
     """``fuseplan serve CONFIG``: until SIGINT or SIGTERM (exit 0); a bad configuration is one line, exit 2."""
     from companion.service.cli import run_service
 
-    return run_service(args.config, check_only=args.check, echo=None if args.quiet else _echo_event)
+    return run_service(args.config, check_only=args.check, echo=None if args.quiet else _echo_event,
+                       quiet=args.quiet)
 
 
 def cmd_sim(args: SimArgs) -> int:

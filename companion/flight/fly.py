@@ -193,12 +193,9 @@ async def fly(plan_doc: dict[str, Any], scenario: Scenario, opts: FlyOptions, ev
     finally:
         if sim is not None:
             await sim.stop()
-    missions = _flown_missions(sup, replanner, events)
-    if missions:  # the report's mission files: what was stored on the vehicle, the last one as mission.*
-        _write_mission_files(opts.report, plan_doc, scenario, list(missions[-1].items), spec, fence,
-                             replanned=len(missions) > 1)
+    _, index = record_flown_missions(opts.report, plan_doc, scenario, spec, fence, sup, replanner, events)
     return _write_flight_report(opts, plan_doc, scenario, outcome, sim, autopilot, (planned, len(items)), replanner,
-                                feed, limits, _write_missions(opts.report, missions, spec, replanner))
+                                feed, limits, index)
 
 
 async def _plan_within(plan_doc: dict[str, Any], scenario: Scenario, limits: AutopilotLimits, opts: FlyOptions,
@@ -277,6 +274,18 @@ def _link(url: str, opts: FlyOptions) -> Link:
                 target_system=opts.target_system, baud=opts.baud, tlog=opts.report / TLOG)
 
 
+def record_flown_missions(report: Path, plan_doc: dict[str, Any], scenario: Scenario, spec: Any, fence: list,
+                          sup: FlightSupervisor, replanner: LiveReplanner | None,
+                          events: EventLog) -> tuple[list[LiveMission], list[dict[str, Any]]]:
+    """After a flight (``fly``'s, ``serve``'s): the report's record of the missions stored on the vehicle, the last
+    one as mission.* and every one in missions/; returns them and their index for flight.json's ``missions``."""
+    missions = _flown_missions(sup, replanner, events)
+    if missions:  # the report's mission files: what was stored on the vehicle, the last one as mission.*
+        _write_mission_files(report, plan_doc, scenario, list(missions[-1].items), spec, fence,
+                             replanned=len(missions) > 1)
+    return missions, _write_missions(report, missions, spec, replanner)
+
+
 def _flown_missions(sup: FlightSupervisor, replanner: LiveReplanner | None, events: EventLog) -> list[LiveMission]:
     """Every mission stored on the vehicle and verified there during the flight, in order: the supervisor's upload,
     then each replan's (and each restore's); empty if the first upload was never verified."""
@@ -329,8 +338,10 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
                          sim: Any, autopilot: str, n_items: tuple[int, int],
                          replanner: LiveReplanner | None = None,
                          feed: TrafficFeed | None = None, limits: AutopilotLimits | None = None,
-                         missions: list[dict[str, Any]] | None = None) -> dict[str, Any]:
+                         missions: list[dict[str, Any]] | None = None, tlog: Path | None = None) -> dict[str, Any]:
     """flight.json and track.png; the flown track is the simulator's truth when we ran it, else telemetry.
+    ``tlog``: the link's telemetry log when it is not the report's own flight.tlog (``serve``'s, one per start of
+    the service, named by its absolute path).
     Separations: the simulator's truth tracks, or a traffic feed's (the autopilot's positions against the
     intruders' scripted tracks)."""
     until = truth_until(sim, out)
@@ -358,7 +369,7 @@ def _write_flight_report(opts: FlyOptions, plan_doc: dict[str, Any], scenario: S
         "mission_items": n_items[0],  # the planned mission
         "room_items": n_items[1] - n_items[0],  # copies of its loiter end uploaded behind it (replan.with_room)
         "missions": missions or [],  # every mission stored on the vehicle (missions/), the last one as mission.*
-        "tlog": TLOG if (opts.report / TLOG).exists() else None,
+        "tlog": str(tlog) if tlog is not None else TLOG if (opts.report / TLOG).exists() else None,
         "fence_items": out.fence_count,
         "min_clearance_m": safety.static_clearance_m,  # static obstacles (kept under its old name)
         "min_static_clearance_m": safety.static_clearance_m,

@@ -168,6 +168,7 @@ class FlightSupervisor:
         self._position_at = -math.inf  # wall time of the last ``position`` record
         self.booted_at: float | None = None  # time.monotonic() when the autopilot was seen booted
         self.verified: list[MissionItem] = []  # the mission last verified on the vehicle
+        self.readback: list[MissionItem] = []  # the vehicle's readback that verified it (as the vehicle stores it)
         self._outages_checked = 0  # link.outages when the vehicle's mission was last known to be ``verified``
         self.started = False  # armed or started: from here on a failure leaves a flight, not just a refusal
         self.mismatch: MissionVerifyError | None = None  # the last resync's difference, if it found one
@@ -271,14 +272,16 @@ class FlightSupervisor:
 
     # -- upload ------------------------------------------------------------------------------------
     async def upload(self, items: Sequence[MissionItem], fence: Sequence[MissionItem] = (),
-                     attempts: int = UPLOAD_ATTEMPTS) -> float:
+                     attempts: int = UPLOAD_ATTEMPTS, before: Callable[[], None] | None = None) -> float:
         """Upload and verify by readback (mission, then fence if any); returns the seconds it took. Before the
         flight a transfer the link broke (timeout, the autopilot's own timeout cancelling it, a readback that
         differs) is simply done again, up to ``attempts`` times; a refusal of an item is not. Each list is read
         first, so that if its upload fails for good the previous one can be restored (the stored list may be
         part new, part old): raises :class:`UploadAborted` saying what the vehicle was left with. A list that fails
         after an earlier one was stored (the fence after the mission) has the earlier one restored too, so the
-        vehicle is not left with half of the upload."""
+        vehicle is not left with half of the upload. ``before`` is called after the backups are read, right before
+        the first transfer (nothing changed yet): raising there (the vehicle armed meanwhile) leaves every list as it
+        was."""
         self.events.log("upload_start", mission_items=len(items), fence_items=len(fence))
         dt = 0.0  # the uploads' own time, not the backups' (the replanner's first guess at a replan upload)
         if items and self.link.profile.first_item_current_on_upload:
@@ -289,10 +292,13 @@ class FlightSupervisor:
             if not payload:
                 continue
             previous = await self._backup(kind)
+            if before is not None and not stored:
+                before()
             t0 = time.monotonic()
+            got: list[MissionItem] = []
             for attempt in range(1, attempts + 1):
                 try:
-                    await self.client.upload_verified(payload, kind)
+                    got = await self.client.upload_verified(payload, kind)
                     break
                 except (MissionTimeout, MissionVerifyError, MissionUploadError, LinkError) as e:
                     booting = self._refused_while_booting(e, kind)
@@ -318,7 +324,7 @@ class FlightSupervisor:
             dt += time.monotonic() - t0
             stored.append((kind, previous))
             if kind == MISSION:
-                self.verified, self._outages_checked = list(payload), self.link.outages
+                self.verified, self.readback, self._outages_checked = list(payload), got, self.link.outages
             if kind == MISSION and self.link.profile.awaits_mission_verdict:
                 await self._mission_verdict(len(payload), settle=previous is None or len(previous) == len(payload))
         self.events.log("upload_verified", seconds=round(dt, 3))

@@ -141,6 +141,8 @@ class Event(StrEnum):
     # the service (fuseplan serve): its own log, service.jsonl, and each request's events.jsonl
     SERVE_START = "serve_start", "the service started: its link, configuration and component id", Tone.PLAIN, True
     SERVE_STOP = "serve_stop", "the service stopped (SIGINT or SIGTERM)", Tone.PLAIN, True
+    STOP_DEFERRED = "stop_deferred", "a stop waits for the mission change in hand (an upload, a replan)", Tone.WARN, \
+        True
     WAITING_FOR_AUTOPILOT = "waiting_for_autopilot", "no autopilot on the link yet: the service waits", Tone.WARN, True
     AUTOPILOT_RESTARTED = "autopilot_restarted", "the autopilot booted again: a new session", Tone.WARN, True
     SESSION_ERROR = "session_error", "the link went during a transfer: the session starts again", Tone.WARN, True
@@ -168,10 +170,12 @@ NAMES = frozenset(BY_NAME)
 class EventLog:
     """Append-only JSON-lines log with wall time ``t`` (s since the log opened) on every record."""
 
-    def __init__(self, path: Path | None = None, echo: Callable[[dict[str, Any]], None] | None = None) -> None:
+    def __init__(self, path: Path | None = None, echo: Callable[[dict[str, Any]], None] | None = None,
+                 keep: bool = True) -> None:
         self._file: TextIO | None = path.open("w") if path is not None else None
         self._t0 = time.monotonic()
-        self.records: list[dict[str, Any]] = []
+        self.records: list[dict[str, Any]] = []  # every record, unless ``keep`` is False (a log that never ends)
+        self._keep = keep
         self._listeners: list[Callable[[dict[str, Any]], None]] = [echo] if echo is not None else []
 
     def subscribe(self, listener: Callable[[dict[str, Any]], None]) -> None:
@@ -186,7 +190,8 @@ class EventLog:
         if event not in NAMES:
             raise ValueError(f"event {event!r} is not in the catalogue (companion.mission.events.Event)")
         rec = {"t": round(time.monotonic() - self._t0, 3), "event": str(event), **fields}
-        self.records.append(rec)
+        if self._keep:
+            self.records.append(rec)
         if self._file is not None:
             self._file.write(json.dumps(rec, default=str) + "\n")
             self._file.flush()

@@ -11,21 +11,24 @@ from collections.abc import AsyncIterator, Callable
 from pathlib import Path
 from typing import Any
 
-from companion.service.config import ServeConfig, load_config
+from companion.service.config import ConfigError, ServeConfig, load_config, status_listen_reason
 from companion.service.serve import Service
+from planner.errors import FuseplanError
 
 EXIT_OK = 0
 
 
-def run_service(config: Path, *, check_only: bool = False, echo: Callable[[dict[str, Any]], None] | None = None) -> int:
-    """Load ``config`` (raises :class:`~companion.service.config.ConfigError`, one line) and serve until stopped."""
+def run_service(config: Path, *, check_only: bool = False, echo: Callable[[dict[str, Any]], None] | None = None,
+                quiet: bool = False) -> int:
+    """Load ``config`` (raises :class:`~companion.service.config.ConfigError`, one line) and serve until stopped.
+    ``quiet`` (-q): no progress lines, only the start and stop banners (and the status page's address)."""
     cfg = load_config(config)
     if check_only:
         print(f"{config}: ok: link {cfg.url}, scenario {cfg.scenario}, {len(cfg.zones)} zones files, logs in "
               f"{cfg.log_folder}")
         return EXIT_OK
     print(f"fuseplan serve: link {cfg.url}, logs in {cfg.log_folder}; Ctrl-C or SIGTERM to stop", flush=True)
-    asyncio.run(_serve(cfg, _with_service_lines(echo)))
+    asyncio.run(_serve(cfg, None if quiet else _with_service_lines(echo)))
     print("fuseplan serve: stopped", flush=True)
     return EXIT_OK
 
@@ -68,15 +71,26 @@ async def _status_page(cfg: ServeConfig, service: Service) -> AsyncIterator[obje
     """The live status page over every request's events (the service's own log's too); ``cfg.status_page`` set."""
     from companion.status import Bind, StatusHub, StatusServer, read_token
 
-    assert cfg.status_page is not None  # entered only when the configuration names a page
-    bind = Bind.parse(cfg.status_page)
-    token = read_token(cfg.status_token, bind, False)
+    assert cfg.status_page is not None  # entered only when the configuration names a page (checked at load)
+    file = cfg.source
+    try:
+        bind = Bind.parse(cfg.status_page)
+        token = read_token(cfg.status_token, bind, False)
+    except FuseplanError as e:  # changed since the check (the token file)
+        raise ConfigError(f"{file}: service.status_token: {e}") from None
     hub = StatusHub()
     service.listeners.append(hub.publish)
-    async with StatusServer(hub, bind, token) as server:
+    server = StatusServer(hub, bind, token)
+    try:
+        await server.__aenter__()
+    except (OSError, FuseplanError) as e:  # the port taken since the check
+        raise ConfigError(f"{file}: service.status_page: {status_listen_reason(bind, e)}") from None
+    try:
         print(f"status page: {server.url}" + ("?token=<the token in service.status_token>" if token else ""),
               file=sys.stderr, flush=True)
         yield server
+    finally:
+        await server.__aexit__(None, None, None)
 
 
 __all__ = ["run_service"]

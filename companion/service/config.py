@@ -17,6 +17,8 @@ paths are read from the file's own folder.
 
 from __future__ import annotations
 
+import os
+import tempfile
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -129,7 +131,8 @@ def load_config(path: Path) -> ServeConfig:
 
 def check_config(cfg: ServeConfig) -> None:
     """What the file names must be usable before the service starts: the link URL, the base scenario with its
-    overrides, every zones file, a log folder that can be made."""
+    overrides, every zones file, a log folder that can be made and written in, the status page's address (free now)
+    and its token."""
     from companion.mavlink.link import check_url
     from planner.world.scenario import load_scenario
     from planner.world.sources import read_zone_files
@@ -154,6 +157,49 @@ def check_config(cfg: ServeConfig) -> None:
     parent = next((a for a in folder.parents if a.exists()), None)
     if not folder.exists() and (parent is None or not parent.is_dir()):
         raise ConfigError(f"{file}: service.log_folder: cannot create {folder}")
+    nearest = folder if folder.exists() else parent
+    assert nearest is not None
+    try:  # a probe, made and removed at once, as the user the service runs as (os.access says yes to root always)
+        os.rmdir(tempfile.mkdtemp(prefix=".fuseplan-check-", dir=nearest))
+    except OSError as e:
+        raise ConfigError(f"{file}: service.log_folder: cannot {'write in' if nearest == folder else 'create'} "
+                          f"{folder}: {e.strerror or e}") from None
+    _check_status_page(cfg)
 
 
-__all__ = ["ConfigError", "ServeConfig", "load_config"]
+def _check_status_page(cfg: ServeConfig) -> None:
+    """The status page's address parses and is free now, and its token file is readable and long enough (or, for a
+    page beyond loopback, given at all): the mistakes the page itself would find only once the service runs."""
+    from companion.status import Bind, read_token
+
+    file = str(cfg.source)
+    if cfg.status_page is None:
+        if cfg.status_token is not None:
+            raise ConfigError(f"{file}: service.status_token: given without service.status_page")
+        return
+    try:
+        bind = Bind.parse(cfg.status_page)
+    except FuseplanError:
+        raise ConfigError(f"{file}: service.status_page: {cfg.status_page!r}: expected PORT or HOST:PORT (e.g. 8765 "
+                          "or 0.0.0.0:8765)") from None
+    if cfg.status_token is None and not bind.loopback:
+        raise ConfigError(f"{file}: service.status_token: required: the page at {bind.host}:{bind.port} is "
+                          "reachable from other machines (a file holding a secret of 16 characters or more)")
+    try:
+        read_token(cfg.status_token, bind)
+    except FuseplanError as e:
+        raise ConfigError(f"{file}: service.status_token: {e}") from None
+    try:
+        bind.check_free()
+    except FuseplanError as e:
+        raise ConfigError(f"{file}: service.status_page: {status_listen_reason(bind, e)}") from None
+
+
+def status_listen_reason(bind: object, e: BaseException) -> str:
+    """``cannot listen on HOST:PORT: REASON`` from the status module's error (which names the fly option)."""
+    cause = e.__cause__ if isinstance(e.__cause__, OSError) else e
+    reason = (cause.strerror if isinstance(cause, OSError) else None) or str(cause).rpartition(": ")[2]
+    return f"cannot listen on {getattr(bind, 'host', '?')}:{getattr(bind, 'port', '?')}: {reason}"
+
+
+__all__ = ["ConfigError", "ServeConfig", "load_config", "status_listen_reason"]

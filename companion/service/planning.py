@@ -6,6 +6,10 @@ scenario (dynamic threats timed from the mission start, a plane's flight margins
 from __future__ import annotations
 
 import logging
+import math
+import threading
+import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -63,12 +67,14 @@ def _onto_edge(v: float, size: float) -> float:
     return v
 
 
-def plan_request(path: Path, overrides: list[str], seed: int | None,
-                 budget_s: float | None = None) -> tuple[dict[str, Any], Scenario]:
+def plan_request(path: Path, overrides: list[str], seed: int | None, budget_s: float | None = None,
+                 stop: threading.Event | None = None) -> tuple[dict[str, Any], Scenario]:
     """(PLAN.json document, scenario) of the request scenario ``path``, the search stopped after ``budget_s`` wall
     seconds (the best route found by then, checked as every plan is; None: the planner's own stop criteria); raises
     :class:`PlanRefusal` for a scenario that cannot be built (the goal or the start outside the region, in a
-    zone…) or with no feasible route."""
+    zone…) or with no feasible route. ``stop`` set (the service stopping) ends a budgeted search at its next
+    iteration: its deadline's clock jumps past the budget (the thread cannot be cancelled, and the process waits
+    for it before it exits)."""
     from companion.mission.builder import time_to_start
     from planner.deadline import Deadline
     from planner.legs import plan_scenario
@@ -82,13 +88,20 @@ def plan_request(path: Path, overrides: list[str], seed: int | None,
         raise PlanRefusal.of(e) from e
     start_time = time_to_start(sc) if len(sc.environment.threats) else None
     res = plan_scenario(sc, sc.planner, np.random.default_rng(sc.planner.seed), start_time,
-                        Deadline.after(budget_s), seed=sc.planner.seed)
+                        Deadline.after(budget_s, _stoppable(stop)), seed=sc.planner.seed)
     doc = plan_to_json(res, sc, start_time)
     if doc["status"] == "timeout":
         raise PlanRefusal(f"no safe route found within plan.budget_s = {budget_s:g} s")
     if doc["status"] not in FEASIBLE:
         raise PlanRefusal(f"no safe route ({doc['status']}): the goal or a via may be walled off by zones")
     return doc, sc
+
+
+def _stoppable(stop: threading.Event | None) -> Callable[[], float]:
+    """time.perf_counter, or infinity once ``stop`` is set (every budget overrun)."""
+    if stop is None:
+        return time.perf_counter
+    return lambda: math.inf if stop.is_set() else time.perf_counter()
 
 
 __all__ = ["PlanRefusal", "plan_request", "request_scenario"]

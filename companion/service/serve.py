@@ -14,7 +14,8 @@
    ``fly`` does, its departure checked from where the vehicle stands. Accepted: the verified safe route replaces the
    mission (the operator's read first, restored if the upload fails); refused: the operator's mission stays.
 4. **Flight.** When the pilot arms with the service's route on the vehicle, it is supervised as ``fly`` supervises
-   (a :class:`FlightSupervisor` that never arms or starts; the live replanner and its flown-safety guard).
+   (a :class:`FlightSupervisor` that never arms or starts; the live replanner and its flown-safety guard, which
+   replace the mission, hold the vehicle and resume it as in ``fly``).
 5. **Telling.** Every decision is an event of the request's :class:`EventLog` (``plan_request``,
    ``plan_accepted`` with length_m, min_clearance_m and waypoints once the departure check passes, as ``fly`` logs
    it; ``upload_verified``; ``route_set``; ``plan_refused`` with reason; ``failed``), which the flight's
@@ -31,8 +32,9 @@ import asyncio
 import contextlib
 import logging
 import math
+import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Awaitable, Callable, Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -48,15 +50,17 @@ from companion.flight.fly import (
     _plan_within,
     _write_flight_report,
     _write_mission_files,
+    record_flown_missions,
 )
 from companion.flight.report import write_json
-from companion.flight.supervisor import DepartureRefused, FixedMission, FlightOutcome, FlightSupervisor
+from companion.flight.supervisor import DepartureRefused, FixedMission, FlightOutcome, FlightSupervisor, Pilot
 from companion.mavlink.errors import CompanionError, UploadAborted
 from companion.mavlink.items import FENCE, MISSION, RALLY, MissionItem, normalise_frame
 from companion.mavlink.link import Link
 from companion.mavlink.mission_ids import plan_ids
 from companion.mavlink.params import read_params
 from companion.mavlink.protocol import MissionClient
+from companion.mavlink.storage import mission_difference
 from companion.mavlink.telemetry import TelemetryRates
 from companion.mavlink.vehicle_limits import AutopilotLimits, limits_from, parameter_names
 from companion.mission import picture
@@ -66,7 +70,7 @@ from companion.mission.vehicle_state import VehicleState, subscribe
 from companion.mission.vehicle_world import operator_world
 from companion.replanning.replan import ReplanConfig, with_room
 from companion.replanning.replanner import LiveReplanner
-from companion.service.config import ServeConfig
+from companion.service.config import ConfigError, ServeConfig
 from companion.service.planning import PlanRefusal, plan_request, request_scenario
 from planner.errors import FuseplanError
 from planner.world.scenario import Scenario, load_scenario
@@ -79,7 +83,12 @@ SETTLE_READS = 4  # readbacks tried before a mission that keeps changing is left
 POSITION_WAIT_S = 5.0
 PARAMS_WAIT_S = 10.0
 SESSION_RETRY_S = 0.5  # wall s before a session that failed (a transfer the link broke) is begun again
+WATCHED = ("HEARTBEAT", "MISSION_CURRENT", "GLOBAL_POSITION_INT")  # what the service watches between flights
 REBOOT_BACK_MS = 1000  # the autopilot's boot time going back more than this: it restarted
+CHANGE_WAIT_S = 10.0  # wall s a stop waits for a replan in flight to finish its mission change (and the hold round it)
+UPLOAD_WAIT_S = 45.0  # wall s a stop waits for a request's upload to be verified or the operator's mission restored
+# (a link that breaks during it is waited for up to LINK_BACK_S = 30 s); docs/fuseplan-serve.service's TimeoutStopSec
+# is above both
 
 
 def mission_key(items: Sequence[MissionItem], home_at_zero: bool) -> tuple:
@@ -114,6 +123,8 @@ class Accepted:
     key: tuple  # mission_key of the route as the vehicle reads it back
     operator: list[MissionItem]  # the operator's mission, the backup
     flown: bool = False
+    verified: list[MissionItem] = field(default_factory=list)  # the mission last verified on the vehicle by us: the
+    # route, then after a flight the live replanner's last (a replan, or the mission it restored)
 
 
 @dataclass
@@ -156,15 +167,43 @@ class Service:
     _requests: int = 0
     _limits: AutopilotLimits | None = None  # the autopilot's, read at each connect
     listeners: list[Callable[[dict[str, Any]], None]] = field(default_factory=list)  # every record (status page)
-    _busy: bool = False  # a request is being handled: a stop waits for its end (never a half-changed mission)
+    _busy: bool = False  # a request's upload is under way: a stop waits for its end (never a half-changed mission)
+    _uploaded: bool = False  # the request in hand has begun its upload
     _stopping: bool = False
+    _pilot: Pilot | None = None  # the pilot of the flight being supervised (the live replanner), else None
+    _stop_task: asyncio.Task | None = None
+    _plan_stop: threading.Event = field(default_factory=threading.Event)  # ends a search in its thread at a stop
 
     def stop(self, task: asyncio.Task) -> None:
-        """Stop ``task`` (running :meth:`run`) now, or once the request in hand is decided (planning is bounded by
-        plan.budget_s, then one upload, verified or restored), so that no mission is left half-changed."""
+        """Stop ``task`` (running :meth:`run`): at once, but while the vehicle's mission is being changed. A request
+        being planned is dropped (nothing changed on the vehicle yet; its search ends at its next iteration); one
+        whose upload is under way is let finish, verified or the operator's mission restored (at most UPLOAD_WAIT_S);
+        in a supervised flight, the live replanner's mission change and the hold round it are let finish (at most
+        CHANGE_WAIT_S): no mission is left half-changed and the vehicle is let go flying its verified mission."""
+        if self._stopping:
+            return  # already on its way out
         self._stopping = True
-        if not self._busy:
+        self._plan_stop.set()
+        pilot = self._pilot
+        wait: Callable[[], bool]
+        if self._busy:
+            wait, bound = (lambda: self._busy), UPLOAD_WAIT_S
+        elif pilot is not None and (pilot.changing or pilot.holding is not None):
+            wait, bound = (lambda: self._pilot is pilot and (pilot.changing or pilot.holding is not None)), \
+                CHANGE_WAIT_S
+        else:
             task.cancel()
+            return
+        self.log.log("stop_deferred", upload=self._busy, changing=pilot is not None and pilot.changing,
+                     holding=None if pilot is None else pilot.holding, up_to_s=bound)
+        self._stop_task = asyncio.get_running_loop().create_task(self._stop_when(task, wait, bound))
+
+    @staticmethod
+    async def _stop_when(task: asyncio.Task, busy: Callable[[], bool], bound: float) -> None:
+        deadline = time.monotonic() + bound
+        while busy() and time.monotonic() < deadline:
+            await asyncio.sleep(0.02)
+        task.cancel()
 
     def _fan(self, rec: dict[str, Any]) -> None:
         """Every record of the service's logs to the echo and the listeners."""
@@ -175,16 +214,21 @@ class Service:
     async def run(self) -> None:
         """Serve until cancelled (SIGINT/SIGTERM in the CLI); a fault of one request never ends the service."""
         cfg = self.cfg
-        cfg.log_folder.mkdir(parents=True, exist_ok=True)
         self.base = load_scenario(cfg.scenario, list(cfg.overrides))
-        self.log = EventLog(cfg.log_folder / "service.jsonl", echo=self._fan)
         # the telemetry log of the service's whole link (every message both ways, as MAVProxy keeps one per session)
         self.tlog = cfg.log_folder / datetime.now(UTC).strftime("service-%Y%m%dT%H%M%SZ.tlog")
+        try:  # the log folder's files, made at start-up: a folder the service cannot write in is the config's fault
+            cfg.log_folder.mkdir(parents=True, exist_ok=True)
+            # the service's own log lasts as long as the service: written and fanned out, not kept in memory
+            self.log = EventLog(cfg.log_folder / "service.jsonl", echo=self._fan, keep=False)
+            link = Link(cfg.url, source_system=self.source_system, source_component=MAV_COMP_ID_PATHPLANNER,
+                        target_system=cfg.target_system, baud=cfg.baud, heartbeat_timeout=cfg.heartbeat_timeout,
+                        open_timeout=math.inf, tlog=self.tlog)
+        except OSError as e:
+            raise ConfigError(f"{cfg.source}: service.log_folder: cannot write {e.filename or cfg.log_folder}: "
+                              f"{e.strerror or e}") from None
         self.log.log("serve_start", link=cfg.url, config=str(cfg.source), component=MAV_COMP_ID_PATHPLANNER,
                      tlog=self.tlog.name)
-        link = Link(cfg.url, source_system=self.source_system, source_component=MAV_COMP_ID_PATHPLANNER,
-                    target_system=cfg.target_system, baud=cfg.baud, heartbeat_timeout=cfg.heartbeat_timeout,
-                    open_timeout=math.inf, tlog=self.tlog)
         try:
             async with link:
                 self.link, self.client = link, MissionClient(link)
@@ -231,7 +275,7 @@ class Service:
             self.log.log("baseline", items=len(mission), note="a mission already on the vehicle is left alone; "
                          "upload one to ask for a plan")
             self.seen = key
-        elif key and key != self.seen and not (self.accepted is not None and key == self.accepted.key):
+        elif key and key != self.seen and not self._own(mission, key):
             self.log.log("changed_while_away", items=len(mission))
             if _armed(link.last_heartbeat_msg):
                 self.seen = key
@@ -249,7 +293,19 @@ class Service:
         supervise a flight of the accepted route once the pilot arms."""
         link = self.link
         assert link is not None
-        with link.subscribe("HEARTBEAT", "MISSION_CURRENT", "GLOBAL_POSITION_INT") as sub:
+        sub = link.subscribe(*WATCHED)
+
+        async def unwatched(work: Awaitable[None]) -> None:
+            """``work`` (a flight, a request's planning and upload) with the watch closed: nobody reads it meanwhile
+            and it would fill with 1000 stale messages (overflow warnings) to be read through afterwards."""
+            nonlocal sub
+            sub.close()
+            try:
+                await work
+            finally:
+                sub = link.subscribe(*WATCHED)
+
+        try:
             while link.outages == session.outages:
                 try:
                     msg = await sub.get(0.25)
@@ -275,7 +331,7 @@ class Service:
                 if armed:
                     accepted = self.accepted
                     if accepted is not None and not accepted.flown and self.seen == accepted.key:
-                        await self._supervise(accepted)
+                        await unwatched(self._supervise(accepted))  # the flight has its own subscription
                         session.poll_at = time.monotonic() + self.cfg.poll_s
                         continue
                 # a readback every poll_s only where the autopilot gives no mission id (ArduPilot); where it does
@@ -295,8 +351,8 @@ class Service:
                 key = mission_key(mission, self.client.home_at_zero(MISSION))
                 if key == self.seen:
                     continue
-                if self.accepted is not None and key == self.accepted.key:
-                    self.seen = key  # our own route (read back after a restart, or our upload's total)
+                if self._own(mission, key):
+                    self.seen = key  # our own route (read back after a restart, our upload's total, or a replan's)
                     continue
                 if not key:  # cleared (or a fresh autopilot): nothing to plan to
                     self.seen = key
@@ -306,8 +362,24 @@ class Service:
                     self.seen = key
                     self._refuse_armed(mission, noticed)
                     continue
-                await self._request(mission, noticed)
+                await unwatched(self._request(mission, noticed))
                 session.poll_at = time.monotonic() + self.cfg.poll_s
+        finally:
+            sub.close()
+
+    def _own(self, mission: list[MissionItem], key: tuple) -> bool:
+        """``mission`` (read back, ``key`` its mission_key) is the one the service last verified on the vehicle: its
+        route, or the live replanner's last mission after a flight (compared as the upload's readback is, item by
+        item as the autopilot stores them); it becomes the accepted key, so it is never taken for a request."""
+        accepted = self.accepted
+        if accepted is None:
+            return False
+        if key != accepted.key:
+            if not accepted.verified or mission_difference(accepted.verified, mission, self.client.home_at_zero(
+                    MISSION), self.client.firmware) is not None:
+                return False
+            accepted.key = key
+        return True
 
     async def _read_settled(self) -> list[MissionItem]:
         """The vehicle's mission once two readbacks agree (an upload in progress changes it between them)."""
@@ -355,9 +427,17 @@ class Service:
             self.accepted.events.log("superseded", by=handled.number)
             self.accepted.events.close()
         self.accepted = None
-        self._busy = True
+        self._uploaded = False
         try:
             accepted = await self._plan_and_replace(mission, handled, events)
+        except asyncio.CancelledError:  # stopped before the upload (else the stop waits for it): nothing changed
+            if not self._uploaded:
+                events.log("failed", error="the service stopped before the upload: the operator's mission is "
+                           "unchanged", stage="planning")
+                handled.verdict, handled.reason = "failed", "stopped before the upload"
+                handled.done_at = time.monotonic()
+            events.close()
+            raise
         except (PlanRefusal, DepartureRefused) as e:
             reason = str(e)
             events.log("plan_refused", reason=reason)
@@ -371,8 +451,6 @@ class Service:
         else:
             self.accepted = accepted
             handled.verdict = "accepted"
-        finally:
-            self._busy = False
         handled.done_at = time.monotonic()
         if self.accepted is None:
             events.close()
@@ -398,14 +476,15 @@ class Service:
         report = handled.report
         path, overrides = request_scenario(cfg, world, (pos.lat / 1e7, pos.lon / 1e7), report)
         events.log("planning", scenario=str(path))
-        doc, sc = await asyncio.to_thread(plan_request, path, overrides, cfg.seed, cfg.budget_s)
+        doc, sc = await asyncio.to_thread(plan_request, path, overrides, cfg.seed, cfg.budget_s, self._plan_stop)
         events.log("planned", status=doc["status"], length_m=round(float(doc["metrics"]["length_m"]), 1),
                    plan_s=round(float(doc["metrics"]["plan_time_s"]), 2))
         write_json(report / "PLAN.json", doc)
         limits = self._limits or limits_from({}, link.profile.layout, sc.vehicle, DEFAULT_LOITER_RADIUS_M)
         opts = FlyOptions(connect=cfg.url, arm=False, fence=False, report=report, replan=cfg.replan,
                           flight_timeout=cfg.flight_timeout,
-                          plan_again=lambda extra: plan_request(path, [*overrides, *extra], cfg.seed, cfg.budget_s))
+                          plan_again=lambda extra: plan_request(path, [*overrides, *extra], cfg.seed, cfg.budget_s,
+                                                                self._plan_stop))
         doc, sc = await _plan_within(doc, sc, limits, opts, events)
         events.log("scene", **picture.scene(sc, doc))  # the status page's map of this request
         sup = FlightSupervisor(link, client, events, arm=False, home=sc.home)
@@ -419,18 +498,33 @@ class Service:
             items = with_room(items, ReplanConfig().spare_items)
         if _armed(link.last_heartbeat_msg):
             raise PlanRefusal("vehicle armed while planning: the mission is not replaced in flight")
-        await sup.upload(items)  # reads the operator's mission first, restores it if the upload fails
+        if self._stopping:
+            raise asyncio.CancelledError  # a stop that came as the plan was finished: nothing changed yet
+        self._busy = self._uploaded = True  # from here a stop waits: the mission is changed, verified or restored
+        try:
+            # reads the operator's mission first, restores it if the upload fails; the pilot may arm meanwhile
+            await sup.upload(items, before=self._refuse_if_armed)
+        finally:
+            self._busy = False
         events.log("mission", **picture.mission(items, sc.home))
-        stored = await client.download(MISSION)
-        key = mission_key(stored, home0)
+        key = mission_key(sup.readback, home0)  # the readback that verified the upload: the route as stored
         self.seen = key
         events.log("route_set", items=len(items), planned_items=planned, operator_items=len(mission))
-        return Accepted(handled.number, report, events, doc, sc, list(items), planned, sup, key, list(mission))
+        return Accepted(handled.number, report, events, doc, sc, list(items), planned, sup, key, list(mission),
+                        verified=list(items))
+
+    def _refuse_if_armed(self) -> None:
+        """Right before the route's transfer starts (the latest HEARTBEAT): armed, the operator's mission stays."""
+        link = self.link
+        assert link is not None
+        if _armed(link.last_heartbeat_msg):
+            raise PlanRefusal("vehicle armed before the upload: the mission is not replaced in flight")
 
     # -- a flight ----------------------------------------------------------------------------------
     async def _supervise(self, accepted: Accepted) -> None:
         """The pilot armed with the accepted route on the vehicle: supervise it to its end as ``fly`` does (the
-        service never arms, changes mode or starts), then write flight.json in the request's folder."""
+        service never arms or starts; its live replanner replaces the mission, holds and resumes as ``fly``'s does),
+        then write flight.json in the request's folder."""
         link, cfg = self.link, self.cfg
         assert link is not None
         accepted.flown = True
@@ -450,15 +544,24 @@ class Service:
                         limits=self._limits))
                 pilot = replanner if replanner is not None else FixedMission(items, VehicleState(sc.home))
                 pilot.state.mission_started(time.monotonic())
+                self._pilot = pilot
                 try:
                     await sup.monitor(pilot, timeout, out, sub)
                 except CompanionError as e:
                     out.completed, out.reason = False, str(e)
                     events.log("failed", error=str(e), started=True)
+                finally:
+                    self._pilot = None
         events.log("finished", completed=out.completed, reason=out.reason, reached=len(out.items_reached))
+        # the missions as flown, as fly records them: the last verified on the vehicle (the route, a replan's, or
+        # the one a replan restored) is mission.*, and the service's own from now on
+        missions, index = record_flown_missions(accepted.report, doc, sc, spec, [], sup, replanner, events)
+        if missions:
+            accepted.verified = list(missions[-1].items)
         opts = FlyOptions(connect=cfg.url, report=accepted.report, replan=cfg.replan)
         flight = await asyncio.to_thread(_write_flight_report, opts, doc, sc, out, None, link.profile.layout,
-                                         (accepted.planned, len(items)), replanner, None, self._limits)
+                                         (accepted.planned, len(items)), replanner, None, self._limits, index,
+                                         self.tlog)
         for h in self.handled:
             if h.number == accepted.number:
                 h.flight = flight

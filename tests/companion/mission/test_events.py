@@ -113,3 +113,14 @@ def test_flys_progress_lines_are_the_catalogues_echoed_events(capsys: pytest.Cap
     _echo_event({"t": 2.0, "event": "conflict", "threat": "intruder-1", "in_s": 4.0, "separation_m": 3.0,
                  "d_coll_m": 10.0, "n": 1})
     assert "CONFLICT with intruder-1" in capsys.readouterr().out
+
+
+def test_a_log_that_keeps_no_records_still_writes_and_tells_every_one(tmp_path: Path) -> None:
+    """``keep=False`` (fuseplan serve's own log, which lasts as long as the service): nothing held in memory."""
+    heard: list[dict] = []
+    log = EventLog(tmp_path / "service.jsonl", echo=heard.append, keep=False)
+    for _ in range(3):
+        log.log("readback_failed", error="DENIED")
+    log.close()
+    assert log.records == [] and len(heard) == 3
+    assert len((tmp_path / "service.jsonl").read_text().splitlines()) == 3
