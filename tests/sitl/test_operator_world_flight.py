@@ -9,6 +9,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 from operator_course import D_COLL, POLYGONS, base_scenario, fence_items, goal_mission, track_clearance
 from statustext_gcs import StatusTextGcs, accepted_line
 
@@ -29,6 +30,10 @@ async def _upload(link: Link) -> None:
     await client.upload_verified(goal_mission(HOME, home_item=True), MISSION)
 
 
+# fuseplan serve's ArduPlane test flies the same course from the same operator's upload (fence and goal read from
+# the vehicle, planned round, flown safe, the track checked zone by zone, the STATUSTEXT at the ground station);
+# fly's own lines on the wire are test_announce's
+@pytest.mark.slow(covered_by="sitl/test_serve_arduplane.py::test_serve_on_arduplane_replaces_flies_and_survives_a_reboot")
 def test_arduplane_flies_round_the_fence_and_to_the_goal_the_operator_uploaded(sitl_factory_fn,
                                                                                 tmp_path: Path) -> None:
     scenario = base_scenario(tmp_path / "base.toml", HOME, "plane", 18.0)
