@@ -56,11 +56,12 @@ def _steps_into_unverified_items(events: list[dict]) -> list[dict]:
 
 @pytest.mark.parametrize("name", ["rescue_static", pytest.param(
     # a booting ArduPlane's SERIAL0, the fence verified as stored and every waypoint reached: by rescue_static; a
-    # larger fence (polygons and a circle) flown round to its end on ArduPlane by the operator-world flight
+    # larger fence (polygons and a circle) flown round to its end on ArduPlane by fuseplan serve's ArduPlane test (the
+    # operator-world course)
     "large_obstacle_field", marks=pytest.mark.slow(covered_by=(
         "test_plane_scenarios_fly_on_arduplane_with_default_options[rescue_static]",
-        "sitl/test_operator_world_flight.py::"
-        "test_arduplane_flies_round_the_fence_and_to_the_goal_the_operator_uploaded"))), pytest.param(
+        "sitl/test_serve_arduplane.py::"
+        "test_serve_on_arduplane_replaces_flies_and_survives_a_reboot"))), pytest.param(
     # a booting ArduPlane's SERIAL0 by the two above; rescue_dynamic flown on ArduPlane to its end with defaults, its
     # intruder reported, by test_vehicle_facts.py (ROLL_LIMIT_DEG / WP_LOITER_RAD) and crossing_traffic below
     "rescue_dynamic", marks=pytest.mark.slow(covered_by=(

@@ -78,15 +78,15 @@ def test_the_plan_and_the_hold_follow_roll_limit_and_wp_loiter_rad(sitl_factory_
     radius of every hold circle it commands (the plane is held while the replanned mission is swapped in)."""
     scenario = SCENARIOS / "rescue_dynamic.toml"
     sc = load_scenario(scenario)
-    sitl = sitl_factory_fn("plane", sc.home, speedup=10.0)
+    sitl = sitl_factory_fn("plane", sc.home, speedup=20.0)
     _set_params(sitl.serial0_url, {"ROLL_LIMIT_DEG": 30.0, "WP_LOITER_RAD": 120.0, "NAVL1_PERIOD": 20.0})
     report = tmp_path / "rep"
     with sitl.hold_serial0():
-        # the limits and the holds are what is tested, not the flight's end: the first hold comes some 8 s after the
-        # start, while the flight may take long (once it circled a 120-m hold for 60 s and more, each exit refused
-        # 7-10 m from cylinders[0] and planned again), so it is supervised for at most 25 s (exit 5 then)
+        # the limits and the holds are what is tested, not the flight's end: the first hold came 4 s after the start
+        # at 10x, while the flight may take long (once it circled a 120-m hold for 60 s and more, each exit refused
+        # 7-10 m from cylinders[0] and planned again), so it is flown at 20x and supervised for 12 s (exit 5 then)
         code = main(["fly", str(scenario), "--connect", sitl.serial1_url, "--arm", "--report", str(report), "-q",
-                     "--traffic", sitl.serial2_url, "--flight-timeout", "25"])
+                     "--traffic", sitl.serial2_url, "--flight-timeout", "12"])
     events = _events(report)
     limits = next(e for e in events if e["event"] == "vehicle_limits")
     assert limits["read"]["ROLL_LIMIT_DEG"] == 30.0 and limits["loiter_radius"] == 120.0
