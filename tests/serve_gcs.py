@@ -5,11 +5,14 @@ companion's STATUSTEXT lines; and the service's configuration file."""
 from __future__ import annotations
 
 import asyncio
+import json
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
 import gcs_world
+import numpy as np
+from operator_course import D_COLL, GOAL, POLYGONS, track_clearance
 from pymavlink.dialects.v20 import common as mavlink
 
 from companion.flight.supervisor import FlightSupervisor
@@ -19,7 +22,8 @@ from companion.mavlink.link import Link
 from companion.mavlink.protocol import MissionClient
 from companion.mavlink.statustext import Reassembler
 from companion.mission.events import EventLog
-from companion.service import MAV_COMP_ID_PATHPLANNER
+from companion.service import MAV_COMP_ID_PATHPLANNER, Handled, Service
+from companion.service.serve import mission_key
 from planner.world.home import Home
 
 
@@ -110,3 +114,46 @@ class GroundStation:
                     return t, text
             await asyncio.sleep(0.05)
         raise AssertionError(f"no matching STATUSTEXT within {timeout:g} s; lines: {[s for _, s in self.lines]}")
+
+
+async def verdict(service: Service, n: int) -> Handled:
+    """Request ``n`` (from 0) once decided (the route is read back once more after the line)."""
+    for _ in range(100):
+        if len(service.handled) > n and service.handled[n].verdict:
+            return service.handled[n]
+        await asyncio.sleep(0.05)
+    raise AssertionError(f"request {n + 1} undecided: {service.handled}")
+
+
+async def replaced(gcs: GroundStation, service: Service, mission: list, fence: list | None,
+                   home_at_zero: bool) -> dict[str, float]:
+    """Upload; wait for the companion's line; check the vehicle holds the route (``home_at_zero``: ArduPilot's
+    item 0). The times after the upload."""
+    n = len(service.handled)
+    stored = await gcs.upload(mission, fence)
+    t_line, text = await gcs.line(lambda s: "uploaded and verified" in s, stored, 20.0)
+    _, accepted = await gcs.line(lambda s: "plan accepted" in s, stored, 1.0)
+    handled = await verdict(service, n)
+    assert handled.verdict == "accepted", handled
+    got = await gcs.client.download(MISSION)
+    assert mission_key(got, home_at_zero) != mission_key(mission, home_at_zero) and len(got) > len(mission)
+    times = {"replaced_s": round(handled.done_at - stored, 2), "told_s": round(t_line - stored, 2)}
+    print(f"{times} {accepted!r} {text!r}")
+    return times
+
+
+def flown_round_the_zones(report: Path, goal_within_m: float) -> None:
+    """As the operator-world flight checks it: the fence's five zones read from the vehicle, no fence uploaded,
+    the telemetry track clear of every zone by d_coll (the polygons and the circle, checked here independently),
+    and the goal reached."""
+    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
+    world = next(e for e in events if e["event"] == "vehicle_world")
+    assert len(world["zones"]) == len(POLYGONS) + 1 and world["goal"] is not None
+    flight = json.loads((report / "flight.json").read_text())
+    assert flight["fence_items"] == 0 and flight["track_source"] == "GLOBAL_POSITION_INT"
+    flown = np.array([[e["x"], e["y"]] for e in events if e["event"] == "position"])
+    assert len(flown) > 20
+    gaps = track_clearance(flown)
+    print(f"by zone {gaps}")
+    assert min(gaps.values()) >= D_COLL, gaps
+    assert np.hypot(*(flown[-1] - np.asarray(GOAL))) < goal_within_m  # it got there

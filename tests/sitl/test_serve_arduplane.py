@@ -12,64 +12,19 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import json
 import time
 from pathlib import Path
 
-import numpy as np
-from operator_course import D_COLL, GOAL, POLYGONS, base_scenario, fence_items, track_clearance
+from operator_course import D_COLL, base_scenario, fence_items
 from pymavlink.dialects.v20 import common as mavlink
-from serve_gcs import GroundStation, two_item_mission, write_config
+from serve_gcs import GroundStation, flown_round_the_zones, replaced, two_item_mission, write_config
 
-from companion.mavlink.items import MISSION
-from companion.service import Handled, Service, load_config
-from companion.service.serve import mission_key
+from companion.service import Service, load_config
 from planner.world.home import Home
 
 HOME = Home(-35.363261, 149.165230, 584.0)
 FAST = 20.0
 REPLACED_WITHIN_S = 5.0
-
-
-async def _verdict(service: Service, n: int) -> Handled:
-    """Request ``n`` (from 0) once decided (the route is read back once more after the line)."""
-    for _ in range(100):
-        if len(service.handled) > n and service.handled[n].verdict:
-            return service.handled[n]
-        await asyncio.sleep(0.05)
-    raise AssertionError(f"request {n + 1} undecided: {service.handled}")
-
-
-async def _replaced(gcs: GroundStation, service: Service, mission: list, fence: list | None) -> dict[str, float]:
-    """Upload; wait for the companion's line; check the vehicle holds the route. The times after the upload."""
-    n = len(service.handled)
-    stored = await gcs.upload(mission, fence)
-    t_line, text = await gcs.line(lambda s: "uploaded and verified" in s, stored, 20.0)
-    _, accepted = await gcs.line(lambda s: "plan accepted" in s, stored, 1.0)
-    handled = await _verdict(service, n)
-    assert handled.verdict == "accepted", handled
-    got = await gcs.client.download(MISSION)
-    assert mission_key(got, True) != mission_key(mission, True) and len(got) > len(mission)
-    times = {"replaced_s": round(handled.done_at - stored, 2), "told_s": round(t_line - stored, 2)}
-    print(f"{times} {accepted!r} {text!r}")
-    return times
-
-
-def _flown_round_the_zones(report: Path, goal_within_m: float) -> None:
-    """As the operator-world flight checks it: the fence's five zones read from the vehicle, no fence uploaded,
-    the telemetry track clear of every zone by d_coll (the polygons and the circle, checked here independently),
-    and the goal reached."""
-    events = [json.loads(line) for line in (report / "events.jsonl").read_text().splitlines()]
-    world = next(e for e in events if e["event"] == "vehicle_world")
-    assert len(world["zones"]) == len(POLYGONS) + 1 and world["goal"] is not None
-    flight = json.loads((report / "flight.json").read_text())
-    assert flight["fence_items"] == 0 and flight["track_source"] == "GLOBAL_POSITION_INT"
-    flown = np.array([[e["x"], e["y"]] for e in events if e["event"] == "position"])
-    assert len(flown) > 20
-    gaps = track_clearance(flown)
-    print(f"by zone {gaps}")
-    assert min(gaps.values()) >= D_COLL, gaps
-    assert np.hypot(*(flown[-1] - np.asarray(GOAL))) < goal_within_m  # it got there
 
 
 async def _scenario(tmp_path: Path, sitl: object) -> None:
@@ -82,7 +37,8 @@ async def _scenario(tmp_path: Path, sitl: object) -> None:
             await gcs.link.wait_heartbeat(30.0)
             while service.seen is None:
                 await asyncio.sleep(0.05)
-            first = await _replaced(gcs, service, two_item_mission(HOME, True, 1180.0, 720.0), fence_items(HOME))
+            first = await replaced(gcs, service, two_item_mission(HOME, True, 1180.0, 720.0),
+                                   fence_items(HOME), True)
             assert first["replaced_s"] < REPLACED_WITHIN_S and first["told_s"] < REPLACED_WITHIN_S, first
 
             t0 = time.monotonic()
@@ -96,7 +52,7 @@ async def _scenario(tmp_path: Path, sitl: object) -> None:
                   f"clearance {flight['min_static_clearance_m']:.1f} m")
             assert flight["completed"] and flight["flown_safe"], flight
             assert flight["min_static_clearance_m"] >= D_COLL
-            _flown_round_the_zones(handled.report, 200.0)
+            flown_round_the_zones(handled.report, 200.0)
             await gcs.line(lambda s: "flight complete" in s, t0, 10.0)
 
             # the autopilot restarts: disarmed by force (it is flying its RTL), then rebooted
@@ -112,7 +68,8 @@ async def _scenario(tmp_path: Path, sitl: object) -> None:
                 await asyncio.sleep(0.1)
             print(f"reconnected {time.monotonic() - t_reboot:.1f} s after the reboot command")
             assert await gcs.link.wait_back(30.0)
-            second = await _replaced(gcs, service, two_item_mission(HOME, True, 1000.0, 800.0), None)
+            second = await replaced(gcs, service, two_item_mission(HOME, True, 1000.0, 800.0),
+                                   None, True)
             assert second["replaced_s"] < REPLACED_WITHIN_S, second
     finally:
         task.cancel()
