@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from companion.flight import HEARTBEAT_WAIT_S
+from companion.mavlink.link import DEFAULT_BAUD
 from companion.mission.events import BY_NAME, ENDINGS, Event, Tone
 from planner import cli as planner_cli
 from planner import console
@@ -191,7 +192,6 @@ def _parser() -> argparse.ArgumentParser:
 
 
 STATUS_DEFAULT = "127.0.0.1:8765"
-DEFAULT_BAUD = 57600  # SiK telemetry radios and most autopilots' TELEM ports
 
 
 def _baud_option(p: argparse.ArgumentParser) -> None:

@@ -27,7 +27,7 @@ from companion.flight.supervisor import (
 )
 from companion.mavlink.errors import CompanionError, FenceTooLarge
 from companion.mavlink.fence_capacity import capacity_params, fence_capacity
-from companion.mavlink.link import Link
+from companion.mavlink.link import DEFAULT_BAUD, Link
 from companion.mavlink.mavsdk_backend import MavsdkLink, MavsdkMissionClient
 from companion.mavlink.params import read_params
 from companion.mavlink.protocol import MissionClient
@@ -84,7 +84,7 @@ async def _rates_answered(rates: TelemetryRates) -> None:
 @dataclass
 class FlyOptions:
     connect: str | None = None  # pymavlink URL of a real autopilot / SITL
-    baud: int = 57600  # a serial --connect's baud rate (a URL's own ,BAUD wins)
+    baud: int = DEFAULT_BAUD  # a serial --connect's baud rate (a URL's own ,BAUD wins)
     sim: bool = False
     speedup: float = 1.0
     sim_loss: float = 0.0

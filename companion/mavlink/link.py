@@ -204,6 +204,9 @@ class Subscription:
         self.close()
 
 
+DEFAULT_BAUD = 57600  # a serial link's rate unless told: SiK telemetry radios and most autopilots' TELEM ports
+
+
 class Link:
     """An asyncio MAVLink connection to one autopilot.
 
@@ -218,7 +221,7 @@ class Link:
     def __init__(self, url: str, *, source_system: int = 1,
                  source_component: int = MAV_COMP_ID_ONBOARD_COMPUTER,
                  target_system: int | None = None, target_component: int | None = None,
-                 baud: int = 57600, heartbeat_interval: float = 1.0, heartbeat_timeout: float = 5.0,
+                 baud: int = DEFAULT_BAUD, heartbeat_interval: float = 1.0, heartbeat_timeout: float = 5.0,
                  reconnect_min: float = 0.5, reconnect_max: float = 8.0, open_timeout: float = 0.0,
                  dialect: ModuleType = ardupilotmega, signing_key: SigningKey | None = None,
                  tlog: Path | None = None) -> None:

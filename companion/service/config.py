@@ -26,6 +26,7 @@ from typing import Annotated
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError
 
+from companion.mavlink.link import DEFAULT_BAUD
 from planner.errors import FuseplanError, ScenarioError
 from planner.world.scenario import _from_validation_error
 
@@ -40,7 +41,7 @@ class ConfigError(FuseplanError):
 class _Link(BaseModel):
     model_config = _STRICT
     url: Annotated[str, Field(min_length=1)]
-    baud: Annotated[int, Field(ge=50, le=12_000_000)] = 57600
+    baud: Annotated[int, Field(ge=50, le=12_000_000)] = DEFAULT_BAUD
     target_system: Annotated[int, Field(ge=1, le=255)] | None = None
     heartbeat_timeout: Annotated[float, Field(gt=0, le=3600)] = 5.0
 
