@@ -8,7 +8,6 @@ that reassemble (QGroundControl, MAVProxy) show one line; the others show the pi
 
 from __future__ import annotations
 
-import asyncio
 import enum
 import logging
 import weakref
@@ -108,14 +107,3 @@ class Reassembler:
         del self._partial[key]
         return b"".join(parts[k] for k in range(len(parts))).decode("ascii", "replace")
 
-
-async def wait_for_line(link: Any, predicate: Any, timeout: float) -> str:
-    """The first whole STATUSTEXT line from anyone on ``link`` for which ``predicate(line)`` holds (tests and
-    ground-station scripts); raises TimeoutError."""
-    joiner = Reassembler()
-    async with asyncio.timeout(timeout):
-        async for msg in link.messages("STATUSTEXT", any_source=True):
-            line = joiner.feed(msg)
-            if line is not None and predicate(line):
-                return line
-    raise TimeoutError("STATUSTEXT stream ended")
